@@ -1,0 +1,146 @@
+//! TOML configuration: the service config and the per-robot files it points to, validated at load,
+//! with errors that name the file and the key (and, for syntax errors, the line and column).
+//!
+//! Layout: `config/default.toml` names a robot file (`robot = "robots/iiwa7.toml"`, relative to the
+//! config file) and holds the controller sections; a robot file names its URDF (relative to itself),
+//! the chain's root and tip links, the tool transform and the limits URDF does not carry.
+
+use std::path::{Path, PathBuf};
+
+use serde::Deserialize;
+use thiserror::Error;
+
+use crate::core::kin::{ClikConfig, Frame, RobotModel, geom};
+
+/// A configuration problem, naming the file and what in it is wrong.
+#[derive(Debug, Error)]
+#[error("{file}: {message}")]
+pub struct ConfigError {
+    /// The file (config, robot file or URDF).
+    pub file: String,
+    /// What is wrong, naming the key.
+    pub message: String,
+}
+
+impl ConfigError {
+    fn new(file: &Path, message: impl Into<String>) -> Self {
+        ConfigError { file: file.display().to_string(), message: message.into() }
+    }
+}
+
+fn read_toml<T: for<'de> Deserialize<'de>>(path: &Path) -> Result<T, ConfigError> {
+    let text = std::fs::read_to_string(path).map_err(|e| ConfigError::new(path, format!("cannot read: {e}")))?;
+    toml::from_str(&text).map_err(|e| ConfigError::new(path, e.to_string().trim_end().to_string()))
+}
+
+/// The tool: tip link (flange) → TCP at the nozzle tip. The TCP's z axis points along the nozzle, out
+/// of the tool towards the substrate.
+#[derive(Clone, Debug, Default, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct ToolConfig {
+    /// Translation (m), in the tip link's frame.
+    #[serde(default)]
+    pub xyz: [f64; 3],
+    /// Rotation as URDF roll, pitch, yaw (rad), fixed axes x then y then z.
+    #[serde(default)]
+    pub rpy: [f64; 3],
+}
+
+impl ToolConfig {
+    /// The transform tip → TCP.
+    pub fn frame(&self) -> Frame {
+        let [x, y, z] = self.xyz;
+        let [r, p, w] = self.rpy;
+        Frame::from_parts(nalgebra::Translation3::new(x, y, z), geom::rpy(r, p, w))
+    }
+}
+
+/// Joint limits that URDF does not carry, one value per joint in chain order.
+#[derive(Clone, Debug, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct DynamicLimits {
+    /// Acceleration limits (rad/s² or m/s²).
+    pub acceleration: Vec<f64>,
+    /// Jerk limits (rad/s³ or m/s³).
+    pub jerk: Vec<f64>,
+}
+
+/// A robot file.
+#[derive(Clone, Debug, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct RobotConfig {
+    /// Path of the URDF, relative to the robot file.
+    pub urdf: PathBuf,
+    /// Root link of the chain: the robot base frame B.
+    pub root_link: String,
+    /// Tip link of the chain: the flange.
+    pub tip_link: String,
+    /// Flange → TCP.
+    #[serde(default)]
+    pub tool: ToolConfig,
+    /// Acceleration and jerk limits.
+    pub limits: DynamicLimits,
+    /// Where the robot file was read from (set by [`RobotConfig::load`]).
+    #[serde(skip)]
+    pub file: PathBuf,
+}
+
+impl RobotConfig {
+    /// Reads a robot file.
+    pub fn load(path: &Path) -> Result<Self, ConfigError> {
+        let mut cfg: RobotConfig = read_toml(path)?;
+        cfg.file = path.to_path_buf();
+        for (key, v) in [("tool.xyz", cfg.tool.xyz), ("tool.rpy", cfg.tool.rpy)] {
+            if v.iter().any(|x| !x.is_finite()) {
+                return Err(ConfigError::new(path, format!("{key}: values must be finite")));
+            }
+        }
+        Ok(cfg)
+    }
+
+    /// The URDF path, resolved against the robot file's folder.
+    pub fn urdf_path(&self) -> PathBuf {
+        self.file.parent().unwrap_or(Path::new(".")).join(&self.urdf)
+    }
+
+    /// Loads the URDF and builds the chain with the tool and all limits.
+    pub fn build_model(&self) -> Result<RobotModel, ConfigError> {
+        let urdf = self.urdf_path();
+        let model = RobotModel::from_urdf_file(&urdf, &self.root_link, &self.tip_link).map_err(|e| ConfigError { file: self.file.display().to_string(), message: format!("urdf: {e}") })?;
+        let in_file = |e: crate::core::kin::ModelError| ConfigError::new(&self.file, e.to_string());
+        model.with_tool(self.tool.frame()).map_err(in_file)?.with_dynamic_limits(&self.limits.acceleration, &self.limits.jerk, ("limits.acceleration", "limits.jerk")).map_err(in_file)
+    }
+}
+
+/// The service configuration (grows with the controller).
+#[derive(Clone, Debug, PartialEq)]
+pub struct Config {
+    /// Where it was read from.
+    pub file: PathBuf,
+    /// The robot.
+    pub robot: RobotConfig,
+    /// CLIK tuning.
+    pub clik: ClikConfig,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct ConfigFile {
+    robot: PathBuf,
+    #[serde(default)]
+    clik: ClikConfig,
+}
+
+impl Config {
+    /// Reads and validates a config file and the robot file it names.
+    pub fn load(path: &Path) -> Result<Self, ConfigError> {
+        let raw: ConfigFile = read_toml(path)?;
+        raw.clik.validate().map_err(|m| ConfigError::new(path, m))?;
+        let robot_path = path.parent().unwrap_or(Path::new(".")).join(&raw.robot);
+        if !robot_path.is_file() {
+            return Err(ConfigError::new(path, format!("robot: no robot file at {}", robot_path.display())));
+        }
+        let robot = RobotConfig::load(&robot_path)?;
+        Ok(Config { file: path.to_path_buf(), robot, clik: raw.clik })
+    }
+}

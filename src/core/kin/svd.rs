@@ -1,0 +1,210 @@
+//! Singular value decomposition of a small task Jacobian (m ≤ 6 rows, n ≤ 8 columns) by one-sided
+//! Jacobi rotations (Hestenes), on the stack, with a fixed sweep cap so its cost per tick is bounded.
+//!
+//! Why not nalgebra's SVD: this one is generic over the row count at run time (6-D pose and 5-D
+//! printing tasks share it), computes tiny singular values to high *relative* accuracy (which is what
+//! the singularity damping and the manipulability gradient look at), and can start from the previous
+//! tick's left vectors, which makes it converge in one or two sweeps while the arm moves smoothly.
+//! The result does not depend on the start, beyond the last bits; the controller always passes the
+//! same start for the same history, so replay stays bit-exact.
+
+use super::model::MAX_JOINTS;
+
+/// Largest task dimension.
+pub const MAX_TASK: usize = 6;
+
+/// J = Σ_k σ_k u_k v_kᵀ, k < m, with σ sorted from largest to smallest.
+#[derive(Clone, Copy, Debug)]
+pub struct Svd {
+    /// Rows of the decomposed matrix (task dimension).
+    pub m: usize,
+    /// Columns (joints).
+    pub n: usize,
+    /// Singular values, descending; entries ≥ m are 0.
+    pub sigma: [f64; MAX_TASK],
+    /// Left singular vectors: `u[k]` is u_k (length m).
+    pub u: [[f64; MAX_TASK]; MAX_TASK],
+    /// Right singular vectors: `v[k]` is v_k (length n); zero where σ_k = 0.
+    pub v: [[f64; MAX_JOINTS]; MAX_TASK],
+    /// Jacobi sweeps used.
+    pub sweeps: u32,
+}
+
+/// Sweep cap: one-sided Jacobi converges quadratically, and 6 × 8 problems from a cold start need
+/// 5–7 sweeps; 30 is never reached in practice but bounds the tick.
+const MAX_SWEEPS: u32 = 30;
+
+#[inline]
+fn dot(a: &[f64; MAX_JOINTS], b: &[f64; MAX_JOINTS]) -> f64 {
+    let mut s = 0.0;
+    for k in 0..MAX_JOINTS {
+        s += a[k] * b[k];
+    }
+    s
+}
+
+/// The identity start for [`svd`].
+pub fn identity_start() -> [[f64; MAX_TASK]; MAX_TASK] {
+    let mut w = [[0.0; MAX_TASK]; MAX_TASK];
+    for (k, row) in w.iter_mut().enumerate() {
+        row[k] = 1.0;
+    }
+    w
+}
+
+/// Decomposes the m × n matrix whose rows are `rows[..m]` (entries past n must be 0).
+/// `start` is an orthogonal m × m matrix (columns `start[k]`) to begin from: the identity, or the
+/// left vectors `u` of a previous, nearby decomposition.
+pub fn svd(rows: &[[f64; MAX_JOINTS]; MAX_TASK], m: usize, n: usize, start: &[[f64; MAX_TASK]; MAX_TASK]) -> Svd {
+    debug_assert!(m <= MAX_TASK && n <= MAX_JOINTS);
+    // Columns of Jᵀ W: b_k = Σ_r W[r][k] · row_r. Orthogonalising them gives Jᵀ W = V Σ, so J = W Σ Vᵀ.
+    let mut w = *start;
+    let mut b = [[0.0; MAX_JOINTS]; MAX_TASK];
+    for k in 0..m {
+        for r in 0..m {
+            let c = w[k][r];
+            if c != 0.0 {
+                for j in 0..MAX_JOINTS {
+                    b[k][j] += c * rows[r][j];
+                }
+            }
+        }
+    }
+    let mut norms = [0.0; MAX_TASK];
+    for k in 0..m {
+        norms[k] = dot(&b[k], &b[k]);
+    }
+    let mut sweeps = 0;
+    while sweeps < MAX_SWEEPS {
+        sweeps += 1;
+        let mut rotated = false;
+        for p in 0..m {
+            for q in p + 1..m {
+                let (alpha, beta) = (norms[p], norms[q]);
+                let gamma = dot(&b[p], &b[q]);
+                if gamma == 0.0 || gamma.abs() <= 1e-15 * (alpha * beta).sqrt() {
+                    continue;
+                }
+                rotated = true;
+                let zeta = (beta - alpha) / (2.0 * gamma);
+                let t = zeta.signum() / (zeta.abs() + (1.0 + zeta * zeta).sqrt());
+                let c = 1.0 / (1.0 + t * t).sqrt();
+                let s = c * t;
+                for j in 0..MAX_JOINTS {
+                    let (x, y) = (b[p][j], b[q][j]);
+                    b[p][j] = c * x - s * y;
+                    b[q][j] = s * x + c * y;
+                }
+                for r in 0..m {
+                    let (x, y) = (w[p][r], w[q][r]);
+                    w[p][r] = c * x - s * y;
+                    w[q][r] = s * x + c * y;
+                }
+                // Exact updates of the squared norms keep the rotation test cheap; recompute to avoid drift.
+                norms[p] = dot(&b[p], &b[p]);
+                norms[q] = dot(&b[q], &b[q]);
+            }
+        }
+        if !rotated {
+            break;
+        }
+    }
+    let mut out = Svd { m, n, sigma: [0.0; MAX_TASK], u: [[0.0; MAX_TASK]; MAX_TASK], v: [[0.0; MAX_JOINTS]; MAX_TASK], sweeps };
+    // Sort by descending σ (insertion sort over at most 6 entries; ties keep their order).
+    let mut order = [0usize, 1, 2, 3, 4, 5];
+    for i in 1..m {
+        let mut k = i;
+        while k > 0 && norms[order[k - 1]] < norms[order[k]] {
+            order.swap(k - 1, k);
+            k -= 1;
+        }
+    }
+    for (dst, &src) in order[..m].iter().enumerate() {
+        let s = norms[src].sqrt();
+        out.sigma[dst] = s;
+        out.u[dst] = w[src];
+        if s > 0.0 {
+            for j in 0..n {
+                out.v[dst][j] = b[src][j] / s;
+            }
+        }
+    }
+    out
+}
+
+impl Svd {
+    /// Smallest singular value σ_{m−1}.
+    #[inline]
+    pub fn sigma_min(&self) -> f64 {
+        if self.m == 0 { 0.0 } else { self.sigma[self.m - 1] }
+    }
+
+    /// Yoshikawa manipulability √det(J Jᵀ) = Π σ_k.
+    #[inline]
+    pub fn manipulability(&self) -> f64 {
+        self.sigma[..self.m].iter().product()
+    }
+
+    /// Condition number σ_max / σ_min (∞ at a singularity).
+    pub fn condition(&self) -> f64 {
+        if self.sigma_min() > 0.0 { self.sigma[0] / self.sigma_min() } else { f64::INFINITY }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn reconstruct(s: &Svd, r: usize, c: usize) -> f64 {
+        (0..s.m).map(|k| s.sigma[k] * s.u[k][r] * s.v[k][c]).sum()
+    }
+
+    #[test]
+    fn decomposes_a_known_matrix() {
+        let mut rows = [[0.0; MAX_JOINTS]; MAX_TASK];
+        let mut seed = 12345u64;
+        for r in rows.iter_mut() {
+            for x in r.iter_mut().take(7) {
+                seed = seed.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+                *x = ((seed >> 11) as f64 / (1u64 << 53) as f64) - 0.5;
+            }
+        }
+        for m in [5, 6] {
+            let s = svd(&rows, m, 7, &identity_start());
+            for r in 0..m {
+                for c in 0..7 {
+                    assert!((reconstruct(&s, r, c) - rows[r][c]).abs() < 1e-14);
+                }
+            }
+            for a in 0..m {
+                for b in 0..m {
+                    let uu: f64 = (0..m).map(|r| s.u[a][r] * s.u[b][r]).sum();
+                    let vv: f64 = (0..7).map(|j| s.v[a][j] * s.v[b][j]).sum();
+                    let e = if a == b { 1.0 } else { 0.0 };
+                    assert!((uu - e).abs() < 1e-14 && (vv - e).abs() < 1e-14);
+                }
+            }
+            for k in 1..m {
+                assert!(s.sigma[k - 1] >= s.sigma[k]);
+            }
+            // Warm start from the result converges at once.
+            let again = svd(&rows, m, 7, &s.u);
+            assert!(again.sweeps <= 2, "{}", again.sweeps);
+            for k in 0..m {
+                assert!((again.sigma[k] - s.sigma[k]).abs() < 1e-14);
+            }
+        }
+    }
+
+    #[test]
+    fn rank_deficient_has_zero_singular_value_and_no_nan() {
+        let mut rows = [[0.0; MAX_JOINTS]; MAX_TASK];
+        rows[0][0] = 1.0;
+        rows[1][1] = 2.0;
+        rows[2] = rows[0]; // duplicate row
+        let s = svd(&rows, 3, 2, &identity_start());
+        assert_eq!(s.sigma[2], 0.0);
+        assert!((s.sigma[0] - 2.0).abs() < 1e-15 && (s.sigma[1] - 2f64.sqrt()).abs() < 1e-15);
+        assert!(s.v.iter().flatten().all(|x| x.is_finite()));
+    }
+}

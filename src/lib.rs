@@ -1,0 +1,7 @@
+//! strand: a real-time streaming motion controller for robot-arm additive manufacturing.
+//!
+//! The deterministic core (`core`) sits inside an I/O shell; see DESIGN.md. Units are SI inside
+//! (m, rad, s); quaternions are (w, x, y, z).
+
+pub mod config;
+pub mod core;
