@@ -106,9 +106,14 @@ impl RobotConfig {
     /// Loads the URDF and builds the chain with the tool and all limits.
     pub fn build_model(&self) -> Result<RobotModel, ConfigError> {
         let urdf = self.urdf_path();
-        let model = RobotModel::from_urdf_file(&urdf, &self.root_link, &self.tip_link).map_err(|e| ConfigError { file: self.file.display().to_string(), message: format!("urdf: {e}") })?;
+        let model = RobotModel::from_urdf_file(&urdf, &self.root_link, &self.tip_link)
+            .map_err(|e| ConfigError { file: self.file.display().to_string(), message: format!("urdf: {e}") })?;
         let in_file = |e: crate::core::kin::ModelError| ConfigError::new(&self.file, e.to_string());
-        model.with_tool(self.tool.frame()).map_err(in_file)?.with_dynamic_limits(&self.limits.acceleration, &self.limits.jerk, ("limits.acceleration", "limits.jerk")).map_err(in_file)
+        model
+            .with_tool(self.tool.frame())
+            .map_err(in_file)?
+            .with_dynamic_limits(&self.limits.acceleration, &self.limits.jerk, ("limits.acceleration", "limits.jerk"))
+            .map_err(in_file)
     }
 }
 

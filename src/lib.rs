@@ -3,5 +3,8 @@
 //! The deterministic core (`core`) sits inside an I/O shell; see DESIGN.md. Units are SI inside
 //! (m, rad, s); quaternions are (w, x, y, z).
 
+// Index loops read like the matrix formulas they implement; iterator chains would hide the indices.
+#![allow(clippy::needless_range_loop)]
+
 pub mod config;
 pub mod core;

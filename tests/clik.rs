@@ -21,10 +21,7 @@ fn shapes(model: &RobotModel, q0: &JointVector) -> [(&'static str, Shape, f64); 
     let (length, radius) = if big { (0.10, 0.03) } else { (0.06, 0.02) };
     let inward = Vector3::new(-p0.x, -p0.y, 0.0).normalize();
     let d = (inward + Vector3::new(0.0, 0.0, 0.4) + inward.cross(&Vector3::z()) * 0.5).normalize();
-    [
-        ("line", Shape::Line { dir: d, length }, 3.0),
-        ("circle", Shape::Circle { a: Vector3::x(), b: Vector3::y(), radius }, 4.0),
-    ]
+    [("line", Shape::Line { dir: d, length }, 3.0), ("circle", Shape::Circle { a: Vector3::x(), b: Vector3::y(), radius }, 4.0)]
 }
 
 fn start(name: &str) -> JointVector {
@@ -53,7 +50,12 @@ fn tracks_lines_and_circles_to_a_micrometre_at_1khz() {
             if let Some(bad) = r.steps.iter().find(|s| !s.status.is_ok()) {
                 panic!("{label}: {} steps flagged, first {bad:?}", r.flagged);
             }
-            assert!(r.max_speed_ratio <= 1.0 && r.max_accel_ratio <= 1.0 + 1e-9, "{label}: limits {} {}", r.max_speed_ratio, r.max_accel_ratio);
+            assert!(
+                r.max_speed_ratio <= 1.0 && r.max_accel_ratio <= 1.0 + 1e-9,
+                "{label}: limits {} {}",
+                r.max_speed_ratio,
+                r.max_accel_ratio
+            );
         }
     }
 }
@@ -68,7 +70,10 @@ fn print5_uses_the_free_roll_to_raise_manipulability() {
         nalgebra::Translation3::new(0.05, 0.0, 0.03),
         strand::core::kin::geom::rpy(0.0, std::f64::consts::FRAC_PI_2 - 0.6, 0.0),
     ));
-    let cases = [("iiwa7", robot("iiwa7"), jv(&[0.2, 0.6, 1.4, -1.3, 0.2, 0.9, 0.3])), ("vp6242 tilted nozzle", tilted.unwrap(), jv(&[0.1, 0.3, 1.7, 0.6, 0.5, 0.2]))];
+    let cases = [
+        ("iiwa7", robot("iiwa7"), jv(&[0.2, 0.6, 1.4, -1.3, 0.2, 0.9, 0.3])),
+        ("vp6242 tilted nozzle", tilted.unwrap(), jv(&[0.1, 0.3, 1.7, 0.6, 0.5, 0.2])),
+    ];
     for (label, model, q0) in cases {
         let mut solver = clik(Task::Print5);
         let r = track(&model, &mut solver, q0, Shape::Line { dir: Vector3::x(), length: 0.0 }, 4.0, 1000.0);
@@ -144,7 +149,11 @@ fn hold(model: &RobotModel, solver: &mut Clik, q0: JointVector, target: TcpTarge
         for i in 0..model.dof() {
             let l = model.limits(i);
             assert!(step.qd[i].abs() <= l.velocity * (1.0 + 1e-12), "tick {k}: joint {i} speed");
-            assert!((step.qd[i] - qd_prev[i]).abs() / 1e-3 <= l.acceleration * (1.0 + 1e-9), "tick {k}: joint {i} accel {}", (step.qd[i] - qd_prev[i]).abs() / 1e-3);
+            assert!(
+                (step.qd[i] - qd_prev[i]).abs() / 1e-3 <= l.acceleration * (1.0 + 1e-9),
+                "tick {k}: joint {i} accel {}",
+                (step.qd[i] - qd_prev[i]).abs() / 1e-3
+            );
         }
         qd_prev = step.qd;
         q = step.q;

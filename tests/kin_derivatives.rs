@@ -3,10 +3,17 @@
 
 mod common;
 
-use common::{ROBOTS, Rng, robot};
+use common::{ROBOTS, Rng, rail_arm, robot};
 use strand::core::kin::{ChainState, JointVector, RobotModel, Task, TaskJacobian, geom, manipulability, manipulability_gradient};
 
 const H: f64 = 1e-6;
+
+/// The five bundled robots and the synthetic rail-mounted arm (prismatic and continuous joints).
+fn models() -> Vec<(String, RobotModel)> {
+    let mut v: Vec<(String, RobotModel)> = ROBOTS.iter().map(|n| (n.to_string(), robot(n))).collect();
+    v.push(("rail_arm".into(), rail_arm()));
+    v
+}
 const CONFIGS: usize = 40;
 
 fn perturbed(q: &JointVector, i: usize, h: f64) -> JointVector {
@@ -24,8 +31,7 @@ fn state(model: &RobotModel, q: &JointVector) -> ChainState {
 #[test]
 fn jacobian_matches_finite_differences() {
     let mut rng = Rng(1);
-    for name in ROBOTS {
-        let model = robot(name);
+    for (name, model) in models() {
         let mut worst: f64 = 0.0;
         for _ in 0..CONFIGS {
             let q = rng.config(&model, 0.02);
@@ -45,8 +51,7 @@ fn jacobian_matches_finite_differences() {
 #[test]
 fn hessian_slices_match_finite_differences() {
     let mut rng = Rng(2);
-    for name in ROBOTS {
-        let model = robot(name);
+    for (name, model) in models() {
         let mut worst: f64 = 0.0;
         for _ in 0..CONFIGS {
             let q = rng.config(&model, 0.02);
@@ -63,8 +68,7 @@ fn hessian_slices_match_finite_differences() {
 #[test]
 fn manipulability_gradient_matches_finite_differences_for_both_tasks() {
     let mut rng = Rng(3);
-    for name in ROBOTS {
-        let model = robot(name);
+    for (name, model) in models() {
         for task in [Task::Pose6, Task::Print5] {
             let mut worst: f64 = 0.0;
             for _ in 0..CONFIGS {

@@ -52,3 +52,29 @@ pub fn jv(values: &[f64]) -> JointVector {
     q.as_mut_slice()[..values.len()].copy_from_slice(values);
     q
 }
+
+/// A 7-joint chain no bundled robot has: a prismatic rail along x carrying a 6-axis arm whose first
+/// and last joints are continuous and whose axes are skewed, so FK, the Jacobian and its derivative
+/// are exercised on every joint type and on non-principal axes.
+pub fn rail_arm() -> RobotModel {
+    let urdf = r#"<robot name="rail_arm">
+  <link name="floor"/><link name="carriage"/><link name="l1"/><link name="l2"/><link name="l3"/><link name="l4"/><link name="l5"/><link name="l6"/><link name="flange"/>
+  <joint name="rail" type="prismatic"><parent link="floor"/><child link="carriage"/><origin xyz="0 0 0.05"/><axis xyz="1 0 0"/><limit lower="0" upper="2.0" velocity="0.5"/></joint>
+  <joint name="j1" type="continuous"><parent link="carriage"/><child link="l1"/><origin xyz="0 0 0.3"/><axis xyz="0 0 1"/><limit velocity="2"/></joint>
+  <joint name="j2" type="revolute"><parent link="l1"/><child link="l2"/><origin xyz="0.05 0 0.2" rpy="0.1 0 0"/><axis xyz="0 1 0"/><limit lower="-2" upper="2" velocity="2"/></joint>
+  <joint name="j3" type="revolute"><parent link="l2"/><child link="l3"/><origin xyz="0 0 0.35"/><axis xyz="0 1 0.2"/><limit lower="-2.5" upper="2.5" velocity="2"/></joint>
+  <joint name="j4" type="revolute"><parent link="l3"/><child link="l4"/><origin xyz="0.3 0 0.02" rpy="0 0.2 0"/><axis xyz="1 0 0"/><limit lower="-3" upper="3" velocity="3"/></joint>
+  <joint name="j5" type="revolute"><parent link="l4"/><child link="l5"/><origin xyz="0.05 0 0"/><axis xyz="0 1 0"/><limit lower="-2" upper="2" velocity="3"/></joint>
+  <joint name="j6" type="continuous"><parent link="l5"/><child link="l6"/><origin xyz="0.06 0 0"/><axis xyz="1 0 0"/><limit velocity="4"/></joint>
+  <joint name="f" type="fixed"><parent link="l6"/><child link="flange"/><origin xyz="0.01 0 0" rpy="0 1.5707963267948966 0"/></joint>
+</robot>"#;
+    RobotModel::from_urdf_str(urdf, "rail_arm.urdf", "floor", "flange")
+        .unwrap()
+        .with_tool(strand::core::kin::Frame::from_parts(
+            nalgebra::Translation3::new(0.0, 0.01, 0.08),
+            strand::core::kin::geom::rpy(0.05, 0.0, 0.0),
+        ))
+        .unwrap()
+        .with_dynamic_limits(&[2.0, 10.0, 10.0, 10.0, 20.0, 20.0, 20.0], &[20.0, 100.0, 100.0, 100.0, 200.0, 200.0, 200.0], ("acc", "jerk"))
+        .unwrap()
+}

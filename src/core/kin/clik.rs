@@ -154,12 +154,15 @@ pub struct ClikStatus {
     pub near_singular: bool,
     /// A joint was held at a position bound, or joints had to be clamped one by one.
     pub at_limit: bool,
+    /// The target (or dt) held a non-finite number, or the solve produced one: the step ignored the
+    /// target and braked within the acceleration limits instead.
+    pub invalid_input: bool,
 }
 
 impl ClikStatus {
     /// No flag set.
     pub fn is_ok(&self) -> bool {
-        !(self.scaled || self.near_singular || self.at_limit)
+        !(self.scaled || self.near_singular || self.at_limit || self.invalid_input)
     }
 }
 
@@ -208,8 +211,10 @@ fn damping_sq(sigma: f64, eps: f64, lambda_max: f64) -> f64 {
 
 /// Velocity bounds (lower, upper) that keep joint i inside [lo, hi] this tick and able to brake at
 /// `acc` before reaching either bound. `q` outside the range yields a bound that moves it back.
-fn position_velocity_bounds(q: f64, lo: f64, hi: f64, acc: f64, dt: f64) -> (f64, f64) {
-    let brake = |d: f64| braking_speed(d, acc, dt);
+fn position_velocity_bounds(q: f64, lo: f64, hi: f64, vmax: f64, acc: f64, dt: f64) -> (f64, f64) {
+    // Farther from a limit than a stop from full speed needs, position does not bound the speed.
+    let free = vmax * vmax / (2.0 * acc) + vmax * dt;
+    let brake = |d: f64| if d > free { f64::INFINITY } else { braking_speed(d, acc, dt) };
     let upper = if !hi.is_finite() {
         f64::INFINITY
     } else if q <= hi {
@@ -285,11 +290,43 @@ impl Clik {
         &self.state
     }
 
-    /// One tick: from the current command `q` (rad or m) towards `target`, over `dt` seconds.
+    /// One tick: from the current command `q` (rad or m; finite, within limits: it is the controller's
+    /// own last command) towards `target`, over `dt` seconds (> 0). A target holding NaN or ±∞ is not
+    /// followed: the arm brakes at its acceleration limits and `invalid_input` is set. The returned
+    /// command is always finite and within the position limits.
     pub fn step(&mut self, model: &RobotModel, q: &JointVector, target: &TcpTarget, dt: f64) -> ClikStep {
         let cfg = self.config;
         let n = model.dof();
+        debug_assert!(q.iter().all(|x| x.is_finite()), "CLIK needs a finite q");
         model.kinematics(q, &mut self.state);
+        let finite = |v: &Vector3<f64>| v.iter().all(|x| x.is_finite());
+        let target_ok = finite(&target.position)
+            && finite(&target.linear_velocity)
+            && finite(&target.angular_velocity)
+            && target.orientation.coords.iter().all(|x| x.is_finite());
+        if !(dt.is_finite() && dt > 0.0) {
+            // Without a tick length nothing can be integrated: hold, and say so.
+            self.qd_prev = JointVector::zeros();
+            return ClikStep {
+                q: *q,
+                qd: JointVector::zeros(),
+                scale: 0.0,
+                status: ClikStatus { invalid_input: true, ..ClikStatus::default() },
+                sigma_min: 0.0,
+                manipulability: 0.0,
+                damping: 0.0,
+                position_error: 0.0,
+                orientation_error: 0.0,
+                saturated: 0,
+            };
+        }
+        let hold;
+        let target = if target_ok {
+            target
+        } else {
+            hold = TcpTarget::at_rest(self.state.tcp.translation.vector, UnitQuaternion::from_rotation_matrix(&self.state.tcp.rotation));
+            &hold
+        };
         let state = &self.state;
         let tj = TaskJacobian::new(state, cfg.task);
         let m = tj.m;
@@ -357,7 +394,7 @@ impl Clik {
         let mut hi = [0.0; MAX_JOINTS];
         for i in 0..n {
             let l = model.limits(i);
-            let (a, b) = position_velocity_bounds(q[i], l.lower, l.upper, l.acceleration, dt);
+            let (a, b) = position_velocity_bounds(q[i], l.lower, l.upper, l.velocity, l.acceleration, dt);
             pos_lo[i] = a;
             pos_hi[i] = b;
             let acc_step = l.acceleration * dt;
@@ -370,8 +407,8 @@ impl Clik {
         // held at the bound and the task re-solved with the others, most-violating joint first.
         let mut saturated: u8 = 0;
         let mut sat_value = JointVector::zeros();
-        let mut solve_tj = tj;
-        let mut solve_svd = s0;
+        // The reduced problem (saturated columns removed), made only once a joint saturates.
+        let mut reduced: Option<(TaskJacobian, Svd)> = None;
         let mut qd;
         let mut lambda_min_sq;
         loop {
@@ -385,7 +422,8 @@ impl Clik {
                     qd0_k[j] = 0.0;
                 }
             }
-            let (v, lam) = damped_solve(&solve_svd, &rhs_k, &qd0_k, cfg.sigma_threshold, cfg.damping_max, n);
+            let solve_svd = reduced.as_ref().map_or(&s0, |r| &r.1);
+            let (v, lam) = damped_solve(solve_svd, &rhs_k, &qd0_k, cfg.sigma_threshold, cfg.damping_max, n);
             qd = v;
             lambda_min_sq = lam;
             let mut worst: Option<(usize, f64, f64)> = None;
@@ -412,8 +450,10 @@ impl Clik {
                 Some((i, _, bound)) if (saturated.count_ones() as usize) + 1 < n => {
                     saturated |= 1 << i;
                     sat_value[i] = bound;
+                    let mut solve_tj = reduced.map_or(tj, |r| r.0);
                     solve_tj.remove_column(i);
-                    solve_svd = svd(&solve_tj.rows, m, n, &s0.u);
+                    let solve_svd = svd(&solve_tj.rows, m, n, &s0.u);
+                    reduced = Some((solve_tj, solve_svd));
                 }
                 Some((i, _, bound)) => {
                     saturated |= 1 << i;
@@ -438,7 +478,12 @@ impl Clik {
                 s_lo = f64::INFINITY;
             }
         }
-        let mut status = ClikStatus { near_singular: s0.sigma_min() < cfg.sigma_threshold, at_limit: saturated != 0, scaled: false };
+        let mut status = ClikStatus {
+            near_singular: s0.sigma_min() < cfg.sigma_threshold,
+            at_limit: saturated != 0,
+            scaled: false,
+            invalid_input: !target_ok,
+        };
         let scale;
         if s_lo <= s_hi {
             scale = s_hi.max(0.0);
@@ -453,6 +498,13 @@ impl Clik {
             status.at_limit = true;
         }
         status.scaled = scale < 1.0;
+        if qd.iter().any(|x| !x.is_finite()) {
+            // Cannot happen with finite inputs; if it ever does, brake rather than publish a NaN.
+            for i in 0..n {
+                qd[i] = 0.0f64.clamp(lo[i].min(hi[i]), hi[i].max(lo[i]));
+            }
+            status.invalid_input = true;
+        }
 
         // Integrate and make sure of the position limits (rounding can leave one ulp over).
         let mut q_next = *q;
@@ -502,4 +554,36 @@ fn damped_solve(s: &Svd, rhs: &[f64; MAX_TASK], qd0: &JointVector, eps: f64, lam
         }
     }
     (qd, lambda_sq_min)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Braking from `braking_speed(d)` at most `a·dt` per tick covers at most d and ends at rest, for
+    /// distances from far below one tick's travel to many braking distances.
+    #[test]
+    fn braking_speed_is_exact_for_the_discrete_stop() {
+        for &(acc, dt) in &[(4.0, 1e-3), (15.0, 2.5e-4), (0.5, 8e-3)] {
+            for e in -9..2 {
+                for frac in [1.0, 2.7, 5.3] {
+                    let d = frac * 10f64.powi(e);
+                    let mut v = braking_speed(d, acc, dt);
+                    let mut left = d;
+                    let mut ticks = 0;
+                    while v > 0.0 {
+                        left -= v * dt;
+                        assert!(left >= -1e-12 * d.max(1.0), "overshoot {left} at a={acc} dt={dt} d={d}");
+                        let bound = braking_speed(left.max(0.0), acc, dt);
+                        assert!(v - bound <= acc * dt * (1.0 + 1e-9), "needs more than a·dt to stay in bound");
+                        v = bound.min(v);
+                        ticks += 1;
+                        assert!(ticks < 10_000_000);
+                    }
+                }
+            }
+        }
+        assert_eq!(braking_speed(0.0, 4.0, 1e-3), 0.0);
+        assert_eq!(braking_speed(-1.0, 4.0, 1e-3), 0.0);
+    }
 }

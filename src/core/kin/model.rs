@@ -89,11 +89,15 @@ pub enum ModelError {
     Read { file: String, reason: String },
     #[error("{file}: {role} link \"{link}\" is not a <link> of this robot")]
     UnknownLink { file: String, role: &'static str, link: String },
-    #[error("{file}: no chain of joints leads from root link \"{root}\" to tip link \"{tip}\" (walking up from the tip ended at \"{reached}\")")]
+    #[error(
+        "{file}: no chain of joints leads from root link \"{root}\" to tip link \"{tip}\" (walking up from the tip ended at \"{reached}\")"
+    )]
     NoPath { file: String, root: String, tip: String, reached: String },
     #[error("{file}: link \"{link}\" on the chain has two parent joints, \"{first}\" and \"{second}\": the chain branches")]
     Branch { file: String, link: String, first: String, second: String },
-    #[error("{file}: joint \"{joint}\" has type {kind}, which a serial arm chain cannot use (revolute, continuous, prismatic or fixed only)")]
+    #[error(
+        "{file}: joint \"{joint}\" has type {kind}, which a serial arm chain cannot use (revolute, continuous, prismatic or fixed only)"
+    )]
     UnsupportedJoint { file: String, joint: String, kind: String },
     #[error("{file}: joint \"{joint}\" ({kind}) has no <limit> element (or its velocity is 0)")]
     MissingLimit { file: String, joint: String, kind: &'static str },
@@ -183,7 +187,12 @@ impl RobotModel {
                     link = &j.parent.link;
                 }
                 _ => {
-                    return Err(ModelError::NoPath { file: err_file(), root: root_link.into(), tip: tip_link.into(), reached: link.into() });
+                    return Err(ModelError::NoPath {
+                        file: err_file(),
+                        root: root_link.into(),
+                        tip: tip_link.into(),
+                        reached: link.into(),
+                    });
                 }
             }
         }
@@ -202,7 +211,11 @@ impl RobotModel {
                 urdf_rs::JointType::Continuous => JointKind::Continuous,
                 urdf_rs::JointType::Prismatic => JointKind::Prismatic,
                 ref other => {
-                    return Err(ModelError::UnsupportedJoint { file: err_file(), joint: j.name.clone(), kind: format!("{other:?}").to_lowercase() });
+                    return Err(ModelError::UnsupportedJoint {
+                        file: err_file(),
+                        joint: j.name.clone(),
+                        kind: format!("{other:?}").to_lowercase(),
+                    });
                 }
             };
             if j.mimic.is_some() {
@@ -229,11 +242,18 @@ impl RobotModel {
                     return Err(ModelError::BadLimit {
                         file: err_file(),
                         joint: j.name.clone(),
-                        problem: format!("lower={} upper={}: a {kind_name} joint needs finite position limits (use type=\"continuous\" for an unlimited one)", lim.lower, lim.upper),
+                        problem: format!(
+                            "lower={} upper={}: a {kind_name} joint needs finite position limits (use type=\"continuous\" for an unlimited one)",
+                            lim.lower, lim.upper
+                        ),
                     });
                 }
                 if lim.lower >= lim.upper {
-                    return Err(ModelError::BadLimit { file: err_file(), joint: j.name.clone(), problem: format!("lower={} is not below upper={}", lim.lower, lim.upper) });
+                    return Err(ModelError::BadLimit {
+                        file: err_file(),
+                        joint: j.name.clone(),
+                        problem: format!("lower={} is not below upper={}", lim.lower, lim.upper),
+                    });
                 }
                 (lim.lower, lim.upper)
             };
@@ -241,7 +261,11 @@ impl RobotModel {
                 return Err(if kind == JointKind::Continuous && lim.velocity == 0.0 {
                     ModelError::MissingLimit { file: err_file(), joint: j.name.clone(), kind: kind_name }
                 } else {
-                    ModelError::BadLimit { file: err_file(), joint: j.name.clone(), problem: format!("velocity={} must be finite and > 0", lim.velocity) }
+                    ModelError::BadLimit {
+                        file: err_file(),
+                        joint: j.name.clone(),
+                        problem: format!("velocity={} must be finite and > 0", lim.velocity),
+                    }
                 });
             }
             joints.push(Joint {
@@ -254,7 +278,13 @@ impl RobotModel {
             pending = Frame::identity();
         }
         if joints.is_empty() || joints.len() > MAX_JOINTS {
-            return Err(ModelError::JointCount { file: err_file(), root: root_link.into(), tip: tip_link.into(), count: joints.len(), max: MAX_JOINTS });
+            return Err(ModelError::JointCount {
+                file: err_file(),
+                root: root_link.into(),
+                tip: tip_link.into(),
+                count: joints.len(),
+                max: MAX_JOINTS,
+            });
         }
         let mut chain_links: Vec<&str> = vec![root_link];
         let mut l = tip_link;

@@ -34,13 +34,15 @@ pub struct Svd {
 /// 5–7 sweeps; 30 is never reached in practice but bounds the tick.
 const MAX_SWEEPS: u32 = 30;
 
+/// Dot product with four partial sums in a fixed order: the same bits on every run, and a quarter of
+/// the dependency chain of a plain left-to-right sum, which is what bounds the Jacobi sweep.
 #[inline]
 fn dot(a: &[f64; MAX_JOINTS], b: &[f64; MAX_JOINTS]) -> f64 {
-    let mut s = 0.0;
+    let mut s = [0.0; 4];
     for k in 0..MAX_JOINTS {
-        s += a[k] * b[k];
+        s[k % 4] += a[k] * b[k];
     }
-    s
+    (s[0] + s[2]) + (s[1] + s[3])
 }
 
 /// The identity start for [`svd`].
@@ -100,14 +102,18 @@ pub fn svd(rows: &[[f64; MAX_JOINTS]; MAX_TASK], m: usize, n: usize, start: &[[f
                     w[p][r] = c * x - s * y;
                     w[q][r] = s * x + c * y;
                 }
-                // Exact updates of the squared norms keep the rotation test cheap; recompute to avoid drift.
-                norms[p] = dot(&b[p], &b[p]);
-                norms[q] = dot(&b[q], &b[q]);
+                // The rotation moves t·γ of squared norm from column p to column q (Hestenes); the exact
+                // norms are taken again at the end, so drift cannot reach the singular values.
+                norms[p] = alpha - t * gamma;
+                norms[q] = beta + t * gamma;
             }
         }
         if !rotated {
             break;
         }
+    }
+    for k in 0..m {
+        norms[k] = dot(&b[k], &b[k]);
     }
     let mut out = Svd { m, n, sigma: [0.0; MAX_TASK], u: [[0.0; MAX_TASK]; MAX_TASK], v: [[0.0; MAX_JOINTS]; MAX_TASK], sweeps };
     // Sort by descending σ (insertion sort over at most 6 entries; ties keep their order).

@@ -1,0 +1,37 @@
+//! How a tool is told which robot to use: a robot file (`config/robots/NAME.toml`: URDF, chain, tool,
+//! limits) or a bare URDF with `--root` and `--tip` (flange as TCP, no acceleration or jerk limits).
+
+use std::path::{Path, PathBuf};
+
+use strand::config::RobotConfig;
+use strand::core::kin::RobotModel;
+
+/// A loaded robot and what the tool should warn about how it was given.
+pub struct LoadedRobot {
+    /// The chain.
+    pub model: RobotModel,
+    /// True when a robot file gave the tool and the acceleration/jerk limits.
+    pub from_config: bool,
+}
+
+/// Loads `path`: a `.toml` robot file, or a URDF with `root` and `tip`.
+pub fn load_robot(path: &Path, root: Option<&str>, tip: Option<&str>) -> Result<LoadedRobot, String> {
+    if path.extension().is_some_and(|e| e == "toml") {
+        if root.is_some() || tip.is_some() {
+            return Err(format!("{}: a robot file names its own root and tip links; drop --root/--tip", path.display()));
+        }
+        let cfg = RobotConfig::load(path).map_err(|e| e.to_string())?;
+        let model = cfg.build_model().map_err(|e| e.to_string())?;
+        return Ok(LoadedRobot { model, from_config: true });
+    }
+    let (Some(root), Some(tip)) = (root, tip) else {
+        return Err(format!("{}: a URDF needs --root LINK and --tip LINK (or pass a robot .toml from config/robots)", path.display()));
+    };
+    let model = RobotModel::from_urdf_file(path, root, tip).map_err(|e| e.to_string())?;
+    Ok(LoadedRobot { model, from_config: false })
+}
+
+/// The bundled robot files, for messages.
+pub fn bundled_robots_dir() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../config/robots")
+}
