@@ -10,7 +10,7 @@ use criterion::{Criterion, criterion_group, criterion_main};
 use nalgebra::{SMatrix, UnitQuaternion, Vector3};
 use strand::config::RobotConfig;
 use strand::core::kin::{
-    ChainState, Clik, ClikConfig, JointVector, RobotModel, Task, TaskJacobian, TcpTarget, manipulability_gradient, svd,
+    ChainState, Clik, ClikConfig, JointVector, Priority, RobotModel, Task, TaskJacobian, TcpTarget, manipulability_gradient, svd,
 };
 
 fn robot(name: &str) -> RobotModel {
@@ -76,17 +76,19 @@ fn kinematics(c: &mut Criterion) {
             });
         }
         let targets = circle(&model, &q);
-        let mut solver = Clik::new(ClikConfig { task, ..ClikConfig::default() });
-        let mut qk = q;
-        let mut k = 0usize;
-        c.bench_function(&format!("clik_step/{label}"), |b| {
-            b.iter(|| {
-                let step = solver.step(&model, &qk, &targets[k], 1e-3);
-                qk = step.q;
-                k = (k + 1) % targets.len();
-                std::hint::black_box(step.scale)
-            })
-        });
+        for (suffix, priority) in [("", Priority::None), ("/position-first", Priority::PositionFirst)] {
+            let mut solver = Clik::new(ClikConfig { task, priority, ..ClikConfig::default() }).unwrap();
+            let mut qk = q;
+            let mut k = 0usize;
+            c.bench_function(&format!("clik_step/{label}{suffix}"), |b| {
+                b.iter(|| {
+                    let step = solver.step(&model, &qk, &targets[k], 1e-3);
+                    qk = step.q;
+                    k = (k + 1) % targets.len();
+                    std::hint::black_box(step.scale)
+                })
+            });
+        }
     }
 }
 

@@ -1,6 +1,7 @@
 //! The per-tick kinematics path does not touch the heap: a counting global allocator sees zero
 //! allocations over 10,000 CLIK steps (FK, Jacobian, SVD, gradient, limits) on the 7-axis iiwa and on
-//! the 6-axis VP6242 in the 5-D task, and none in FK or the gradient alone.
+//! the 6-axis VP6242 in the 5-D task, none in FK or the gradient alone, and none on the rare paths:
+//! joints saturating at their limits (re-solves), NaN targets (braking) and repaired joint input.
 
 mod common;
 #[path = "common/paths.rs"]
@@ -57,7 +58,7 @@ fn ten_thousand_clik_steps_allocate_nothing() {
                 TcpTarget { position: p, orientation: orient, linear_velocity: v, angular_velocity: nalgebra::Vector3::zeros() }
             })
             .collect();
-        let mut solver = Clik::new(ClikConfig { task, ..ClikConfig::default() });
+        let mut solver = Clik::new(ClikConfig { task, ..ClikConfig::default() }).unwrap();
         let mut q = q0;
         let before = allocations();
         for target in &targets {
@@ -78,4 +79,34 @@ fn ten_thousand_clik_steps_allocate_nothing() {
         }
         assert_eq!(allocations() - before, 0, "{name}: FK/Jacobian/gradient allocated");
     }
+}
+
+#[test]
+fn the_rare_paths_allocate_nothing_either() {
+    let model = common::robot("vp6242");
+    let upper = model.limits(0).upper;
+    let q0 = common::jv(&[upper - 0.2, 0.3, 1.7, 0.3, 0.9, 0.2]);
+    let mut qt = q0;
+    qt[0] = upper + 0.3;
+    let past = model.forward_kinematics(&qt);
+    let past_limit = TcpTarget::at_rest(past.translation.vector, UnitQuaternion::from_rotation_matrix(&past.rotation));
+    let mut nan = past_limit;
+    nan.position.x = f64::NAN;
+    let mut solver = Clik::new(ClikConfig { task: Task::Pose6, ..ClikConfig::default() }).unwrap();
+    let mut q = q0;
+    let (mut saturations, mut invalid) = (0, 0);
+    let before = allocations();
+    for k in 0..4000 {
+        let target = if (3000..3500).contains(&k) { &nan } else { &past_limit };
+        let mut input = q;
+        if k == 3600 {
+            input[2] = f64::NAN;
+        }
+        let step = solver.step(&model, &input, target, 1e-3);
+        saturations += usize::from(step.saturated != 0);
+        invalid += usize::from(step.status.invalid_input);
+        q = step.q;
+    }
+    assert_eq!(allocations() - before, 0, "allocations on the saturation / invalid-input paths");
+    assert!(saturations > 100 && invalid == 501, "paths not reached: {saturations} saturated, {invalid} invalid");
 }

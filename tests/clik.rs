@@ -10,7 +10,7 @@ use paths::{Shape, track};
 use strand::core::kin::{Clik, ClikConfig, JointVector, RobotModel, Task, TcpTarget};
 
 fn clik(task: Task) -> Clik {
-    Clik::new(ClikConfig { task, ..ClikConfig::default() })
+    Clik::new(ClikConfig { task, ..ClikConfig::default() }).unwrap()
 }
 
 /// A line and a circle sized to the arm: 100 mm and r = 30 mm on the iiwa, 60 mm and r = 20 mm on the
@@ -35,13 +35,21 @@ fn start(name: &str) -> JointVector {
 
 #[test]
 fn tracks_lines_and_circles_to_a_micrometre_at_1khz() {
-    let cases = [("iiwa7", Task::Pose6), ("iiwa7", Task::Print5), ("vp6242", Task::Print5), ("meca500", Task::Print5)];
-    for (name, task) in cases {
+    use strand::core::kin::Priority::{None as Flat, PositionFirst};
+    let cases = [
+        ("iiwa7", Task::Pose6, Flat),
+        ("iiwa7", Task::Print5, Flat),
+        ("vp6242", Task::Print5, Flat),
+        ("meca500", Task::Print5, Flat),
+        ("iiwa7", Task::Pose6, PositionFirst),
+        ("vp6242", Task::Print5, PositionFirst),
+    ];
+    for (name, task, priority) in cases {
         let model = robot(name);
         for (shape_name, shape, total) in shapes(&model, &start(name)) {
-            let mut solver = clik(task);
+            let mut solver = Clik::new(ClikConfig { task, priority, ..ClikConfig::default() }).unwrap();
             let r = track(&model, &mut solver, start(name), shape, total, 1000.0);
-            let label = format!("{name} {task:?} {shape_name}");
+            let label = format!("{name} {task:?} {priority:?} {shape_name}");
             assert!(r.max_pos_err < 1e-6, "{label}: position error {:e} m", r.max_pos_err);
             assert!(r.max_axis_err < 1e-6, "{label}: nozzle axis error {:e} rad", r.max_axis_err);
             if task == Task::Pose6 {
@@ -100,6 +108,8 @@ fn through_the_vp6242_wrist_singularity_speeds_stay_in_limits_and_error_is_bound
         let mut min_sigma = f64::INFINITY;
         let ticks = (total * rate) as usize + 500;
         let mut final_err = 0.0;
+        let mut max_reported = 0.0f64;
+        let mut max_rot = 0.0f64;
         for k in 0..ticks {
             let t = (k + 1) as f64 * dt;
             let (s, ds) = paths::quintic(t, total);
@@ -128,6 +138,10 @@ fn through_the_vp6242_wrist_singularity_speeds_stay_in_limits_and_error_is_bound
             max_err = max_err.max(err);
             final_err = err;
             min_sigma = min_sigma.min(step.sigma_min);
+            // The error the step reports is the one it measured before moving: bounded the same way.
+            assert!(step.position_error < 5e-3, "{task:?} tick {k}: reported error {}", step.position_error);
+            max_reported = max_reported.max(step.position_error).max(step.orientation_error);
+            max_rot = max_rot.max(step.orientation_error);
             if step.status.near_singular {
                 near += 1;
                 assert!(step.damping > 0.0);
@@ -136,6 +150,11 @@ fn through_the_vp6242_wrist_singularity_speeds_stay_in_limits_and_error_is_bound
         assert!(near > 0, "{task:?}: the singular stretch was never reported (σ_min reached {min_sigma:e})");
         assert!(max_err < 5e-3, "{task:?}: error through the singularity {max_err:e} m");
         assert!(final_err < 1e-6, "{task:?}: error after the singularity {final_err:e} m");
+        assert!(max_reported > 1e-7, "{task:?}: the damped stretch must show up in the reported error ({max_reported:e})");
+        assert!(max_rot < 0.1, "{task:?}: orientation error through the singularity {max_rot} rad");
+        eprintln!(
+            "{task:?}: max position error {max_err:e} m, max reported orientation error {max_rot:e} rad, min σ {min_sigma:e}, {near} near-singular ticks"
+        );
     }
 }
 
@@ -212,4 +231,78 @@ fn identical_inputs_give_bit_identical_commands() {
     let (a, b) = (run(), run());
     assert_eq!(a.len(), b.len());
     assert!(a == b, "two identical runs differ");
+}
+
+/// The nozzle axis (= J6 axis on this arm) sweeps past the forearm (J4) axis at 0.01 rad: following it
+/// exactly would swing J4 and J6 by ~π within a few milliseconds (tens of rad/s against 1 rad/s). Path
+/// time advances at the rate each step achieved (its `scale`), as the path engine will do. Returns the
+/// largest nozzle-axis error (rad), position error (m), the smallest scale, and the near-singular ticks.
+fn grazing_sweep(priority: strand::core::kin::Priority) -> (f64, f64, f64, usize) {
+    let model = robot("vp6242");
+    let qa = jv(&[0.0, 0.3, 1.6, 0.0, 0.35, 0.0]);
+    let mut st = strand::core::kin::ChainState::new(6);
+    model.kinematics(&qa, &mut st);
+    let forearm = st.ang(3).normalize();
+    let a0 = st.tcp.rotation * Vector3::z();
+    let side = (a0 - forearm * a0.dot(&forearm)).normalize();
+    let normal = forearm.cross(&side);
+    let theta0 = a0.dot(&forearm).acos();
+    let delta0 = 0.01;
+    let axis_at = |t: f64, total: f64| {
+        let (s, _) = paths::quintic(t, total);
+        let th = theta0 * (1.0 - 2.0 * s);
+        let d = delta0 * (1.0 - (th / theta0).powi(2));
+        (forearm * th.cos() + side * th.sin() + normal * d).normalize()
+    };
+    let p0 = st.tcp.translation.vector;
+    let (rate, total) = (1000.0, 3.0);
+    let dt = 1.0 / rate;
+    let mut solver = Clik::new(ClikConfig { task: Task::Print5, priority, ..ClikConfig::default() }).unwrap();
+    let mut q = qa;
+    let mut qd_prev = JointVector::zeros();
+    let (mut max_axis_err, mut max_pos_err, mut min_scale, mut near) = (0.0f64, 0.0f64, 1.0f64, 0);
+    let mut last_axis_err = 0.0;
+    let (mut tau, mut rate_factor) = (0.0f64, 1.0f64);
+    for k in 0..(total * rate) as usize + 6000 {
+        tau += rate_factor * dt;
+        let a = axis_at(tau, total);
+        let a_dot = (axis_at(tau + 1e-6, total) - axis_at(tau - 1e-6, total)) / 2e-6 * rate_factor;
+        let orientation = UnitQuaternion::rotation_between(&Vector3::z(), &a).unwrap();
+        let target = TcpTarget { position: p0, orientation, linear_velocity: Vector3::zeros(), angular_velocity: a.cross(&a_dot) };
+        let step = solver.step(&model, &q, &target, dt);
+        assert!(step.q.iter().all(|x| x.is_finite()));
+        for i in 0..6 {
+            let l = model.limits(i);
+            assert!(step.qd[i].abs() <= l.velocity * (1.0 + 1e-9), "tick {k}: joint {i} speed {}", step.qd[i]);
+            assert!((step.qd[i] - qd_prev[i]).abs() / dt <= l.acceleration * (1.0 + 1e-6), "tick {k}: joint {i} accel");
+        }
+        qd_prev = step.qd;
+        q = step.q;
+        let reached = model.forward_kinematics(&q);
+        let axis_err = (reached.rotation * Vector3::z()).cross(&a).norm();
+        max_axis_err = max_axis_err.max(axis_err);
+        max_pos_err = max_pos_err.max((reached.translation.vector - p0).norm());
+        min_scale = min_scale.min(step.scale);
+        near += usize::from(step.status.near_singular);
+        last_axis_err = axis_err;
+        // Recover the rate gently (at most 1 % a tick), never faster than the step allowed.
+        rate_factor = step.scale.min(rate_factor + 0.01).max(0.01);
+    }
+    assert!(tau >= total, "{priority:?}: the sweep did not finish: path time {tau} of {total} s");
+    assert!(last_axis_err < 1e-6 && near > 0 && min_scale < 1.0, "{priority:?}: not recovered ({last_axis_err}) or not reported");
+    (max_axis_err, max_pos_err, min_scale, near)
+}
+
+#[test]
+fn a_nozzle_sweep_grazing_the_vp6242_wrist_singularity_is_slowed_and_damped_not_flipped() {
+    use strand::core::kin::Priority;
+    let (axis_first, pos_first, _, near_first) = grazing_sweep(Priority::PositionFirst);
+    let (axis_flat, pos_flat, _, _) = grazing_sweep(Priority::None);
+    eprintln!(
+        "grazing sweep, position-first: nozzle axis {axis_first:.3e} rad, position {pos_first:.3e} m, {near_first} near-singular ticks"
+    );
+    eprintln!("grazing sweep, one damped inverse: nozzle axis {axis_flat:.3e} rad, position {pos_flat:.3e} m");
+    assert!(axis_first < 0.1 && pos_first < 3e-3, "position-first: {axis_first} rad, {pos_first} m");
+    assert!(axis_flat < 0.3 && pos_flat < 2e-2, "single inverse: {axis_flat} rad, {pos_flat} m");
+    assert!(pos_first < 0.5 * pos_flat, "position-first must hold the tip better: {pos_first} vs {pos_flat} m");
 }

@@ -6,7 +6,7 @@ mod common;
 
 use nalgebra::{UnitQuaternion, Vector3};
 use proptest::prelude::*;
-use strand::core::kin::{Clik, ClikConfig, JointVector, RobotModel, Task, TcpTarget};
+use strand::core::kin::{Clik, ClikConfig, JointVector, Priority, RobotModel, Task, TcpTarget};
 
 fn models() -> Vec<RobotModel> {
     let mut v: Vec<RobotModel> = common::ROBOTS.iter().map(|n| common::robot(n)).collect();
@@ -22,6 +22,7 @@ proptest! {
         robot_index in 0usize..6,
         seed in any::<u64>(),
         pose6 in any::<bool>(),
+        position_first in any::<bool>(),
         rate in prop_oneof![Just(250.0), Just(1000.0), Just(4000.0), Just(8000.0)],
         offset in prop::array::uniform3(-2.0f64..2.0),
         spin in prop::array::uniform3(-3.0f64..3.0),
@@ -34,7 +35,8 @@ proptest! {
         let q0 = rng.config(model, 0.0);
         let dt = 1.0 / rate;
         let task = if pose6 { Task::Pose6 } else { Task::Print5 };
-        let mut solver = Clik::new(ClikConfig { task, ..ClikConfig::default() });
+        let priority = if position_first { Priority::PositionFirst } else { Priority::None };
+        let mut solver = Clik::new(ClikConfig { task, priority, ..ClikConfig::default() }).unwrap();
         let start = model.forward_kinematics(&q0);
         let mut q = q0;
         let mut qd_prev = JointVector::zeros();

@@ -109,6 +109,14 @@ fn urdf_errors_name_the_file_and_the_element() {
             assert!(msg.contains(n), "{msg:?} should mention {n:?}");
         }
     }
+    // A <limit> without velocity: urdf-rs rejects the file; the error still names the joint.
+    let msg = load(&urdf("revolute", r#"<limit lower="-1" upper="1"/>"#), "a", "d").unwrap_err().to_string();
+    assert!(msg.contains("test.urdf") && msg.contains("joint \"j2\"") && msg.contains("velocity"), "{msg}");
+    // URDF 1.2 acceleration limits must be positive.
+    let v12 = urdf("revolute", r#"<limit lower="-1" upper="1" velocity="1" acceleration="0"/>"#)
+        .replace(r#"<robot name="t">"#, r#"<robot name="t" version="1.2">"#);
+    let msg = load(&v12, "a", "d").unwrap_err().to_string();
+    assert!(msg.contains("joint \"j2\"") && msg.contains("acceleration=0"), "{msg}");
     // A link with two parents: the chain branches.
     let branch =
         urdf("revolute", lim).replace("</robot>", r#"<joint name="j3" type="fixed"><parent link="a"/><child link="c"/></joint></robot>"#);

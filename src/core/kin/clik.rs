@@ -20,6 +20,9 @@
 //!   σ_k < ε and 0 otherwise. Away from singularities J# is the exact pseudoinverse, so tracking is
 //!   exact; near one, only the vanishing directions are damped and joint speeds stay bounded. The null
 //!   space projector N = I − J#J = I − Σ σ_k²/(σ_k² + λ_k²) v_k v_kᵀ is the one consistent with it.
+//! - Priority (`priority`, default `none`): the single damped J# above, or `position-first`, which
+//!   solves the position rows first and the orientation rows in their null space, so a wrist
+//!   singularity costs nozzle direction rather than tip position (see [`Priority`]).
 //! - Secondary objectives (null space): the task manipulability w (002 Eq. 16) and a joint-limit margin
 //!   h_jl = −½ Σ (d_i/m_i)², where d_i is how far joint i has entered a margin m_i next to a limit (zero in
 //!   the free middle of the range). Their joint speed is capped per joint at a fraction of the limit.
@@ -46,12 +49,30 @@ use super::model::{JointVector, MAX_JOINTS, RobotModel};
 use super::svd::{MAX_TASK, Svd, identity_start, svd};
 use super::task::{Task, TaskJacobian, manipulability_gradient};
 
+/// How the position and orientation rows share the joints when they cannot both be met.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Deserialize, serde::Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Priority {
+    /// One damped inverse of the whole task Jacobian, as 002's Eq. 17 writes it (the default): near a
+    /// singularity the damped direction costs position and orientation alike.
+    None,
+    /// Position first; the orientation rows act in the position task's null space (Chiaverini's
+    /// singularity-robust task priority). Near a wrist singularity the nozzle axis lags and the tip
+    /// holds: grazing the VP6242's wrist singularity, 2.1 mm of tip error instead of 8.7 mm
+    /// (`tests/clik.rs`). Known limit, hence not the default: against a target it cannot reach with
+    /// a large orientation residual (a joint at its limit, say) the orientation level can cycle
+    /// under the acceleration limits instead of settling; the limits still hold.
+    PositionFirst,
+}
+
 /// Tuning of the CLIK step.
 #[derive(Clone, Copy, Debug, PartialEq, serde::Deserialize, serde::Serialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct ClikConfig {
     /// Task to follow: `pose6` or `print5` (rotation about the nozzle free; the default for printing).
     pub task: Task,
+    /// `none` (default) or `position-first`: see [`Priority`].
+    pub priority: Priority,
     /// Diagonal of K (1/s): x, y, z, then rotation about x, y, z (in the 5-D task the first two rotation
     /// gains act on the two axes perpendicular to the nozzle). Capped at 1/dt.
     pub gains: [f64; 6],
@@ -79,6 +100,7 @@ impl Default for ClikConfig {
     fn default() -> Self {
         ClikConfig {
             task: Task::Print5,
+            priority: Priority::None,
             gains: [1000.0; 6],
             sigma_threshold: 0.04,
             damping_max: 0.04,
@@ -173,6 +195,9 @@ pub struct ClikStep {
     pub q: JointVector,
     /// Joint velocity of the step (rad/s or m/s), (q_{k+1} − q_k)/dt.
     pub qd: JointVector,
+    /// What the task asked for before any limit (rad/s or m/s): the unsaturated, unscaled solution.
+    /// When only `scaled` is set, `qd = scale · requested`.
+    pub requested: JointVector,
     /// Common factor applied for velocity and acceleration limits (1 = none).
     pub scale: f64,
     /// Flags.
@@ -181,7 +206,7 @@ pub struct ClikStep {
     pub sigma_min: f64,
     /// Task manipulability √det(JJᵀ) at q_k.
     pub manipulability: f64,
-    /// Damping λ applied to the smallest singular value.
+    /// Damping λ at the smallest singular value of the task Jacobian (task units).
     pub damping: f64,
     /// Norm of the position error the step corrected (m).
     pub position_error: f64,
@@ -191,13 +216,33 @@ pub struct ClikStep {
     pub saturated: u8,
 }
 
-/// The CLIK solver: its configuration and the little state carried from tick to tick.
+// `ClikStep::saturated` holds one bit per joint.
+const _: () = assert!(MAX_JOINTS <= 8);
+
+/// The CLIK solver: its configuration and the little state carried from tick to tick (the last q̇ for
+/// the acceleration limit, the last command for repairing bad input, and the SVD warm start). A replay
+/// that starts from a fresh solver and feeds the same steps gets the same bits.
 #[derive(Clone, Debug)]
 pub struct Clik {
     config: ClikConfig,
     qd_prev: JointVector,
+    q_last: Option<JointVector>,
     svd_start: [[f64; MAX_TASK]; MAX_TASK],
+    level_starts: LevelStarts,
     state: ChainState,
+}
+
+/// SVD warm starts of the two priority levels (position rows; orientation rows in its null space).
+#[derive(Clone, Copy, Debug)]
+struct LevelStarts {
+    position: [[f64; MAX_TASK]; MAX_TASK],
+    orientation: [[f64; MAX_TASK]; MAX_TASK],
+}
+
+impl LevelStarts {
+    fn identity() -> Self {
+        LevelStarts { position: identity_start(), orientation: identity_start() }
+    }
 }
 
 fn damping_sq(sigma: f64, eps: f64, lambda_max: f64) -> f64 {
@@ -210,7 +255,8 @@ fn damping_sq(sigma: f64, eps: f64, lambda_max: f64) -> f64 {
 }
 
 /// Velocity bounds (lower, upper) that keep joint i inside [lo, hi] this tick and able to brake at
-/// `acc` before reaching either bound. `q` outside the range yields a bound that moves it back.
+/// `acc` before reaching either bound. Outside the range, the bound on the far side is 0: the joint may
+/// come back (at its speed and acceleration limits) but not go further out.
 fn position_velocity_bounds(q: f64, lo: f64, hi: f64, vmax: f64, acc: f64, dt: f64) -> (f64, f64) {
     // Farther from a limit than a stop from full speed needs, position does not bound the speed.
     let free = vmax * vmax / (2.0 * acc) + vmax * dt;
@@ -220,14 +266,14 @@ fn position_velocity_bounds(q: f64, lo: f64, hi: f64, vmax: f64, acc: f64, dt: f
     } else if q <= hi {
         ((hi - q) / dt).min(brake(hi - q))
     } else {
-        (hi - q) / dt
+        0.0 // past the limit: never further out; the lower bound lets it come back
     };
     let lower = if !lo.is_finite() {
         f64::NEG_INFINITY
     } else if q >= lo {
         ((lo - q) / dt).max(-brake(q - lo))
     } else {
-        (lo - q) / dt
+        0.0
     };
     (lower, upper)
 }
@@ -263,10 +309,51 @@ pub fn braking_speed(d: f64, acc: f64, dt: f64) -> f64 {
     v
 }
 
+/// A [`ClikConfig`] that failed [`ClikConfig::validate`]; the message names the key.
+#[derive(Debug, thiserror::Error)]
+#[error("{0}")]
+pub struct InvalidClikConfig(pub String);
+
+/// Per-joint velocity boxes for one tick (rad/s or m/s).
+struct Boxes {
+    /// From the position limits alone (including the distance needed to brake).
+    pos_lo: [f64; MAX_JOINTS],
+    pos_hi: [f64; MAX_JOINTS],
+    /// From the speed and acceleration limits alone.
+    dyn_lo: [f64; MAX_JOINTS],
+    dyn_hi: [f64; MAX_JOINTS],
+    /// All of them together.
+    lo: [f64; MAX_JOINTS],
+    hi: [f64; MAX_JOINTS],
+}
+
+impl Boxes {
+    /// The speed nearest to `v` that joint i may take. If position and acceleration cannot both be met
+    /// (the box is empty — by one rounding step on a braking curve, or really), the acceleration limit
+    /// is met as far as the position limit allows: position first.
+    #[inline]
+    fn clamp(&self, i: usize, v: f64) -> f64 {
+        if self.lo[i] <= self.hi[i] {
+            v.clamp(self.lo[i], self.hi[i])
+        } else {
+            v.clamp(self.dyn_lo[i], self.dyn_hi[i]).clamp(self.pos_lo[i], self.pos_hi[i])
+        }
+    }
+}
+
 impl Clik {
-    /// A solver for a chain at rest.
-    pub fn new(config: ClikConfig) -> Self {
-        Clik { config, qd_prev: JointVector::zeros(), svd_start: identity_start(), state: ChainState::new(0) }
+    /// A solver for a chain at rest. The configuration is checked here, so a step never meets a gain or
+    /// threshold it cannot use.
+    pub fn new(config: ClikConfig) -> Result<Self, InvalidClikConfig> {
+        config.validate().map_err(InvalidClikConfig)?;
+        Ok(Clik {
+            config,
+            qd_prev: JointVector::zeros(),
+            q_last: None,
+            svd_start: identity_start(),
+            level_starts: LevelStarts::identity(),
+            state: ChainState::new(0),
+        })
     }
 
     /// The configuration.
@@ -274,10 +361,12 @@ impl Clik {
         &self.config
     }
 
-    /// Forgets the history: the next step starts from joint velocity `qd` (rad/s or m/s).
+    /// Forgets the history: the next step starts from joint velocity `qd` (rad/s or m/s), with a cold SVD.
     pub fn reset(&mut self, qd: JointVector) {
         self.qd_prev = qd;
+        self.q_last = None;
         self.svd_start = identity_start();
+        self.level_starts = LevelStarts::identity();
     }
 
     /// The joint velocity of the last step (rad/s or m/s).
@@ -290,270 +379,478 @@ impl Clik {
         &self.state
     }
 
-    /// One tick: from the current command `q` (rad or m; finite, within limits: it is the controller's
-    /// own last command) towards `target`, over `dt` seconds (> 0). A target holding NaN or ±∞ is not
-    /// followed: the arm brakes at its acceleration limits and `invalid_input` is set. The returned
-    /// command is always finite and within the position limits.
-    pub fn step(&mut self, model: &RobotModel, q: &JointVector, target: &TcpTarget, dt: f64) -> ClikStep {
+    /// One tick: from the current command `q` (rad or m) towards `target`, over `dt` seconds.
+    ///
+    /// `q` is meant to be the controller's own last command. Bad input is survived, flagged and never
+    /// passed on: a non-finite entry of `q` is replaced by the last command (or the middle of the range
+    /// before any), a `q` outside the limits is brought back at no more than the speed and acceleration
+    /// limits (never pushed further out), and a target holding NaN or ±∞ is not followed — the arm brakes
+    /// at its acceleration limits. A `dt` that is not a positive finite number holds the arm where it is.
+    /// The returned command is always finite, and within the position limits whenever `q` was.
+    pub fn step(&mut self, model: &RobotModel, q_in: &JointVector, target: &TcpTarget, dt: f64) -> ClikStep {
         let cfg = self.config;
         let n = model.dof();
-        debug_assert!(q.iter().all(|x| x.is_finite()), "CLIK needs a finite q");
-        model.kinematics(q, &mut self.state);
-        let finite = |v: &Vector3<f64>| v.iter().all(|x| x.is_finite());
-        let target_ok = finite(&target.position)
-            && finite(&target.linear_velocity)
-            && finite(&target.angular_velocity)
-            && target.orientation.coords.iter().all(|x| x.is_finite());
+        let (q, q_repaired) = self.sanitize(model, q_in);
         if !(dt.is_finite() && dt > 0.0) {
-            // Without a tick length nothing can be integrated: hold, and say so.
-            self.qd_prev = JointVector::zeros();
-            return ClikStep {
-                q: *q,
-                qd: JointVector::zeros(),
-                scale: 0.0,
-                status: ClikStatus { invalid_input: true, ..ClikStatus::default() },
-                sigma_min: 0.0,
-                manipulability: 0.0,
-                damping: 0.0,
-                position_error: 0.0,
-                orientation_error: 0.0,
-                saturated: 0,
-            };
+            return ClikStep::hold(q);
         }
-        let hold;
-        let target = if target_ok {
-            target
-        } else {
-            hold = TcpTarget::at_rest(self.state.tcp.translation.vector, UnitQuaternion::from_rotation_matrix(&self.state.tcp.rotation));
-            &hold
-        };
+        let target_ok =
+            target.position.iter().chain(target.linear_velocity.iter()).chain(target.angular_velocity.iter()).all(|x| x.is_finite())
+                && target.orientation.coords.iter().all(|x| x.is_finite());
+
+        // 1. Kinematics at q_k: FK, task Jacobian, its SVD (warm start from the last tick).
+        model.kinematics(&q, &mut self.state);
         let state = &self.state;
         let tj = TaskJacobian::new(state, cfg.task);
         let m = tj.m;
-
-        // Predicted error, e = x_ref(t_{k+1}) ⊖ x(q_k) − ẋ_ref·dt.
-        let e_pos = target.position - state.tcp.translation.vector - target.linear_velocity * dt;
-        let rot = state.tcp.rotation;
-        let e_rot_full = match cfg.task {
-            Task::Pose6 => geom::quaternion_log(&(target.orientation * UnitQuaternion::from_rotation_matrix(&rot).inverse())),
-            Task::Print5 => {
-                let axis = rot.matrix().column(2).into_owned();
-                let axis_ref = target.orientation * Vector3::z();
-                geom::swing_vector(&axis, &axis_ref, &rot.matrix().column(0).into_owned())
-            }
-        };
-        let e_rot = e_rot_full - target.angular_velocity * dt;
-        let e = tj.project(&e_pos, &e_rot);
-        let xd = tj.project(&target.linear_velocity, &target.angular_velocity);
-        let mut feedback = [0.0; MAX_TASK];
-        for r in 0..m {
-            feedback[r] = cfg.gains[r].min(1.0 / dt) * e[r];
-        }
-        let clamp_norm = |part: &mut [f64], cap: f64| {
-            let norm = part.iter().map(|x| x * x).sum::<f64>().sqrt();
-            if norm > cap {
-                part.iter_mut().for_each(|x| *x *= cap / norm);
-            }
-        };
-        clamp_norm(&mut feedback[..3], cfg.max_correction_speed);
-        clamp_norm(&mut feedback[3..m], cfg.max_correction_rate);
-        let mut rhs = [0.0; MAX_TASK];
-        for r in 0..m {
-            rhs[r] = xd[r] + feedback[r];
-        }
-
         let s0 = svd(&tj.rows, m, n, &self.svd_start);
         self.svd_start = s0.u;
+        orthonormalize(&mut self.svd_start, m);
         let manipulability = s0.manipulability();
 
-        // Secondary objectives.
-        let mut qd0 = JointVector::zeros();
-        if cfg.manipulability_gain > 0.0 && manipulability > 0.0 {
-            qd0 += manipulability_gradient(state, &tj, &s0) * (cfg.manipulability_gain / manipulability);
-        }
-        for i in 0..n {
-            let l = model.limits(i);
-            if cfg.joint_limit_gain > 0.0 && l.lower.is_finite() && l.upper.is_finite() && cfg.joint_limit_margin > 0.0 {
-                let margin = cfg.joint_limit_margin * (l.upper - l.lower);
-                let d_hi = q[i] - (l.upper - margin);
-                let d_lo = (l.lower + margin) - q[i];
-                if d_hi > 0.0 {
-                    qd0[i] -= cfg.joint_limit_gain * d_hi / (margin * margin);
-                } else if d_lo > 0.0 {
-                    qd0[i] += cfg.joint_limit_gain * d_lo / (margin * margin);
-                }
-            }
-            let cap = cfg.nullspace_speed_fraction * l.velocity;
-            qd0[i] = qd0[i].clamp(-cap, cap);
-        }
+        // 2. What the task asks for: ẋ_ref + K·e, with the feedback capped.
+        let (rhs, e_pos_norm, e_rot_norm) =
+            if target_ok { task_velocity(&cfg, state, &tj, target, dt) } else { ([0.0; MAX_TASK], 0.0, 0.0) };
 
-        // Per-joint velocity boxes: from position (with braking), and the full box with speed and acceleration.
-        let mut pos_lo = [0.0; MAX_JOINTS];
-        let mut pos_hi = [0.0; MAX_JOINTS];
-        let mut lo = [0.0; MAX_JOINTS];
-        let mut hi = [0.0; MAX_JOINTS];
-        for i in 0..n {
-            let l = model.limits(i);
-            let (a, b) = position_velocity_bounds(q[i], l.lower, l.upper, l.velocity, l.acceleration, dt);
-            pos_lo[i] = a;
-            pos_hi[i] = b;
-            let acc_step = l.acceleration * dt;
-            lo[i] = a.max(-l.velocity).max(self.qd_prev[i] - acc_step);
-            hi[i] = b.min(l.velocity).min(self.qd_prev[i] + acc_step);
-        }
+        // 3. Secondary objectives, for the null space.
+        let qd0 = if target_ok { secondary_velocity(&cfg, model, &q, state, &tj, &s0) } else { JointVector::zeros() };
 
-        // Solve, saturating joints at their position bounds (SNS): a joint inside its braking zone (its
-        // position bound is tighter than its speed limit) that the solution pushes past that bound is
-        // held at the bound and the task re-solved with the others, most-violating joint first.
-        let mut saturated: u8 = 0;
-        let mut sat_value = JointVector::zeros();
-        // The reduced problem (saturated columns removed), made only once a joint saturates.
-        let mut reduced: Option<(TaskJacobian, Svd)> = None;
-        let mut qd;
-        let mut lambda_min_sq;
-        loop {
-            let mut rhs_k = rhs;
-            let mut qd0_k = qd0;
-            for j in 0..n {
-                if saturated & (1 << j) != 0 {
-                    for (r, x) in rhs_k.iter_mut().enumerate().take(m) {
-                        *x -= tj.rows[r][j] * sat_value[j];
-                    }
-                    qd0_k[j] = 0.0;
-                }
-            }
-            let solve_svd = reduced.as_ref().map_or(&s0, |r| &r.1);
-            let (v, lam) = damped_solve(solve_svd, &rhs_k, &qd0_k, cfg.sigma_threshold, cfg.damping_max, n);
-            qd = v;
-            lambda_min_sq = lam;
-            let mut worst: Option<(usize, f64, f64)> = None;
-            for i in 0..n {
-                if saturated & (1 << i) != 0 {
-                    qd[i] = sat_value[i];
-                    continue;
-                }
-                let vmax = model.limits(i).velocity;
-                let over = if qd[i] > pos_hi[i] && pos_hi[i] < vmax {
-                    Some((qd[i] / pos_hi[i].max(1e-300), pos_hi[i]))
-                } else if qd[i] < pos_lo[i] && pos_lo[i] > -vmax {
-                    Some((qd[i] / pos_lo[i].min(-1e-300), pos_lo[i]))
-                } else {
-                    None
-                };
-                if let Some((ratio, bound)) = over
-                    && worst.is_none_or(|w| ratio > w.1)
-                {
-                    worst = Some((i, ratio, bound));
-                }
-            }
-            match worst {
-                Some((i, _, bound)) if (saturated.count_ones() as usize) + 1 < n => {
-                    saturated |= 1 << i;
-                    sat_value[i] = bound;
-                    let mut solve_tj = reduced.map_or(tj, |r| r.0);
-                    solve_tj.remove_column(i);
-                    let solve_svd = svd(&solve_tj.rows, m, n, &s0.u);
-                    reduced = Some((solve_tj, solve_svd));
-                }
-                Some((i, _, bound)) => {
-                    saturated |= 1 << i;
-                    qd[i] = bound;
-                    break;
-                }
-                None => break,
-            }
-        }
+        // 4. Velocity boxes from the position, speed and acceleration limits.
+        let boxes = self.boxes(model, &q, dt);
 
-        // One common factor s for the speed, acceleration and position boxes (direction kept).
-        let (mut s_lo, mut s_hi) = (0.0f64, 1.0f64);
-        for i in 0..n {
-            let v = qd[i];
-            if v > 0.0 {
-                s_hi = s_hi.min(hi[i] / v);
-                s_lo = s_lo.max(lo[i] / v);
-            } else if v < 0.0 {
-                s_hi = s_hi.min(lo[i] / v);
-                s_lo = s_lo.max(hi[i] / v);
-            } else if lo[i] > 0.0 || hi[i] < 0.0 {
-                s_lo = f64::INFINITY;
-            }
-        }
+        // 5. Solve, saturating joints at their position bounds (SNS). An invalid target asks for rest.
+        let (mut qd, requested, saturated) = if target_ok {
+            solve_with_saturation(model, &tj, &s0, &rhs, &qd0, &boxes, &cfg, &mut self.level_starts)
+        } else {
+            (JointVector::zeros(), JointVector::zeros(), 0)
+        };
+
+        // 6. One common factor for the boxes (direction kept); per-joint clamping only when none exists.
         let mut status = ClikStatus {
             near_singular: s0.sigma_min() < cfg.sigma_threshold,
-            at_limit: saturated != 0,
+            at_limit: saturated != 0 || q_repaired == Repair::OutOfRange,
             scaled: false,
-            invalid_input: !target_ok,
+            invalid_input: !target_ok || q_repaired == Repair::NonFinite,
         };
-        let scale;
-        if s_lo <= s_hi {
-            scale = s_hi.max(0.0);
-            qd *= scale;
-        } else {
-            // No common factor: clamp each joint into its own box (limits before direction).
-            scale = s_hi.max(0.0);
-            qd *= scale;
-            for i in 0..n {
-                qd[i] = if lo[i] <= hi[i] { qd[i].clamp(lo[i], hi[i]) } else { qd[i].clamp(pos_lo[i], pos_hi[i]) };
+        //    Saturated joints are constraints: they stay at their box edge; the free joints are scaled.
+        let (s_lo, s_hi) = common_scale_range(&qd, &boxes, n, saturated);
+        let mut scale = s_hi.max(0.0);
+        for i in 0..n {
+            if saturated & (1 << i) == 0 {
+                qd[i] *= scale;
             }
-            status.at_limit = true;
+        }
+        if s_lo > s_hi {
+            for i in 0..n {
+                qd[i] = boxes.clamp(i, qd[i]);
+            }
+            status.at_limit |= target_ok;
+        }
+        if !target_ok {
+            scale = 0.0;
         }
         status.scaled = scale < 1.0;
         if qd.iter().any(|x| !x.is_finite()) {
-            // Cannot happen with finite inputs; if it ever does, brake rather than publish a NaN.
+            // Cannot happen with finite inputs and a validated config; if it ever does, brake rather
+            // than publish a NaN.
             for i in 0..n {
-                qd[i] = 0.0f64.clamp(lo[i].min(hi[i]), hi[i].max(lo[i]));
+                qd[i] = boxes.clamp(i, 0.0);
             }
             status.invalid_input = true;
         }
 
-        // Integrate and make sure of the position limits (rounding can leave one ulp over).
-        let mut q_next = *q;
+        // 7. Integrate; the position clamp only removes rounding (and never pulls an out-of-range q in
+        //    faster than the boxes allowed).
+        let mut q_next = q;
         for i in 0..n {
             let l = model.limits(i);
-            q_next[i] = (q[i] + qd[i] * dt).clamp(l.lower, l.upper);
+            q_next[i] = (q[i] + qd[i] * dt).clamp(l.lower.min(q[i]), l.upper.max(q[i]));
             qd[i] = (q_next[i] - q[i]) / dt;
         }
         self.qd_prev = qd;
+        self.q_last = Some(q_next);
+        let sigma_min = s0.sigma_min();
         ClikStep {
             q: q_next,
             qd,
+            requested,
             scale,
             status,
-            sigma_min: s0.sigma_min(),
+            sigma_min,
             manipulability,
-            damping: lambda_min_sq.sqrt(),
-            position_error: e_pos.norm(),
-            orientation_error: match cfg.task {
-                Task::Pose6 => e_rot.norm(),
-                Task::Print5 => (e[3] * e[3] + e[4] * e[4]).sqrt(),
-            },
+            damping: damping_sq(sigma_min, cfg.sigma_threshold, cfg.damping_max).sqrt(),
+            position_error: e_pos_norm,
+            orientation_error: e_rot_norm,
             saturated,
+        }
+    }
+
+    /// Replaces non-finite entries of `q` (from the last command, or the range's middle before any).
+    fn sanitize(&self, model: &RobotModel, q_in: &JointVector) -> (JointVector, Repair) {
+        let n = model.dof();
+        let mut q = *q_in;
+        let mut repair = Repair::None;
+        for i in 0..n {
+            if !q[i].is_finite() {
+                q[i] = self.q_last.map_or_else(|| model.limits(i).middle(), |last| last[i]);
+                repair = Repair::NonFinite;
+            }
+        }
+        if repair == Repair::None && !model.within_limits(&q) {
+            repair = Repair::OutOfRange;
+        }
+        (q, repair)
+    }
+
+    fn boxes(&self, model: &RobotModel, q: &JointVector, dt: f64) -> Boxes {
+        let zero = [0.0; MAX_JOINTS];
+        let mut b = Boxes { pos_lo: zero, pos_hi: zero, dyn_lo: zero, dyn_hi: zero, lo: zero, hi: zero };
+        for i in 0..model.dof() {
+            let l = model.limits(i);
+            let (a, c) = position_velocity_bounds(q[i], l.lower, l.upper, l.velocity, l.acceleration, dt);
+            let acc_step = l.acceleration * dt;
+            b.pos_lo[i] = a;
+            b.pos_hi[i] = c;
+            b.dyn_lo[i] = (-l.velocity).max(self.qd_prev[i] - acc_step);
+            b.dyn_hi[i] = l.velocity.min(self.qd_prev[i] + acc_step);
+            b.lo[i] = a.max(b.dyn_lo[i]);
+            b.hi[i] = c.min(b.dyn_hi[i]);
+        }
+        b
+    }
+}
+
+/// How [`Clik::sanitize`] had to repair the joint input.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Repair {
+    None,
+    NonFinite,
+    OutOfRange,
+}
+
+impl ClikStep {
+    /// A step that does not move (for a `dt` that cannot be integrated).
+    fn hold(q: JointVector) -> Self {
+        ClikStep {
+            q,
+            qd: JointVector::zeros(),
+            requested: JointVector::zeros(),
+            scale: 0.0,
+            status: ClikStatus { invalid_input: true, scaled: true, ..ClikStatus::default() },
+            sigma_min: 0.0,
+            manipulability: 0.0,
+            damping: 0.0,
+            position_error: 0.0,
+            orientation_error: 0.0,
+            saturated: 0,
         }
     }
 }
 
-/// q̇ = J#·rhs + (I − J#J)·qd0 with per-singular-value damping; returns q̇ and λ² of the smallest σ.
-fn damped_solve(s: &Svd, rhs: &[f64; MAX_TASK], qd0: &JointVector, eps: f64, lambda_max: f64, n: usize) -> (JointVector, f64) {
+/// Makes the columns `w[..m]` (length m) orthonormal again by modified Gram–Schmidt, so that rounding
+/// cannot build up in the SVD warm start over millions of ticks.
+fn orthonormalize(w: &mut [[f64; MAX_TASK]; MAX_TASK], m: usize) {
+    for k in 0..m {
+        for j in 0..k {
+            let d: f64 = (0..m).map(|r| w[k][r] * w[j][r]).sum();
+            for r in 0..m {
+                w[k][r] -= d * w[j][r];
+            }
+        }
+        let norm = (0..m).map(|r| w[k][r] * w[k][r]).sum::<f64>().sqrt();
+        if norm > 0.5 {
+            for r in 0..m {
+                w[k][r] /= norm;
+            }
+        } else {
+            // Degenerate start (cannot come out of a Jacobi sweep): fall back to the identity.
+            *w = identity_start();
+            return;
+        }
+    }
+}
+
+/// ẋ_ref + K·e projected on the task rows, with |K·e| capped; also |e_pos| (m) and |e_rot| (rad).
+fn task_velocity(cfg: &ClikConfig, state: &ChainState, tj: &TaskJacobian, target: &TcpTarget, dt: f64) -> ([f64; MAX_TASK], f64, f64) {
+    let m = tj.m;
+    // Predicted error, e = x_ref(t_{k+1}) ⊖ x(q_k) − ẋ_ref·dt.
+    let e_pos = target.position - state.tcp.translation.vector - target.linear_velocity * dt;
+    let rot = state.tcp.rotation;
+    let e_rot_full = match cfg.task {
+        Task::Pose6 => geom::quaternion_log(&(target.orientation * UnitQuaternion::from_rotation_matrix(&rot).inverse())),
+        Task::Print5 => {
+            let axis = rot.matrix().column(2).into_owned();
+            let axis_ref = target.orientation * Vector3::z();
+            geom::swing_vector(&axis, &axis_ref, &rot.matrix().column(0).into_owned())
+        }
+    };
+    let e_rot = e_rot_full - target.angular_velocity * dt;
+    let e = tj.project(&e_pos, &e_rot);
+    let xd = tj.project(&target.linear_velocity, &target.angular_velocity);
+    let mut feedback = [0.0; MAX_TASK];
+    for r in 0..m {
+        feedback[r] = cfg.gains[r].min(1.0 / dt) * e[r];
+    }
+    let clamp_norm = |part: &mut [f64], cap: f64| {
+        let norm = part.iter().map(|x| x * x).sum::<f64>().sqrt();
+        if norm > cap {
+            part.iter_mut().for_each(|x| *x *= cap / norm);
+        }
+    };
+    clamp_norm(&mut feedback[..3], cfg.max_correction_speed);
+    clamp_norm(&mut feedback[3..m], cfg.max_correction_rate);
+    let mut rhs = [0.0; MAX_TASK];
+    for r in 0..m {
+        rhs[r] = xd[r] + feedback[r];
+    }
+    let e_rot_norm = match cfg.task {
+        Task::Pose6 => e_rot.norm(),
+        Task::Print5 => (e[3] * e[3] + e[4] * e[4]).sqrt(),
+    };
+    (rhs, e_pos.norm(), e_rot_norm)
+}
+
+/// k₀∇ln w + k_jl∇h_jl, each joint capped at its share of the velocity limit.
+fn secondary_velocity(
+    cfg: &ClikConfig,
+    model: &RobotModel,
+    q: &JointVector,
+    state: &ChainState,
+    tj: &TaskJacobian,
+    s0: &Svd,
+) -> JointVector {
+    let mut qd0 = JointVector::zeros();
+    let w = s0.manipulability();
+    if cfg.manipulability_gain > 0.0 && w > 0.0 {
+        qd0 += manipulability_gradient(state, tj, s0) * (cfg.manipulability_gain / w);
+    }
+    for i in 0..model.dof() {
+        let l = model.limits(i);
+        if cfg.joint_limit_gain > 0.0 && l.lower.is_finite() && l.upper.is_finite() && cfg.joint_limit_margin > 0.0 {
+            let margin = cfg.joint_limit_margin * (l.upper - l.lower);
+            let d_hi = q[i] - (l.upper - margin);
+            let d_lo = (l.lower + margin) - q[i];
+            if d_hi > 0.0 {
+                qd0[i] -= cfg.joint_limit_gain * d_hi / (margin * margin);
+            } else if d_lo > 0.0 {
+                qd0[i] += cfg.joint_limit_gain * d_lo / (margin * margin);
+            }
+        }
+        let cap = cfg.nullspace_speed_fraction * l.velocity;
+        qd0[i] = qd0[i].clamp(-cap, cap);
+    }
+    qd0
+}
+
+/// The damped solve with saturation in the null space: a joint inside its braking zone (its position
+/// bound is tighter than its speed limit) that the solution pushes past that bound is held at the
+/// bound and the task re-solved with the others, most-violating joint first. Returns q̇, the first
+/// (unsaturated) solution, and the saturated joints as bits.
+#[allow(clippy::too_many_arguments)]
+fn solve_with_saturation(
+    model: &RobotModel,
+    tj: &TaskJacobian,
+    s0: &Svd,
+    rhs: &[f64; MAX_TASK],
+    qd0: &JointVector,
+    boxes: &Boxes,
+    cfg: &ClikConfig,
+    starts: &mut LevelStarts,
+) -> (JointVector, JointVector, u8) {
+    let (m, n) = (tj.m, tj.n);
+    let mut saturated: u8 = 0;
+    let mut sat_value = JointVector::zeros();
+    // The reduced problem (saturated columns removed), made only once a joint saturates.
+    let mut reduced: Option<TaskJacobian> = None;
+    let mut requested = None;
+    loop {
+        let mut rhs_k = *rhs;
+        let mut qd0_k = *qd0;
+        for j in 0..n {
+            if saturated & (1 << j) != 0 {
+                for (r, x) in rhs_k.iter_mut().enumerate().take(m) {
+                    *x -= tj.rows[r][j] * sat_value[j];
+                }
+                qd0_k[j] = 0.0;
+            }
+        }
+        let mut qd = match cfg.priority {
+            Priority::None => match &reduced {
+                None => damped_solve(s0, &rhs_k, &qd0_k, cfg.sigma_threshold, cfg.damping_max, n),
+                Some(r) => damped_solve(&svd(&r.rows, m, n, &s0.u), &rhs_k, &qd0_k, cfg.sigma_threshold, cfg.damping_max, n),
+            },
+            Priority::PositionFirst => {
+                let rows = reduced.as_ref().map_or(&tj.rows, |r| &r.rows);
+                // Only the full problem moves the warm starts, so they follow the arm, not the saturations.
+                let mut scratch = *starts;
+                let level_starts = if reduced.is_none() { &mut *starts } else { &mut scratch };
+                prioritized_solve(rows, m, n, &rhs_k, &qd0_k, cfg.sigma_threshold, cfg.damping_max, level_starts)
+            }
+        };
+        let requested = *requested.get_or_insert(qd);
+        let mut worst: Option<(usize, f64, f64)> = None;
+        for i in 0..n {
+            if saturated & (1 << i) != 0 {
+                qd[i] = sat_value[i];
+                continue;
+            }
+            let vmax = model.limits(i).velocity;
+            let over = if qd[i] > boxes.pos_hi[i] && boxes.pos_hi[i] < vmax {
+                Some((qd[i] / boxes.pos_hi[i].max(1e-300), boxes.pos_hi[i]))
+            } else if qd[i] < boxes.pos_lo[i] && boxes.pos_lo[i] > -vmax {
+                Some((qd[i] / boxes.pos_lo[i].min(-1e-300), boxes.pos_lo[i]))
+            } else {
+                None
+            };
+            if let Some((ratio, bound)) = over
+                && worst.is_none_or(|w| ratio > w.1)
+            {
+                worst = Some((i, ratio, bound));
+            }
+        }
+        match worst {
+            Some((i, _, bound)) if (saturated.count_ones() as usize) + 1 < n => {
+                saturated |= 1 << i;
+                sat_value[i] = boxes.clamp(i, bound);
+                let mut solve_tj = reduced.unwrap_or(*tj);
+                solve_tj.remove_column(i);
+                reduced = Some(solve_tj);
+            }
+            Some((i, _, bound)) => {
+                // Nothing left to re-solve with: hold this joint too.
+                saturated |= 1 << i;
+                qd[i] = boxes.clamp(i, bound);
+                return (qd, requested, saturated);
+            }
+            None => return (qd, requested, saturated),
+        }
+    }
+}
+
+/// The range [s_lo, s_hi] of factors s ∈ [0, 1] for which s·q̇ lies in the box of every joint that is
+/// not `saturated`; empty when s_lo > s_hi (some joint cannot follow the direction within its
+/// acceleration limit).
+fn common_scale_range(qd: &JointVector, boxes: &Boxes, n: usize, saturated: u8) -> (f64, f64) {
+    let (mut s_lo, mut s_hi) = (0.0f64, 1.0f64);
+    for i in 0..n {
+        if saturated & (1 << i) == 0 {
+            let (a, b) = scale_interval(qd[i], boxes.lo[i], boxes.hi[i]);
+            s_lo = s_lo.max(a);
+            s_hi = s_hi.min(b);
+        }
+    }
+    (s_lo, s_hi)
+}
+
+/// The factors s for which s·v lies in [lo, hi], as an interval (empty: a > b; all s: (−∞, ∞)).
+#[inline]
+fn scale_interval(v: f64, lo: f64, hi: f64) -> (f64, f64) {
+    if v > 0.0 {
+        (lo / v, hi / v)
+    } else if v < 0.0 {
+        (hi / v, lo / v)
+    } else if lo > 0.0 || hi < 0.0 {
+        (f64::INFINITY, f64::NEG_INFINITY)
+    } else {
+        (f64::NEG_INFINITY, f64::INFINITY)
+    }
+}
+
+/// Task priority with damping at both levels (Chiaverini 1997; Siciliano & Slotine 1991):
+///
+/// ```text
+/// q̇ = J₁#r₁ + J̃₂#(r₂ − J₂J₁#r₁) + (N₁ − J̃₂#J̃₂)·q̇₀,   J̃₂ = J₂N₁,  N₁ = I − J₁#J₁
+/// ```
+///
+/// with J₁ the position rows (0–2) and J₂ the orientation rows (3..m). Where both levels have full rank
+/// this is the exact solution of the whole task, the same as [`damped_solve`]; where the orientation
+/// rows lose rank (a wrist singularity), only they are damped and the position rows stay exact.
+#[allow(clippy::too_many_arguments)]
+fn prioritized_solve(
+    rows: &[[f64; MAX_JOINTS]; MAX_TASK],
+    m: usize,
+    n: usize,
+    rhs: &[f64; MAX_TASK],
+    qd0: &JointVector,
+    eps: f64,
+    lambda_max: f64,
+    starts: &mut LevelStarts,
+) -> JointVector {
+    let s1 = svd(rows, 3, n, &starts.position);
+    starts.position = s1.u;
+    orthonormalize(&mut starts.position, 3);
+    // Level 1: J₁#r₁, and the weights of N₁ = I − Σ g_k v_k v_kᵀ.
+    let mut qd = JointVector::zeros();
+    let mut g1 = [0.0; 3];
+    for k in 0..3 {
+        let (f, _) = damped_weights(s1.sigma[k], eps, lambda_max);
+        // The exact projector (not the damped one): the lower level must not leak into position even
+        // where position itself is damped, or the two levels can trade motion back and forth.
+        g1[k] = if s1.sigma[k] > 0.0 { 1.0 } else { 0.0 };
+        let uk_r: f64 = (0..3).map(|r| s1.u[k][r] * rhs[r]).sum();
+        for j in 0..n {
+            qd[j] += f * uk_r * s1.v[k][j];
+        }
+    }
+    let project_n1 = |x: &mut [f64; MAX_JOINTS]| {
+        for k in 0..3 {
+            let d: f64 = (0..n).map(|j| s1.v[k][j] * x[j]).sum::<f64>() * g1[k];
+            for j in 0..n {
+                x[j] -= d * s1.v[k][j];
+            }
+        }
+    };
+    // Level 2: J̃₂ = J₂N₁ (rows of J₂ projected), and the residual r₂ − J₂·(J₁#r₁).
+    let m2 = m - 3;
+    let mut rows2 = [[0.0; MAX_JOINTS]; MAX_TASK];
+    let mut r2 = [0.0; MAX_TASK];
+    for r in 0..m2 {
+        rows2[r] = rows[3 + r];
+        project_n1(&mut rows2[r]);
+        r2[r] = rhs[3 + r] - (0..n).map(|j| rows[3 + r][j] * qd[j]).sum::<f64>();
+    }
+    let s2 = svd(&rows2, m2, n, &starts.orientation);
+    starts.orientation = s2.u;
+    orthonormalize(&mut starts.orientation, m2);
+    // Null space of both levels applied to q̇₀: z = N₁q̇₀, then z − J̃₂#J̃₂z.
+    let mut z = [0.0; MAX_JOINTS];
+    z[..n].copy_from_slice(&qd0.as_slice()[..n]);
+    project_n1(&mut z);
+    for k in 0..m2 {
+        let (f, g) = damped_weights(s2.sigma[k], eps, lambda_max);
+        let uk_r: f64 = (0..m2).map(|r| s2.u[k][r] * r2[r]).sum();
+        let vk_z: f64 = (0..n).map(|j| s2.v[k][j] * z[j]).sum();
+        let coef = f * uk_r - g * vk_z;
+        for j in 0..n {
+            qd[j] += coef * s2.v[k][j];
+        }
+    }
+    for j in 0..n {
+        qd[j] += z[j];
+    }
+    qd
+}
+
+/// The damped inverse's weight σ/(σ² + λ²) and the null-space weight σ²/(σ² + λ²) of one singular value.
+#[inline]
+fn damped_weights(sigma: f64, eps: f64, lambda_max: f64) -> (f64, f64) {
+    let denom = sigma * sigma + damping_sq(sigma, eps, lambda_max);
+    if denom == 0.0 { (0.0, 0.0) } else { (sigma / denom, sigma * sigma / denom) }
+}
+
+/// q̇ = J#·rhs + (I − J#J)·qd0 with per-singular-value damping.
+fn damped_solve(s: &Svd, rhs: &[f64; MAX_TASK], qd0: &JointVector, eps: f64, lambda_max: f64, n: usize) -> JointVector {
     let mut qd = *qd0;
-    let mut lambda_sq_min = 0.0;
     for k in 0..s.m {
-        let sigma = s.sigma[k];
-        let lam2 = damping_sq(sigma, eps, lambda_max);
-        if k == s.m - 1 {
-            lambda_sq_min = lam2;
-        }
-        let denom = sigma * sigma + lam2;
-        if denom == 0.0 {
-            continue;
-        }
+        let (f, g) = damped_weights(s.sigma[k], eps, lambda_max);
         let uk_rhs: f64 = (0..s.m).map(|r| s.u[k][r] * rhs[r]).sum();
         let vk_qd0: f64 = (0..n).map(|j| s.v[k][j] * qd0[j]).sum();
-        let coef = sigma * uk_rhs / denom - sigma * sigma * vk_qd0 / denom;
+        let coef = f * uk_rhs - g * vk_qd0;
         for j in 0..n {
             qd[j] += coef * s.v[k][j];
         }
     }
-    (qd, lambda_sq_min)
+    qd
 }
 
 #[cfg(test)]

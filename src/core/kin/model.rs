@@ -44,7 +44,8 @@ impl JointKind {
 }
 
 /// Limits of one joint. Position and velocity come from the URDF; acceleration and jerk from config
-/// (URDF before 1.2 has none) and are `f64::INFINITY` until set.
+/// (URDF before 1.2 has none; a 1.2 file's values are used until config sets them), `f64::INFINITY`
+/// when neither gives one.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct JointLimits {
     /// Lowest position (rad or m); `-inf` for a continuous joint.
@@ -158,7 +159,13 @@ impl RobotModel {
 
     /// Builds the chain from URDF text; `file` is only used to name the source in errors.
     pub fn from_urdf_str(text: &str, file: &str, root_link: &str, tip_link: &str) -> Result<Self, ModelError> {
-        let robot = urdf_rs::read_from_string(text).map_err(|e| ModelError::Read { file: file.into(), reason: e.to_string() })?;
+        let robot = urdf_rs::read_from_string(text).map_err(|e| match incomplete_limit(text) {
+            // urdf-rs rejects a <limit> without velocity with a bare serde message; name the joint.
+            Some((joint, kind)) => {
+                ModelError::BadLimit { file: file.into(), joint, problem: format!("of this {kind} joint has no velocity attribute ({e})") }
+            }
+            None => ModelError::Read { file: file.into(), reason: e.to_string() },
+        })?;
         let err_file = || file.to_string();
         for (role, link) in [("root", root_link), ("tip", tip_link)] {
             if !robot.links.iter().any(|l| l.name == link) {
@@ -267,6 +274,16 @@ impl RobotModel {
                         problem: format!("velocity={} must be finite and > 0", lim.velocity),
                     }
                 });
+            }
+            for (what, v) in [("acceleration", lim.acceleration), ("jerk", lim.jerk)] {
+                // URDF 1.2 may carry these; infinity means "not given" (config sets them later).
+                if v.is_nan() || v <= 0.0 {
+                    return Err(ModelError::BadLimit {
+                        file: err_file(),
+                        joint: j.name.clone(),
+                        problem: format!("{what}={v} must be > 0"),
+                    });
+                }
             }
             joints.push(Joint {
                 name: j.name.clone(),
@@ -423,4 +440,34 @@ impl RobotModel {
         }
         q
     }
+}
+
+/// The first movable joint whose `<limit>` element lacks the `velocity` attribute, with its type, found
+/// by a plain scan of the text (used only to explain a parse error).
+fn incomplete_limit(text: &str) -> Option<(String, String)> {
+    let attr = |tag: &str, name: &str| -> Option<String> {
+        let at = tag.find(&format!("{name}="))? + name.len() + 1;
+        let quote = tag[at..].chars().next()?;
+        let rest = &tag[at + 1..];
+        Some(rest[..rest.find(quote)?].to_string())
+    };
+    let mut rest = text;
+    while let Some(start) = rest.find("<joint") {
+        let after = &rest[start..];
+        let head_end = after.find('>')?;
+        let head = &after[..head_end];
+        let body_end = if head.ends_with('/') { head_end } else { after.find("</joint>").unwrap_or(after.len()) };
+        let body = &after[..body_end];
+        let kind = attr(head, "type").unwrap_or_default();
+        if matches!(kind.as_str(), "revolute" | "prismatic" | "continuous")
+            && let Some(l) = body.find("<limit")
+        {
+            let tag = &body[l..l + body[l..].find('>').unwrap_or(body.len() - l)];
+            if !tag.contains("velocity=") {
+                return Some((attr(head, "name").unwrap_or_else(|| "?".into()), kind));
+            }
+        }
+        rest = &after[body_end.max(1)..];
+    }
+    None
 }

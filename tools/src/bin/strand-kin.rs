@@ -101,7 +101,7 @@ fn check(robot: &LoadedRobot) -> ExitCode {
     println!("robot   {} ({})", m.name(), m.source());
     println!("chain   {} → {}: {} joints", m.root_link(), m.tip_link(), m.dof());
     println!();
-    println!("  #  joint                  type        lower°    upper°   vel°/s  acc°/s²  jerk°/s³  axis");
+    println!("  #  joint                  type        lower°    upper°   vel°/s  acc°/s²  jerk°/s³  axis  (prismatic: mm, mm/s, …)");
     for (i, j) in m.joints().iter().enumerate() {
         let kind = match j.kind {
             JointKind::Revolute => "revolute",
@@ -109,21 +109,31 @@ fn check(robot: &LoadedRobot) -> ExitCode {
             JointKind::Prismatic => "prismatic",
         };
         let a = j.axis.into_inner();
+        // Rotating joints in degrees; a prismatic joint in millimetres (marked "mm").
+        let unit = |x: f64| {
+            if j.kind.rotates() {
+                deg(x)
+            } else if x.is_finite() {
+                format!("{:.1}mm", x * 1e3)
+            } else {
+                deg(x)
+            }
+        };
         println!(
             "  {}  {:<22} {:<10} {:>8} {:>9} {:>8} {:>8} {:>9}  [{:.3} {:.3} {:.3}]",
             i + 1,
             j.name,
             kind,
-            deg(j.limits.lower),
-            deg(j.limits.upper),
-            deg(j.limits.velocity),
-            deg(j.limits.acceleration),
-            deg(j.limits.jerk),
+            unit(j.limits.lower),
+            unit(j.limits.upper),
+            unit(j.limits.velocity),
+            unit(j.limits.acceleration),
+            unit(j.limits.jerk),
             a.x,
             a.y,
             a.z
         );
-        if j.limits.lower.is_finite() && j.limits.upper - j.limits.lower > 2.0 * std::f64::consts::PI + 1e-3 {
+        if j.kind.rotates() && j.limits.lower.is_finite() && j.limits.upper - j.limits.lower > 2.0 * std::f64::consts::PI + 1e-3 {
             warnings.push(format!("{}: its range {}°…{}° is more than one turn", j.name, deg(j.limits.lower), deg(j.limits.upper)));
         }
         if j.limits.lower > 0.0 || j.limits.upper < 0.0 {
