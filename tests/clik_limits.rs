@@ -42,9 +42,17 @@ fn too_fast_a_path_is_slowed_by_one_factor_and_keeps_its_direction() {
         assert!(s.scale < 1.0 && s.scale >= 0.0);
         let expect = s.requested * s.scale;
         assert!((s.qd - expect).norm() <= 1e-9 * (1.0 + s.requested.norm()), "direction changed: {:?} vs {:?}", s.qd, expect);
-        // One joint is at a limit: its speed limit, or its acceleration step.
-        let binding = (0..6).any(|i| (s.qd[i].abs() - model.limits(i).velocity).abs() < 1e-9);
-        assert!(binding || s.scale < 1.0, "scaled without a binding limit");
+    }
+    // Every scaled step has a joint at a limit: its speed limit, or the edge of its acceleration step.
+    for w in r.steps.windows(2) {
+        let (prev, s) = (&w[0], &w[1]);
+        if s.status.scaled && !s.status.at_limit && !s.status.invalid_input {
+            let binding = (0..6).any(|i| {
+                let l = model.limits(i);
+                (s.qd[i].abs() - l.velocity).abs() < 1e-9 || ((s.qd[i] - prev.qd[i]).abs() - l.acceleration * 1e-3).abs() < 1e-9
+            });
+            assert!(binding, "scaled with no joint at a limit: {s:?}");
+        }
     }
     assert!(r.min_scale < 0.9, "min scale {}", r.min_scale);
 }
@@ -196,4 +204,42 @@ fn a_tick_length_that_is_not_positive_holds_the_arm() {
         let s = solver.step(&model, &q0, &target, dt);
         assert!(s.status.invalid_input && s.q == q0 && s.qd == JointVector::zeros(), "dt {dt}");
     }
+}
+
+#[test]
+fn a_bad_tick_length_while_moving_brakes_within_the_acceleration_limits() {
+    let model = robot("iiwa7");
+    let mut solver = clik(Task::Print5);
+    let q0 = jv(&[0.2, 0.6, -0.1, -1.3, 0.2, 0.9, 0.3]);
+    let pose = model.forward_kinematics(&q0);
+    let orient = UnitQuaternion::from_rotation_matrix(&pose.rotation);
+    let v = Vector3::new(0.0, 0.05, 0.0);
+    let mut q = q0;
+    let mut steps = Vec::new();
+    for k in 0..1500 {
+        let ramp = (k as f64 / 200.0).min(1.0);
+        let p = pose.translation.vector + v * (k as f64 * 1e-3);
+        let target = TcpTarget { position: p, orientation: orient, linear_velocity: v * ramp, angular_velocity: Vector3::zeros() };
+        let dt = if (1000..1010).contains(&k) { f64::NAN } else { 1e-3 };
+        let s = solver.step(&model, &q, &target, dt);
+        assert_eq!(s.status.invalid_input, dt.is_nan(), "tick {k}");
+        q = s.q;
+        steps.push(s);
+    }
+    check_limits(&model, &steps, 1e-3);
+    assert!(steps[1009].qd.norm() < steps[999].qd.norm(), "did not slow down");
+    // And a solver reset with a speed past the limit slows down at the acceleration limit, no panic.
+    let mut fast = clik(Task::Print5);
+    let mut over = JointVector::zeros();
+    over[0] = model.limits(0).velocity * 1.5;
+    over[1] = f64::NAN;
+    fast.reset(over);
+    let s = fast.step(&model, &q0, &TcpTarget::at_rest(pose.translation.vector, orient), 1e-3);
+    assert!(s.q.iter().all(|x| x.is_finite()));
+    assert!(((over[0] - s.qd[0]) - model.limits(0).acceleration * 1e-3).abs() < 1e-9, "{}", s.qd[0]);
+    // Spare entries past the chain's joints carry nothing through.
+    let mut spare = q0;
+    spare[7] = f64::NAN;
+    let s = clik(Task::Print5).step(&model, &spare, &TcpTarget::at_rest(pose.translation.vector, orient), 1e-3);
+    assert!(s.q.iter().all(|x| x.is_finite()) && s.q[7] == 0.0);
 }

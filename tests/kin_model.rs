@@ -117,6 +117,10 @@ fn urdf_errors_name_the_file_and_the_element() {
         .replace(r#"<robot name="t">"#, r#"<robot name="t" version="1.2">"#);
     let msg = load(&v12, "a", "d").unwrap_err().to_string();
     assert!(msg.contains("joint \"j2\"") && msg.contains("acceleration=0"), "{msg}");
+    // Curly quotes (pasted from a word processor) are a parse error, not a crash.
+    let curly = urdf("revolute", lim).replace(r#"type="revolute""#, "type=\u{201c}revolute\u{201d}");
+    let msg = load(&curly, "a", "d").unwrap_err().to_string();
+    assert!(msg.contains("test.urdf"), "{msg}");
     // A link with two parents: the chain branches.
     let branch =
         urdf("revolute", lim).replace("</robot>", r#"<joint name="j3" type="fixed"><parent link="a"/><child link="c"/></joint></robot>"#);

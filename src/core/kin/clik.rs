@@ -227,6 +227,7 @@ pub struct Clik {
     config: ClikConfig,
     qd_prev: JointVector,
     q_last: Option<JointVector>,
+    dt_last: Option<f64>,
     svd_start: [[f64; MAX_TASK]; MAX_TASK],
     level_starts: LevelStarts,
     state: ChainState,
@@ -333,10 +334,11 @@ impl Boxes {
     /// is met as far as the position limit allows: position first.
     #[inline]
     fn clamp(&self, i: usize, v: f64) -> f64 {
+        // max/min rather than f64::clamp: no bound order can make this panic.
         if self.lo[i] <= self.hi[i] {
-            v.clamp(self.lo[i], self.hi[i])
+            v.max(self.lo[i]).min(self.hi[i])
         } else {
-            v.clamp(self.dyn_lo[i], self.dyn_hi[i]).clamp(self.pos_lo[i], self.pos_hi[i])
+            v.max(self.dyn_lo[i]).min(self.dyn_hi[i]).max(self.pos_lo[i]).min(self.pos_hi[i])
         }
     }
 }
@@ -350,6 +352,7 @@ impl Clik {
             config,
             qd_prev: JointVector::zeros(),
             q_last: None,
+            dt_last: None,
             svd_start: identity_start(),
             level_starts: LevelStarts::identity(),
             state: ChainState::new(0),
@@ -363,8 +366,9 @@ impl Clik {
 
     /// Forgets the history: the next step starts from joint velocity `qd` (rad/s or m/s), with a cold SVD.
     pub fn reset(&mut self, qd: JointVector) {
-        self.qd_prev = qd;
+        self.qd_prev = qd.map(|v| if v.is_finite() { v } else { 0.0 });
         self.q_last = None;
+        self.dt_last = None;
         self.svd_start = identity_start();
         self.level_starts = LevelStarts::identity();
     }
@@ -385,18 +389,28 @@ impl Clik {
     /// passed on: a non-finite entry of `q` is replaced by the last command (or the middle of the range
     /// before any), a `q` outside the limits is brought back at no more than the speed and acceleration
     /// limits (never pushed further out), and a target holding NaN or ±∞ is not followed — the arm brakes
-    /// at its acceleration limits. A `dt` that is not a positive finite number holds the arm where it is.
+    /// at its acceleration limits. A `dt` that is not a positive finite number is treated the same way,
+    /// braking over the last good tick length (or holding, if there was none).
     /// The returned command is always finite, and within the position limits whenever `q` was.
     pub fn step(&mut self, model: &RobotModel, q_in: &JointVector, target: &TcpTarget, dt: f64) -> ClikStep {
         let cfg = self.config;
         let n = model.dof();
         let (q, q_repaired) = self.sanitize(model, q_in);
-        if !(dt.is_finite() && dt > 0.0) {
-            return ClikStep::hold(q);
-        }
-        let target_ok =
-            target.position.iter().chain(target.linear_velocity.iter()).chain(target.angular_velocity.iter()).all(|x| x.is_finite())
-                && target.orientation.coords.iter().all(|x| x.is_finite());
+        let dt_ok = dt.is_finite() && dt > 0.0;
+        let dt = match (dt_ok, self.dt_last) {
+            (true, _) => dt,
+            // A tick length that cannot be used: brake over the last good one.
+            (false, Some(last)) => last,
+            // Nothing to go by (and so, from a fresh solver, nothing moving): hold.
+            (false, None) => {
+                self.qd_prev = JointVector::zeros();
+                return ClikStep::hold(q);
+            }
+        };
+        self.dt_last = Some(dt);
+        let target_ok = dt_ok
+            && target.position.iter().chain(target.linear_velocity.iter()).chain(target.angular_velocity.iter()).all(|x| x.is_finite())
+            && target.orientation.coords.iter().all(|x| x.is_finite());
 
         // 1. Kinematics at q_k: FK, task Jacobian, its SVD (warm start from the last tick).
         model.kinematics(&q, &mut self.state);
@@ -428,9 +442,9 @@ impl Clik {
         // 6. One common factor for the boxes (direction kept); per-joint clamping only when none exists.
         let mut status = ClikStatus {
             near_singular: s0.sigma_min() < cfg.sigma_threshold,
-            at_limit: saturated != 0 || q_repaired == Repair::OutOfRange,
+            at_limit: saturated != 0 || q_repaired.out_of_range,
             scaled: false,
-            invalid_input: !target_ok || q_repaired == Repair::NonFinite,
+            invalid_input: !target_ok || q_repaired.non_finite,
         };
         //    Saturated joints are constraints: they stay at their box edge; the free joints are scaled.
         let (s_lo, s_hi) = common_scale_range(&qd, &boxes, n, saturated);
@@ -457,6 +471,8 @@ impl Clik {
                 qd[i] = boxes.clamp(i, 0.0);
             }
             status.invalid_input = true;
+            scale = 0.0;
+            status.scaled = true;
         }
 
         // 7. Integrate; the position clamp only removes rounding (and never pulls an out-of-range q in
@@ -489,16 +505,16 @@ impl Clik {
     fn sanitize(&self, model: &RobotModel, q_in: &JointVector) -> (JointVector, Repair) {
         let n = model.dof();
         let mut q = *q_in;
-        let mut repair = Repair::None;
-        for i in 0..n {
-            if !q[i].is_finite() {
+        let mut repair = Repair { non_finite: false, out_of_range: false };
+        for i in 0..MAX_JOINTS {
+            if i >= n {
+                q[i] = 0.0; // spare entries carry nothing
+            } else if !q[i].is_finite() {
                 q[i] = self.q_last.map_or_else(|| model.limits(i).middle(), |last| last[i]);
-                repair = Repair::NonFinite;
+                repair.non_finite = true;
             }
         }
-        if repair == Repair::None && !model.within_limits(&q) {
-            repair = Repair::OutOfRange;
-        }
+        repair.out_of_range = !model.within_limits(&q);
         (q, repair)
     }
 
@@ -513,6 +529,13 @@ impl Clik {
             b.pos_hi[i] = c;
             b.dyn_lo[i] = (-l.velocity).max(self.qd_prev[i] - acc_step);
             b.dyn_hi[i] = l.velocity.min(self.qd_prev[i] + acc_step);
+            if b.dyn_lo[i] > b.dyn_hi[i] {
+                // Faster than the speed limit allows (a velocity handed to `reset`): slow down as hard
+                // as the acceleration limit lets, towards the allowed range.
+                let v = if self.qd_prev[i] > 0.0 { self.qd_prev[i] - acc_step } else { self.qd_prev[i] + acc_step };
+                b.dyn_lo[i] = v;
+                b.dyn_hi[i] = v;
+            }
             b.lo[i] = a.max(b.dyn_lo[i]);
             b.hi[i] = c.min(b.dyn_hi[i]);
         }
@@ -522,10 +545,11 @@ impl Clik {
 
 /// How [`Clik::sanitize`] had to repair the joint input.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-enum Repair {
-    None,
-    NonFinite,
-    OutOfRange,
+struct Repair {
+    /// An entry was NaN or ±∞ and was replaced.
+    non_finite: bool,
+    /// A joint lies past its position limit.
+    out_of_range: bool,
 }
 
 impl ClikStep {
@@ -688,17 +712,26 @@ fn solve_with_saturation(
             }
         };
         let requested = *requested.get_or_insert(qd);
-        let mut worst: Option<(usize, f64, f64)> = None;
         for i in 0..n {
             if saturated & (1 << i) != 0 {
                 qd[i] = sat_value[i];
+            }
+        }
+        let mut worst: Option<(usize, f64, f64)> = None;
+        for i in 0..n {
+            if saturated & (1 << i) != 0 {
                 continue;
             }
+            // Judged on the unscaled solution: a joint pushing into its braking zone is frozen there even
+            // when the common scale would have slowed it enough. That can bend the direction (flagged
+            // `at_limit`), but judging on the scaled solution stalls the whole arm whenever one joint is
+            // still braking from the other way (the common scale is then 0 and nothing ever saturates).
+            let v = qd[i];
             let vmax = model.limits(i).velocity;
-            let over = if qd[i] > boxes.pos_hi[i] && boxes.pos_hi[i] < vmax {
-                Some((qd[i] / boxes.pos_hi[i].max(1e-300), boxes.pos_hi[i]))
-            } else if qd[i] < boxes.pos_lo[i] && boxes.pos_lo[i] > -vmax {
-                Some((qd[i] / boxes.pos_lo[i].min(-1e-300), boxes.pos_lo[i]))
+            let over = if v > boxes.pos_hi[i] && boxes.pos_hi[i] < vmax {
+                Some((v / boxes.pos_hi[i].max(1e-300), boxes.pos_hi[i]))
+            } else if v < boxes.pos_lo[i] && boxes.pos_lo[i] > -vmax {
+                Some((v / boxes.pos_lo[i].min(-1e-300), boxes.pos_lo[i]))
             } else {
                 None
             };

@@ -447,7 +447,7 @@ impl RobotModel {
 fn incomplete_limit(text: &str) -> Option<(String, String)> {
     let attr = |tag: &str, name: &str| -> Option<String> {
         let at = tag.find(&format!("{name}="))? + name.len() + 1;
-        let quote = tag[at..].chars().next()?;
+        let quote = tag[at..].chars().next().filter(|c| *c == '"' || *c == '\'')?;
         let rest = &tag[at + 1..];
         Some(rest[..rest.find(quote)?].to_string())
     };
