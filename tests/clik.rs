@@ -4,7 +4,7 @@ mod common;
 #[path = "common/paths.rs"]
 mod paths;
 
-use common::{jv, robot};
+use common::{assert_within_limits, jv, robot, start};
 use nalgebra::{UnitQuaternion, Vector3};
 use paths::{Shape, track};
 use strand::core::kin::{Clik, ClikConfig, JointVector, RobotModel, Task, TcpTarget};
@@ -22,15 +22,6 @@ fn shapes(model: &RobotModel, q0: &JointVector) -> [(&'static str, Shape, f64); 
     let inward = Vector3::new(-p0.x, -p0.y, 0.0).normalize();
     let d = (inward + Vector3::new(0.0, 0.0, 0.4) + inward.cross(&Vector3::z()) * 0.5).normalize();
     [("line", Shape::Line { dir: d, length }, 3.0), ("circle", Shape::Circle { a: Vector3::x(), b: Vector3::y(), radius }, 4.0)]
-}
-
-fn start(name: &str) -> JointVector {
-    match name {
-        "iiwa7" => jv(&[0.2, 0.6, -0.1, -1.3, 0.2, 0.9, 0.3]),
-        "vp6242" => jv(&[0.1, 0.0, 2.1, 0.3, 0.9, 0.2]),
-        "meca500" => jv(&[0.1, 0.2, 0.1, 0.3, 0.9, 0.2]),
-        _ => unreachable!(),
-    }
 }
 
 #[test]
@@ -126,12 +117,7 @@ fn through_the_vp6242_wrist_singularity_speeds_stay_in_limits_and_error_is_bound
                 angular_velocity: twist.fixed_rows::<3>(3).into_owned(),
             };
             let step = solver.step(&model, &q, &target, dt);
-            assert!(step.q.iter().chain(step.qd.iter()).all(|x| x.is_finite()), "{task:?} tick {k}: NaN");
-            for i in 0..6 {
-                let l = model.limits(i);
-                assert!(step.qd[i].abs() <= l.velocity * (1.0 + 1e-12), "{task:?} tick {k}: joint {i} speed {}", step.qd[i]);
-                assert!((step.qd[i] - qd_prev[i]).abs() / dt <= l.acceleration * (1.0 + 1e-9), "{task:?} tick {k}: joint {i} accel");
-            }
+            assert_within_limits(&model, &step, &qd_prev, dt, &format!("{task:?} tick {k}"));
             qd_prev = step.qd;
             q = step.q;
             let err = (model.forward_kinematics(&q).translation.vector - pose.translation.vector).norm();
@@ -165,15 +151,7 @@ fn hold(model: &RobotModel, solver: &mut Clik, q0: JointVector, target: TcpTarge
     for k in 0..ticks {
         let step = solver.step(model, &q, &target, 1e-3);
         assert!(model.within_limits(&step.q), "tick {k}: {:?} left the limits", step.q);
-        for i in 0..model.dof() {
-            let l = model.limits(i);
-            assert!(step.qd[i].abs() <= l.velocity * (1.0 + 1e-12), "tick {k}: joint {i} speed");
-            assert!(
-                (step.qd[i] - qd_prev[i]).abs() / 1e-3 <= l.acceleration * (1.0 + 1e-9),
-                "tick {k}: joint {i} accel {}",
-                (step.qd[i] - qd_prev[i]).abs() / 1e-3
-            );
-        }
+        assert_within_limits(model, &step, &qd_prev, 1e-3, &format!("tick {k}"));
         qd_prev = step.qd;
         q = step.q;
         out.push(step);
@@ -270,12 +248,7 @@ fn grazing_sweep(priority: strand::core::kin::Priority) -> (f64, f64, f64, usize
         let orientation = UnitQuaternion::rotation_between(&Vector3::z(), &a).unwrap();
         let target = TcpTarget { position: p0, orientation, linear_velocity: Vector3::zeros(), angular_velocity: a.cross(&a_dot) };
         let step = solver.step(&model, &q, &target, dt);
-        assert!(step.q.iter().all(|x| x.is_finite()));
-        for i in 0..6 {
-            let l = model.limits(i);
-            assert!(step.qd[i].abs() <= l.velocity * (1.0 + 1e-9), "tick {k}: joint {i} speed {}", step.qd[i]);
-            assert!((step.qd[i] - qd_prev[i]).abs() / dt <= l.acceleration * (1.0 + 1e-6), "tick {k}: joint {i} accel");
-        }
+        assert_within_limits(&model, &step, &qd_prev, dt, &format!("{priority:?} tick {k}"));
         qd_prev = step.qd;
         q = step.q;
         let reached = model.forward_kinematics(&q);

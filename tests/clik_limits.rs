@@ -18,12 +18,7 @@ fn clik(task: Task) -> Clik {
 fn check_limits(model: &RobotModel, steps: &[ClikStep], dt: f64) {
     let mut prev = JointVector::zeros();
     for (k, s) in steps.iter().enumerate() {
-        for i in 0..model.dof() {
-            let l = model.limits(i);
-            assert!(s.qd[i].abs() <= l.velocity * (1.0 + 1e-9), "tick {k} joint {i}: speed {}", s.qd[i]);
-            let acc = (s.qd[i] - prev[i]).abs() / dt;
-            assert!(acc <= l.acceleration * (1.0 + 1e-6), "tick {k} joint {i}: accel {acc}");
-        }
+        common::assert_within_limits(model, s, &prev, dt, &format!("tick {k}"));
         prev = s.qd;
     }
 }
@@ -33,7 +28,7 @@ fn too_fast_a_path_is_slowed_by_one_factor_and_keeps_its_direction() {
     // VP6242 (1 rad/s on every joint): a 50 mm circle in 0.6 s needs more than the joints can give.
     let model = robot("vp6242");
     let mut solver = clik(Task::Print5);
-    let q0 = jv(&[0.1, 0.0, 2.1, 0.3, 0.9, 0.2]);
+    let q0 = common::start("vp6242");
     let r = track(&model, &mut solver, q0, Shape::Circle { a: Vector3::x(), b: Vector3::y(), radius: 0.05 }, 0.6, 1000.0);
     check_limits(&model, &r.steps, 1e-3);
     let scaled: Vec<&ClikStep> = r.steps.iter().filter(|s| s.status.scaled && !s.status.at_limit && !s.status.invalid_input).collect();
@@ -61,7 +56,7 @@ fn too_fast_a_path_is_slowed_by_one_factor_and_keeps_its_direction() {
 fn a_nan_target_makes_the_arm_brake_at_its_acceleration_limits_and_stop() {
     let model = robot("iiwa7");
     let mut solver = clik(Task::Print5);
-    let q0 = jv(&[0.2, 0.6, -0.1, -1.3, 0.2, 0.9, 0.3]);
+    let q0 = common::start("iiwa7");
     let start = model.forward_kinematics(&q0);
     let orient = UnitQuaternion::from_rotation_matrix(&start.rotation);
     let dt = 1e-3;
@@ -106,7 +101,7 @@ fn a_nan_target_makes_the_arm_brake_at_its_acceleration_limits_and_stop() {
 fn a_nan_joint_input_is_replaced_by_the_last_command() {
     let model = robot("vp6242");
     let mut solver = clik(Task::Print5);
-    let q0 = jv(&[0.1, 0.0, 2.1, 0.3, 0.9, 0.2]);
+    let q0 = common::start("vp6242");
     let pose = model.forward_kinematics(&q0);
     let target =
         TcpTarget::at_rest(pose.translation.vector + Vector3::new(0.0, 0.0, 0.01), UnitQuaternion::from_rotation_matrix(&pose.rotation));
@@ -197,7 +192,7 @@ fn a_configuration_it_cannot_use_is_refused_naming_the_key() {
 fn a_tick_length_that_is_not_positive_holds_the_arm() {
     let model = robot("iiwa7");
     let mut solver = clik(Task::Print5);
-    let q0 = jv(&[0.2, 0.6, -0.1, -1.3, 0.2, 0.9, 0.3]);
+    let q0 = common::start("iiwa7");
     let pose = model.forward_kinematics(&q0);
     let target = TcpTarget::at_rest(pose.translation.vector, UnitQuaternion::from_rotation_matrix(&pose.rotation));
     for dt in [0.0, -1e-3, f64::NAN, f64::INFINITY] {
@@ -210,7 +205,7 @@ fn a_tick_length_that_is_not_positive_holds_the_arm() {
 fn a_bad_tick_length_while_moving_brakes_within_the_acceleration_limits() {
     let model = robot("iiwa7");
     let mut solver = clik(Task::Print5);
-    let q0 = jv(&[0.2, 0.6, -0.1, -1.3, 0.2, 0.9, 0.3]);
+    let q0 = common::start("iiwa7");
     let pose = model.forward_kinematics(&q0);
     let orient = UnitQuaternion::from_rotation_matrix(&pose.rotation);
     let v = Vector3::new(0.0, 0.05, 0.0);

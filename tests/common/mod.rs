@@ -4,7 +4,7 @@
 use std::path::PathBuf;
 
 use strand::config::RobotConfig;
-use strand::core::kin::{JointVector, RobotModel};
+use strand::core::kin::{ClikStep, JointVector, RobotModel};
 
 pub const ROBOTS: [&str; 5] = ["iiwa7", "iiwa14", "vp6242", "meca500", "irb140"];
 
@@ -77,4 +77,26 @@ pub fn rail_arm() -> RobotModel {
         .unwrap()
         .with_dynamic_limits(&[2.0, 10.0, 10.0, 10.0, 20.0, 20.0, 20.0], &[20.0, 100.0, 100.0, 100.0, 200.0, 200.0, 200.0], ("acc", "jerk"))
         .unwrap()
+}
+
+/// A well-conditioned start configuration of a bundled arm, away from its limits and singularities.
+pub fn start(name: &str) -> JointVector {
+    match name {
+        "iiwa7" => jv(&[0.2, 0.6, -0.1, -1.3, 0.2, 0.9, 0.3]),
+        "vp6242" => jv(&[0.1, 0.0, 2.1, 0.3, 0.9, 0.2]),
+        "meca500" => jv(&[0.1, 0.2, 0.1, 0.3, 0.9, 0.2]),
+        _ => panic!("no start configuration for {name}"),
+    }
+}
+
+/// Asserts that one step's command is finite and meets every joint's speed limit and, against the
+/// previous step's velocity `qd_prev`, its acceleration limit over `dt`.
+pub fn assert_within_limits(model: &RobotModel, step: &ClikStep, qd_prev: &JointVector, dt: f64, label: &str) {
+    assert!(step.q.iter().chain(step.qd.iter()).all(|x| x.is_finite()), "{label}: not finite: {step:?}");
+    for i in 0..model.dof() {
+        let l = model.limits(i);
+        assert!(step.qd[i].abs() <= l.velocity * (1.0 + 1e-12), "{label}: joint {i} speed {} > {}", step.qd[i], l.velocity);
+        let acc = (step.qd[i] - qd_prev[i]).abs() / dt;
+        assert!(acc <= l.acceleration * (1.0 + 1e-9), "{label}: joint {i} acceleration {acc} > {}", l.acceleration);
+    }
 }
