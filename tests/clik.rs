@@ -41,6 +41,10 @@ fn tracks_lines_and_circles_to_a_micrometre_at_1khz() {
             let mut solver = Clik::new(ClikConfig { task, priority, ..ClikConfig::default() }).unwrap();
             let r = track(&model, &mut solver, start(name), shape, total, 1000.0);
             let label = format!("{name} {task:?} {priority:?} {shape_name}");
+            eprintln!(
+                "{label}: max position error {:.2e} m, nozzle axis {:.2e} rad, orientation {:.2e} rad",
+                r.max_pos_err, r.max_axis_err, r.max_rot_err
+            );
             assert!(r.max_pos_err < 1e-6, "{label}: position error {:e} m", r.max_pos_err);
             assert!(r.max_axis_err < 1e-6, "{label}: nozzle axis error {:e} rad", r.max_axis_err);
             if task == Task::Pose6 {
