@@ -1,7 +1,7 @@
 //! How a tool is told which robot to use: a robot file (`config/robots/NAME.toml`: URDF, chain, tool,
 //! limits) or a bare URDF with `--root` and `--tip` (flange as TCP, no acceleration or jerk limits).
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 use strand::config::RobotConfig;
 use strand::core::kin::RobotModel;
@@ -29,9 +29,4 @@ pub fn load_robot(path: &Path, root: Option<&str>, tip: Option<&str>) -> Result<
     };
     let model = RobotModel::from_urdf_file(path, root, tip).map_err(|e| e.to_string())?;
     Ok(LoadedRobot { model, from_config: false })
-}
-
-/// The bundled robot files, for messages.
-pub fn bundled_robots_dir() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../config/robots")
 }
