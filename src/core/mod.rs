@@ -3,3 +3,4 @@
 //! outputs to the bit, and a logged run replays exactly.
 
 pub mod kin;
+pub mod path;
