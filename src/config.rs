@@ -10,7 +10,10 @@ use std::path::{Path, PathBuf};
 use serde::Deserialize;
 use thiserror::Error;
 
+use crate::core::extrude::ExtruderConfig;
 use crate::core::kin::{ClikConfig, Frame, RobotModel, geom};
+use crate::core::path::bed::BedConfig;
+use crate::core::path::{BedTransform, PathConfig};
 
 /// A configuration problem, naming the file and what in it is wrong.
 #[derive(Debug, Error)]
@@ -126,6 +129,35 @@ pub struct Config {
     pub robot: RobotConfig,
     /// CLIK tuning.
     pub clik: ClikConfig,
+    /// The control loop.
+    pub controller: ControllerConfig,
+    /// Path engine limits and lookahead.
+    pub path: PathConfig,
+    /// Extrusion synchronisation.
+    pub extruder: ExtruderConfig,
+    /// Print bed pose and tilt.
+    pub bed: BedConfig,
+}
+
+/// `[controller]`: the control loop.
+#[derive(Clone, Debug, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields, default)]
+pub struct ControllerConfig {
+    /// Tick rate (Hz), 1 to 8 kHz.
+    pub rate_hz: f64,
+}
+
+impl Default for ControllerConfig {
+    fn default() -> Self {
+        ControllerConfig { rate_hz: 1000.0 }
+    }
+}
+
+impl ControllerConfig {
+    /// The tick period (s).
+    pub fn dt(&self) -> f64 {
+        1.0 / self.rate_hz
+    }
 }
 
 #[derive(Deserialize)]
@@ -134,6 +166,14 @@ struct ConfigFile {
     robot: PathBuf,
     #[serde(default)]
     clik: ClikConfig,
+    #[serde(default)]
+    controller: ControllerConfig,
+    #[serde(default)]
+    path: PathConfig,
+    #[serde(default)]
+    extruder: ExtruderConfig,
+    #[serde(default)]
+    bed: BedConfig,
 }
 
 impl Config {
@@ -141,11 +181,25 @@ impl Config {
     pub fn load(path: &Path) -> Result<Self, ConfigError> {
         let raw: ConfigFile = read_toml(path)?;
         raw.clik.validate().map_err(|m| ConfigError::new(path, m))?;
+        if !(raw.controller.rate_hz.is_finite() && (100.0..=8000.0).contains(&raw.controller.rate_hz)) {
+            return Err(ConfigError::new(path, "[controller] rate_hz: must be between 100 and 8000"));
+        }
+        raw.path.validate().map_err(|m| ConfigError::new(path, m.to_string()))?;
+        raw.extruder.validate().map_err(|m| ConfigError::new(path, m))?;
+        BedTransform::new(&raw.bed).map_err(|m| ConfigError::new(path, m))?;
         let robot_path = path.parent().unwrap_or(Path::new(".")).join(&raw.robot);
         if !robot_path.is_file() {
             return Err(ConfigError::new(path, format!("robot: no robot file at {}", robot_path.display())));
         }
         let robot = RobotConfig::load(&robot_path)?;
-        Ok(Config { file: path.to_path_buf(), robot, clik: raw.clik })
+        Ok(Config {
+            file: path.to_path_buf(),
+            robot,
+            clik: raw.clik,
+            controller: raw.controller,
+            path: raw.path,
+            extruder: raw.extruder,
+            bed: raw.bed,
+        })
     }
 }

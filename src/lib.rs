@@ -8,3 +8,5 @@
 
 pub mod config;
 pub mod core;
+pub mod gcode;
+pub mod plan;

@@ -110,3 +110,35 @@ fn the_rare_paths_allocate_nothing_either() {
     assert_eq!(allocations() - before, 0, "allocations on the saturation / invalid-input paths");
     assert!(saturations > 100 && invalid == 501, "paths not reached: {saturations} saturated, {invalid} invalid");
 }
+
+#[test]
+fn path_engine_and_extruder_ticks_allocate_nothing() {
+    use nalgebra::Vector3;
+    use strand::core::extrude::{Extruder, ExtruderConfig};
+    use strand::core::path::{PathConfig, PathEngine, PlanningMode};
+    use strand::gcode::{GcodeOptions, parse_file};
+    let file = common::root().join("tests/data/gcode/slic3r/vase_cyl_spiral.gcode");
+    // The first 3,000 segments, read before counting; fed under back-pressure while counting.
+    let segments: Vec<_> = parse_file(&file, GcodeOptions::default()).unwrap().take(3000).map(|s| s.unwrap().segment).collect();
+    for mode in [PlanningMode::Lookahead, PlanningMode::Rules004, PlanningMode::StopAndGo] {
+        let config = PathConfig { mode, queue_capacity: 256, ..PathConfig::default() };
+        let mut engine = PathEngine::new(&config, 1e-3, Vector3::zeros(), segments[0].orientation).unwrap();
+        let mut extruder = Extruder::new(&ExtruderConfig::default(), 1e-3).unwrap();
+        let mut next = 0;
+        let before = allocations();
+        for tick in 0..60_000 {
+            while next < segments.len() && engine.free_space() > 0 {
+                engine.push(&segments[next]).unwrap();
+                next += 1;
+            }
+            if tick == 20_000 {
+                engine.set_feed_override(0.6);
+            }
+            let sample = engine.step(if (30_000..30_200).contains(&tick) { 0.7 } else { 1.0 });
+            std::hint::black_box(extruder.step(&sample));
+        }
+        let during = allocations() - before;
+        assert_eq!(during, 0, "{mode:?}: {during} allocations in 60,000 path ticks");
+        assert!(engine.stats().replans > 100, "{mode:?}: the planner did not run");
+    }
+}

@@ -78,6 +78,18 @@ pub fn any_perpendicular(a: &Unit<Vector3<f64>>) -> Unit<Vector3<f64>> {
     Unit::new_normalize(a.cross(&pick))
 }
 
+/// The unit quaternion of a rotation vector (angle × axis), the inverse of [`quaternion_log`].
+pub fn quaternion_exp(rotation: &Vector3<f64>) -> UnitQuaternion<f64> {
+    let angle = rotation.norm();
+    if angle < 1e-12 {
+        let h = rotation * 0.5;
+        return UnitQuaternion::new_normalize(nalgebra::Quaternion::new(1.0, h.x, h.y, h.z));
+    }
+    let (s, c) = (libm::sin(0.5 * angle), libm::cos(0.5 * angle));
+    let v = rotation * (s / angle);
+    UnitQuaternion::new_unchecked(nalgebra::Quaternion::new(c, v.x, v.y, v.z))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

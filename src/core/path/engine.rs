@@ -1,0 +1,1346 @@
+//! The path engine: segments in, one TCP sample per tick out.
+//!
+//! Segments wait in a bounded intake queue; each tick the planner turns as many as the planning
+//! budget allows into *pieces* (lines, arcs, corner blends, standstills) in a fixed ring — the
+//! lookahead window — and updates the speed limits at their boundaries. The executor then advances
+//! one tick along the pieces and samples position, velocity and acceleration.
+//!
+//! Speed limits (lookahead mode). Every boundary k between pieces has a cap `vcap_k` (the corner's
+//! centripetal limit, the feeds on both sides, zero before a dwell) and a *potential*
+//! `g_k = S_k + vcap_k²/(2a)`; the end of what has arrived is a boundary with cap 0. With
+//! `G_k = min_{m>k} g_m`, the speed `vb_k = min(vcap_k, w⁻¹(G_k − S_k))` at boundary k still lets
+//! the tool meet every later cap, and stop at the end, within the acceleration *and* jerk limits
+//! (see [`Braking`]). The backward pass keeps `G_k` and the boundary that attains it; a new segment
+//! changes only the boundaries within one braking distance of the old end, so the pass stops there.
+//!
+//! Execution (lookahead mode) is one jerk-limited rsruckig trajectory on the path parameter at a
+//! time, from the current state to the next *binding* boundary (the first whose `vb` is below the
+//! current piece's cap), or, when that boundary lies on the braking curve of a later one, straight
+//! to the later one, so braking across many short pieces is one continuous S-curve. When the
+//! trajectory ends exactly on its target, the next one starts from that state inside the same tick,
+//! so ticks sample one continuous, jerk-limited motion. New segments, a feed override, a speed
+//! scale from the CLIK, or entering a piece with a higher cap start a new trajectory from the
+//! current state. Nothing here allocates after [`PathEngine::new`].
+
+use nalgebra::{UnitQuaternion, Vector3};
+use rsruckig::prelude::*;
+
+use super::config::{InvalidPathConfig, PathConfig, PlanningMode};
+use super::geometry::Geometry;
+use super::profile::{Braking, PathState, Trapezoid};
+use super::segment::{Segment, SegmentFlags, SegmentKind};
+use crate::core::kin::geom;
+
+/// How many boundaries the executor looks past for a binding one before it settles for a
+/// non-binding intermediate target (it re-targets from there).
+const TARGET_WALK: usize = 256;
+/// Lines shorter than this (m) carry no direction; a move this short is skipped.
+const MIN_LENGTH: f64 = 1e-9;
+/// Turns smaller than this (rad) are straight: no blend, no limit.
+const STRAIGHT: f64 = 1e-7;
+
+/// Why a segment was refused. Nothing already accepted is affected.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, thiserror::Error)]
+pub enum SegmentError {
+    /// The intake queue is full; retry after the queue reports space.
+    #[error("segment {seq}: intake queue full")]
+    QueueFull { seq: u64 },
+    /// A field is NaN, infinite or out of range.
+    #[error("segment {seq}: field `{field}` {reason}")]
+    Invalid { seq: u64, field: &'static str, reason: &'static str },
+}
+
+/// What the engine is doing.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Motion {
+    /// At rest with nothing to do.
+    #[default]
+    Idle,
+    /// Moving along the path.
+    Moving,
+    /// Standing still for a dwell.
+    Dwelling,
+    /// Came to a stop at the end of what has arrived, but the job is not finished (no segment
+    /// flagged `LAST` has run): an underrun.
+    Starved,
+    /// Ran the segment flagged `LAST` to its end.
+    Finished,
+}
+
+/// One tick of the path: the TCP's motion in W and the progress along the job.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PathSample {
+    /// TCP position (m, W).
+    pub position: Vector3<f64>,
+    /// TCP velocity (m/s, W).
+    pub velocity: Vector3<f64>,
+    /// TCP acceleration (m/s², W).
+    pub acceleration: Vector3<f64>,
+    /// Tool orientation (W).
+    pub orientation: UnitQuaternion<f64>,
+    /// Tool angular velocity (rad/s, W).
+    pub angular_velocity: Vector3<f64>,
+    /// Arc length travelled since the start (m).
+    pub s: f64,
+    /// Speed along the path (m/s).
+    pub speed: f64,
+    /// Acceleration along the path (m/s²).
+    pub path_acceleration: f64,
+    /// Jerk along the path (m/s³).
+    pub path_jerk: f64,
+    /// Sequence number of the segment being executed.
+    pub seq: u64,
+    /// Its source line (0 if none).
+    pub source_line: u32,
+    /// Its flags.
+    pub flags: SegmentFlags,
+    /// Filament per metre of path of the current piece (m/m); the filament rate is `flow · speed`.
+    pub flow: f64,
+    /// Filament speed (m/s) pushed during a dwell that carries filament (a slicer's retraction).
+    pub dwell_filament_rate: f64,
+    /// What the engine is doing.
+    pub motion: Motion,
+}
+
+/// Counters for status and tests.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct PathStats {
+    /// Segments accepted into the intake queue.
+    pub accepted: u64,
+    /// Zero-length moves skipped (each is also reported once through `last_skipped`).
+    pub skipped_zero_length: u64,
+    /// Sequence number of the last skipped zero-length segment.
+    pub last_skipped: Option<u64>,
+    /// Segments refused as invalid.
+    pub rejected: u64,
+    /// Corners blended.
+    pub blends: u64,
+    /// Times the engine came to rest at the end of the path with the job unfinished.
+    pub underruns: u64,
+    /// Trajectory computations.
+    pub replans: u64,
+    /// Times a limit could not be met from the current state (after a sudden override or speed
+    /// scale drop) and the engine braked as hard as allowed instead.
+    pub forced_brakes: u64,
+    /// Junction updates done by the backward pass.
+    pub plan_work: u64,
+}
+
+/// A piece of the executed path with the limits at its start boundary.
+#[derive(Clone, Copy, Debug)]
+struct Piece {
+    geometry: Geometry,
+    /// Path position of the start (m).
+    start: f64,
+    /// Length (m); 0 for holds.
+    length: f64,
+    /// Programmed feed (m/s).
+    feed: f64,
+    /// Geometric speed cap inside the piece (m/s): centripetal limit and `max_speed`.
+    geometric_cap: f64,
+    /// Cap at the start boundary from the corner (m/s); `INFINITY` if none.
+    junction_cap: f64,
+    /// Filament per path length (m/m).
+    flow: f64,
+    /// Dwell time (s) and filament (m), holds only.
+    hold_time: f64,
+    hold_filament: f64,
+    /// Orientation at the start and the rotation vector over the piece (rad, W).
+    orientation: UnitQuaternion<f64>,
+    rotation: Vector3<f64>,
+    seq: u64,
+    source_line: u32,
+    flags: SegmentFlags,
+    /// A corner blend belongs half to the segment before it: up to `split` (fraction of the length)
+    /// the sample reports this segment and flow; 0 for ordinary pieces.
+    split: f64,
+    first: (u64, u32, SegmentFlags, f64),
+    // Backward pass results for the start boundary.
+    vcap: f64,
+    vb: f64,
+    potential: f64,
+    /// min potential over later boundaries, and the boundary attaining it.
+    later_min: f64,
+    later_arg: u64,
+    /// Whether `vb` comes from the continuous braking curve (then the executor aims past this
+    /// boundary at `later_arg`) rather than from slowing within this piece.
+    via_chain: bool,
+}
+
+impl Piece {
+    fn end(&self) -> f64 {
+        self.start + self.length
+    }
+    fn is_hold(&self) -> bool {
+        matches!(self.geometry, Geometry::Hold { .. })
+    }
+}
+
+/// The last line received, kept so that the corner to the next segment can be blended.
+#[derive(Clone, Copy, Debug)]
+struct Tail {
+    /// Absolute index of the piece that runs to the segment's end.
+    piece: u64,
+    kind: SegmentKind,
+    /// End point, unit direction at the end and full length of the segment.
+    end: Vector3<f64>,
+    direction_out: Vector3<f64>,
+    length: f64,
+    /// Length already taken from the segment's start by the previous blend (m).
+    trimmed_start: f64,
+    /// Orientation at the segment's start and end.
+    q_start: UnitQuaternion<f64>,
+    q_end: UnitQuaternion<f64>,
+    /// 004's ζ = v²/(a·L) of this and the previous segment.
+    zeta: f64,
+    zeta_previous: f64,
+    feed: f64,
+}
+
+/// A fixed-capacity ring addressed by absolute indices.
+struct Ring<T: Copy> {
+    items: Vec<T>,
+    head: u64,
+    tail: u64,
+}
+
+impl<T: Copy> Ring<T> {
+    fn new(capacity: usize, fill: T) -> Self {
+        Ring { items: vec![fill; capacity], head: 0, tail: 0 }
+    }
+    fn len(&self) -> usize {
+        (self.tail - self.head) as usize
+    }
+    fn room(&self) -> usize {
+        self.items.len() - self.len()
+    }
+    fn get(&self, index: u64) -> &T {
+        &self.items[(index % self.items.len() as u64) as usize]
+    }
+    fn get_mut(&mut self, index: u64) -> &mut T {
+        let n = self.items.len() as u64;
+        &mut self.items[(index % n) as usize]
+    }
+    fn push(&mut self, item: T) -> u64 {
+        debug_assert!(self.room() > 0);
+        let index = self.tail;
+        *self.get_mut(index) = item;
+        self.tail += 1;
+        index
+    }
+    fn pop(&mut self) -> Option<T> {
+        (self.head < self.tail).then(|| {
+            let item = *self.get(self.head);
+            self.head += 1;
+            item
+        })
+    }
+}
+
+/// The executor's current trajectory.
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Plan {
+    /// No motion planned.
+    Rest,
+    /// A rsruckig trajectory to boundary `target` at path position `position`, arriving at speed
+    /// `speed` with zero acceleration (`target == u64::MAX`: a braking trajectory with no target);
+    /// `cap` is the speed cap it was planned under.
+    Ruckig { target: u64, position: f64, speed: f64, cap: f64 },
+    /// A trapezoid over one piece (stop-and-go and rules-004).
+    Trapezoid { piece: u64, profile: Trapezoid },
+}
+
+/// The path engine. See the module documentation.
+pub struct PathEngine {
+    config: PathConfig,
+    dt: f64,
+    braking: Braking,
+    intake: Ring<Segment>,
+    pieces: Ring<Piece>,
+    tail: Option<Tail>,
+    /// End point and orientation of the last accepted segment (the next one starts there).
+    last_end: Vector3<f64>,
+    last_orientation: UnitQuaternion<f64>,
+    last_seq: Option<u64>,
+    /// Path position of the end of the last piece (m).
+    path_end: f64,
+    /// Boundaries at or above this index wait for the backward pass.
+    dirty_from: Option<u64>,
+    feed_override: f64,
+    /// Global speed cap from the CLIK's scale (m/s), and ticks since it last bit.
+    speed_cap: f64,
+    cap_quiet_ticks: u32,
+    replan: bool,
+    // Executor.
+    state: PathState,
+    piece: u64,
+    plan: Plan,
+    plan_time: f64,
+    /// Path position where the current trapezoid starts (m).
+    plan_origin: f64,
+    /// Where the tool rests when no piece is left (m, W), and its orientation.
+    rest_point: Vector3<f64>,
+    last_piece_orientation: UnitQuaternion<f64>,
+    dwell_left: f64,
+    motion: Motion,
+    finished: bool,
+    otg: Ruckig<1, IgnoreErrorHandler>,
+    input: InputParameter<1>,
+    trajectory: Trajectory<1>,
+    /// Where trial trajectories are computed; swapped in when one is taken.
+    candidate: Trajectory<1>,
+    stats: PathStats,
+}
+
+impl PathEngine {
+    /// An engine at rest at `start` (m, W) with tool orientation `orientation`, ticking every `dt`
+    /// seconds. All memory is allocated here.
+    pub fn new(config: &PathConfig, dt: f64, start: Vector3<f64>, orientation: UnitQuaternion<f64>) -> Result<Self, InvalidPathConfig> {
+        config.validate()?;
+        if !(dt.is_finite() && dt > 0.0 && dt < 1.0) {
+            return Err(InvalidPathConfig { key: "dt", message: "tick period must be in (0, 1) s" });
+        }
+        if !start.iter().all(|x| x.is_finite()) {
+            return Err(InvalidPathConfig { key: "start", message: "start position must be finite" });
+        }
+        let jerk = if config.mode == PlanningMode::Lookahead { config.max_jerk } else { f64::INFINITY };
+        let braking = Braking { acceleration: config.max_acceleration, jerk };
+        let blank = Piece {
+            geometry: Geometry::Hold { point: start },
+            start: 0.0,
+            length: 0.0,
+            feed: 0.0,
+            geometric_cap: 0.0,
+            junction_cap: 0.0,
+            flow: 0.0,
+            hold_time: 0.0,
+            hold_filament: 0.0,
+            orientation,
+            rotation: Vector3::zeros(),
+            seq: 0,
+            source_line: 0,
+            flags: SegmentFlags::default(),
+            split: 0.0,
+            first: (0, 0, SegmentFlags::default(), 0.0),
+            vcap: 0.0,
+            vb: 0.0,
+            potential: 0.0,
+            later_min: 0.0,
+            later_arg: 0,
+            via_chain: false,
+        };
+        let mut input = InputParameter::new(None);
+        input.max_acceleration[0] = config.max_acceleration;
+        input.max_jerk[0] = config.max_jerk;
+        Ok(PathEngine {
+            config: config.clone(),
+            dt,
+            braking,
+            intake: Ring::new(config.queue_capacity, Segment::default()),
+            pieces: Ring::new(2 * config.queue_capacity + 8, blank),
+            tail: None,
+            last_end: start,
+            last_orientation: orientation,
+            last_seq: None,
+            path_end: 0.0,
+            dirty_from: None,
+            feed_override: 1.0,
+            speed_cap: f64::INFINITY,
+            cap_quiet_ticks: 0,
+            replan: false,
+            state: PathState::default(),
+            piece: 0,
+            plan: Plan::Rest,
+            plan_time: 0.0,
+            plan_origin: 0.0,
+            rest_point: start,
+            last_piece_orientation: orientation,
+            dwell_left: 0.0,
+            motion: Motion::Idle,
+            finished: false,
+            otg: Ruckig::new(None, dt),
+            input,
+            trajectory: Trajectory::new(None),
+            candidate: Trajectory::new(None),
+            stats: PathStats::default(),
+        })
+    }
+
+    /// The configuration in use.
+    pub fn config(&self) -> &PathConfig {
+        &self.config
+    }
+
+    /// Counters.
+    pub fn stats(&self) -> &PathStats {
+        &self.stats
+    }
+
+    /// Segments the intake queue can take now (the back-pressure figure for `Status`).
+    pub fn free_space(&self) -> usize {
+        self.intake.room()
+    }
+
+    /// Segments accepted but not yet fully executed (intake plus lookahead).
+    pub fn pending(&self) -> usize {
+        self.intake.len() + self.pieces.len()
+    }
+
+    /// True when everything received has run and the engine is at rest.
+    pub fn is_at_rest(&self) -> bool {
+        matches!(self.motion, Motion::Idle | Motion::Starved | Motion::Finished) && self.intake.len() == 0
+    }
+
+    /// Current feed override (fraction of the programmed feed).
+    pub fn feed_override(&self) -> f64 {
+        self.feed_override
+    }
+
+    /// Sets the feed override (0.01 to 2); the speed follows within the acceleration and jerk
+    /// limits. Out-of-range or non-finite values are clamped (NaN leaves it unchanged).
+    pub fn set_feed_override(&mut self, fraction: f64) {
+        if fraction.is_nan() {
+            return;
+        }
+        let fraction = fraction.clamp(0.01, 2.0);
+        if fraction != self.feed_override {
+            self.feed_override = fraction;
+            // Every cap depends on it: recompute the whole window.
+            for k in self.pieces.head..self.pieces.tail {
+                self.refresh_cap(k);
+            }
+            self.mark_dirty(self.pieces.tail);
+            self.backward_pass();
+            self.replan = true;
+        }
+    }
+
+    /// Queues a segment. It is checked against the previous end point; a refused segment changes
+    /// nothing. A move of zero length is accepted and skipped (counted in the stats).
+    pub fn push(&mut self, segment: &Segment) -> Result<(), SegmentError> {
+        let seq = segment.seq;
+        self.validate(segment).inspect_err(|_| self.stats.rejected += 1)?;
+        if self.intake.room() == 0 {
+            return Err(SegmentError::QueueFull { seq });
+        }
+        if segment.kind == SegmentKind::Line && (segment.end - self.last_end).norm() < MIN_LENGTH {
+            self.stats.skipped_zero_length += 1;
+            self.stats.last_skipped = Some(seq);
+            self.last_seq = Some(seq);
+            if segment.flags.contains(SegmentFlags::LAST) {
+                // Still mark the end of the job: a zero-length dwell carries the flag.
+                let mut marker = *segment;
+                marker.kind = SegmentKind::Dwell;
+                marker.duration = 0.0;
+                marker.filament = 0.0;
+                self.intake.push(marker);
+            }
+            return Ok(());
+        }
+        self.intake.push(*segment);
+        self.last_end = segment.end;
+        self.last_orientation = segment.orientation;
+        self.last_seq = Some(seq);
+        self.stats.accepted += 1;
+        Ok(())
+    }
+
+    fn validate(&self, s: &Segment) -> Result<(), SegmentError> {
+        let seq = s.seq;
+        let bad = |field, reason| Err(SegmentError::Invalid { seq, field, reason });
+        if let Some(last) = self.last_seq
+            && seq <= last
+        {
+            return bad("seq", "must increase");
+        }
+        if !s.end.iter().all(|x| x.is_finite()) {
+            return bad("end", "is not finite");
+        }
+        let q = s.orientation.quaternion();
+        if !q.coords.iter().all(|x| x.is_finite()) || (q.norm() - 1.0).abs() > 1e-6 {
+            return bad("orientation", "is not a finite unit quaternion");
+        }
+        if !s.filament.is_finite() {
+            return bad("filament", "is not finite");
+        }
+        match s.kind {
+            SegmentKind::Dwell => {
+                if !(s.duration.is_finite() && s.duration >= 0.0 && s.duration < 1e6) {
+                    return bad("duration", "must be finite, >= 0 and < 1e6 s");
+                }
+                if (s.end - self.last_end).norm() > 1e-9 {
+                    return bad("end", "a dwell must stay at the previous end point");
+                }
+                if s.filament != 0.0 && s.duration <= 0.0 {
+                    return bad("duration", "a dwell that moves filament needs a duration > 0");
+                }
+            }
+            SegmentKind::Line | SegmentKind::Arc => {
+                if !(s.feed.is_finite() && s.feed > 0.0) {
+                    return bad("feed", "must be finite and > 0");
+                }
+            }
+        }
+        if s.kind == SegmentKind::Arc {
+            if !s.centre.iter().all(|x| x.is_finite()) {
+                return bad("centre", "is not finite");
+            }
+            if !(s.normal.iter().all(|x| x.is_finite()) && (s.normal.norm() - 1.0).abs() < 1e-6) {
+                return bad("normal", "must be a unit vector");
+            }
+            if !(s.sweep.is_finite() && s.sweep > 0.0 && s.sweep < 2.0 * std::f64::consts::PI * 1000.0) {
+                return bad("sweep", "must be finite and in (0, 2000π) rad");
+            }
+            let Some(geometry) = arc_geometry(&self.last_end, s) else {
+                return bad("centre", "start lies on the arc's axis (zero radius)");
+            };
+            let length = geometry.length(0.0);
+            let reach = (geometry.end(length) - s.end).norm();
+            if reach > 1e-6 + 1e-6 * length {
+                return bad("end", "does not lie where centre, normal and sweep put it");
+            }
+        }
+        Ok(())
+    }
+
+    fn refresh_cap(&mut self, k: u64) {
+        let over = self.feed_override;
+        let max_speed = self.config.max_speed;
+        let previous_cap = if k > self.pieces.head { Some(piece_cap(self.pieces.get(k - 1), over, max_speed)) } else { None };
+        let p = self.pieces.get_mut(k);
+        let own = piece_cap(p, over, max_speed);
+        let mut vcap = p.junction_cap.min(own);
+        if let Some(prev) = previous_cap {
+            vcap = vcap.min(prev);
+        }
+        if p.is_hold() {
+            vcap = 0.0;
+        }
+        p.vcap = vcap;
+    }
+
+    fn mark_dirty(&mut self, from: u64) {
+        self.dirty_from = Some(self.dirty_from.map_or(from, |d| d.min(from)));
+    }
+
+    /// Updates `vb` and the later minimum of the potential from the end back, stopping where
+    /// nothing changes any more or beyond one braking distance of the change. Returns the work done.
+    fn backward_pass(&mut self) -> usize {
+        let Some(changed) = self.dirty_from.take() else { return 0 };
+        let horizon = self.braking.w(self.config.max_speed) + 1e-6;
+        let end = self.pieces.tail;
+        let change_position = if changed < end { self.pieces.get(changed).start } else { self.path_end };
+        let mut later_min = self.braking.potential(self.path_end, 0.0);
+        let mut later_arg = end;
+        let mut work = 0;
+        let mut k = end;
+        while k > self.pieces.head {
+            k -= 1;
+            work += 1;
+            self.refresh_cap(k);
+            let braking = self.braking;
+            let p = self.pieces.get_mut(k);
+            let unchanged = p.later_min == later_min && p.later_arg == later_arg;
+            // Two plans make a speed at this boundary safe: slowing to the next boundary's vb
+            // within this piece (exact, arriving at zero acceleration), or one continuous braking
+            // curve to the boundary holding the later minimum (the composable bound). Either will
+            // do; the executor follows the one that allows more.
+            let next_vb = if k + 1 < end { self.pieces.get(k + 1).vb } else { 0.0 };
+            let p = self.pieces.get(k);
+            let hop = braking.reach(p.length, next_vb, p.vcap);
+            let chain = braking.w_inverse(later_min - p.start);
+            let vb = p.vcap.min(hop.max(chain));
+            let via_chain = chain > hop;
+            let p = self.pieces.get_mut(k);
+            p.via_chain = via_chain;
+            let potential = braking.potential(p.start, p.vcap);
+            // Below a boundary whose speed did not change, sits at its cap, and whose later
+            // minimum only rose, every stored value is still safe (at worst slower than it could
+            // be), so the pass can stop there: this keeps appending to a long run of tiny segments
+            // cheap, where the end's potential is the later minimum of every boundary.
+            let saturated_and_relaxed = p.vb == vb && vb == p.vcap && later_min >= p.later_min;
+            let unchanged = (unchanged && p.vb == vb && p.potential == potential) || saturated_and_relaxed;
+            p.later_min = later_min;
+            p.later_arg = later_arg;
+            p.vb = vb;
+            p.potential = potential;
+            let start = p.start;
+            if potential <= later_min {
+                later_min = potential;
+                later_arg = k;
+            }
+            if k < changed && (unchanged || change_position - start > horizon) {
+                break;
+            }
+        }
+        self.stats.plan_work += work as u64;
+        work
+    }
+
+    /// Moves segments from the intake queue into the lookahead within the tick's budget.
+    fn plan(&mut self) {
+        // One segment's pass is atomic (it is bounded by the pieces within one braking distance of
+        // the change); the budget decides how many segments are taken in per tick.
+        let mut budget = self.config.plan_budget;
+        while budget > 0 && self.intake.len() > 0 && self.pieces.room() >= 4 {
+            let Some(segment) = self.intake.pop() else { break };
+            self.append(&segment);
+            self.replan = true;
+            budget = budget.saturating_sub(self.backward_pass().max(1));
+        }
+    }
+
+    /// Turns one segment into pieces, blending the corner from the previous line in lookahead mode.
+    fn append(&mut self, s: &Segment) {
+        let start_point = self.tail.map_or(self.current_end_point(), |t| t.end);
+        if s.flags.contains(SegmentFlags::LAST) {
+            self.finished = false;
+        }
+        match s.kind {
+            SegmentKind::Dwell => {
+                self.tail = None;
+                let piece = self.new_piece(Geometry::Hold { point: start_point }, 0.0, s, 0.0);
+                let index = self.pieces.push(Piece { hold_time: s.duration, hold_filament: s.filament, ..piece });
+                self.mark_dirty(index);
+            }
+            SegmentKind::Line | SegmentKind::Arc => {
+                let (geometry, length, direction_in, direction_out) = if s.kind == SegmentKind::Line {
+                    let delta = s.end - start_point;
+                    let length = delta.norm();
+                    let direction = delta / length;
+                    (Geometry::Line { start: start_point, direction }, length, direction, direction)
+                } else {
+                    let geometry = arc_geometry(&start_point, s).unwrap_or(Geometry::Line { start: start_point, direction: Vector3::x() });
+                    let length = geometry.length(0.0);
+                    let d_in = geometry.point(0.0, length).tangent.normalize();
+                    let d_out = geometry.point(length, length).tangent.normalize();
+                    (geometry, length, d_in, d_out)
+                };
+                let flow = if s.extrudes() || s.filament != 0.0 { s.filament / length } else { 0.0 };
+                let q_start = self.tail.map_or(self.pieces_end_orientation(), |t| t.q_end);
+                let zeta = s.feed * s.feed / (self.config.max_acceleration * length);
+                let mut junction_cap = f64::INFINITY;
+                let mut trimmed_start = 0.0;
+                let mut piece_geometry = geometry;
+                let mut piece_length = length;
+                if let Some(tail) = self.tail {
+                    let turn = angle_between(&tail.direction_out, &direction_in);
+                    match self.config.mode {
+                        PlanningMode::StopAndGo => junction_cap = 0.0,
+                        PlanningMode::Rules004 => {
+                            if !self.rules_004_continue(&tail, zeta, turn) {
+                                junction_cap = 0.0;
+                            }
+                        }
+                        PlanningMode::Lookahead => {
+                            if turn < STRAIGHT {
+                            } else if tail.kind == SegmentKind::Line && s.kind == SegmentKind::Line && turn < std::f64::consts::PI - 1e-6 {
+                                match self.blend(&tail, s, length, direction_in, turn) {
+                                    Some(trim) => {
+                                        trimmed_start = trim;
+                                        piece_geometry =
+                                            Geometry::Line { start: start_point + direction_in * trim, direction: direction_in };
+                                        piece_length = length - trim;
+                                    }
+                                    None => junction_cap = self.kink_cap(turn),
+                                }
+                            } else {
+                                junction_cap = self.kink_cap(turn);
+                            }
+                        }
+                    }
+                } else if self.pieces.len() > 0 || self.state.v > 0.0 {
+                    // After a dwell or from an unknown direction: start from rest.
+                    junction_cap = 0.0;
+                }
+                let mut piece = self.new_piece(piece_geometry, piece_length, s, flow);
+                piece.junction_cap = junction_cap;
+                piece.geometric_cap = self.config.max_speed.min((self.config.centripetal_acceleration * geometry.min_radius()).sqrt());
+                let q_trim = slerp_along(&q_start, &s.orientation, trimmed_start / length);
+                piece.orientation = q_trim;
+                piece.rotation = geom::quaternion_log(&(s.orientation * q_trim.inverse()));
+                let index = self.pieces.push(piece);
+                self.path_end = self.pieces.get(self.pieces.tail - 1).end();
+                self.mark_dirty(self.tail.map_or(index, |t| t.piece).min(index));
+                let zeta_previous = self.tail.map_or(0.0, |t| t.zeta);
+                self.tail = Some(Tail {
+                    piece: index,
+                    kind: s.kind,
+                    end: s.end,
+                    direction_out,
+                    length,
+                    trimmed_start,
+                    q_start,
+                    q_end: s.orientation,
+                    zeta,
+                    zeta_previous,
+                    feed: s.feed,
+                });
+            }
+        }
+        if s.kind == SegmentKind::Dwell {
+            self.path_end = self.pieces.get(self.pieces.tail - 1).end();
+        }
+    }
+
+    fn new_piece(&self, geometry: Geometry, length: f64, s: &Segment, flow: f64) -> Piece {
+        let start = if self.pieces.len() > 0 { self.pieces.get(self.pieces.tail - 1).end() } else { self.state.s };
+        Piece {
+            geometry,
+            start,
+            length,
+            feed: s.feed,
+            geometric_cap: self.config.max_speed,
+            junction_cap: f64::INFINITY,
+            flow,
+            hold_time: 0.0,
+            hold_filament: 0.0,
+            orientation: s.orientation,
+            rotation: Vector3::zeros(),
+            seq: s.seq,
+            source_line: s.source_line,
+            flags: s.flags,
+            split: 0.0,
+            first: (0, 0, SegmentFlags::default(), 0.0),
+            vcap: 0.0,
+            vb: 0.0,
+            potential: 0.0,
+            later_min: 0.0,
+            later_arg: 0,
+            via_chain: false,
+        }
+    }
+
+    fn current_end_point(&self) -> Vector3<f64> {
+        if self.pieces.len() > 0 {
+            let p = self.pieces.get(self.pieces.tail - 1);
+            p.geometry.end(p.length)
+        } else {
+            self.sample_geometry().position
+        }
+    }
+
+    fn pieces_end_orientation(&self) -> UnitQuaternion<f64> {
+        if self.pieces.len() > 0 {
+            let p = self.pieces.get(self.pieces.tail - 1);
+            geom::quaternion_exp(&p.rotation) * p.orientation
+        } else {
+            self.last_piece_orientation
+        }
+    }
+
+    /// 004 Table I: does the tool pass from the tail segment s_i into the new one s_{i+1} at speed?
+    /// Phases (1) and (2) continue; (3), (1)+(3) and segments no rule covers stop at the end.
+    fn rules_004_continue(&self, tail: &Tail, zeta_next: f64, turn: f64) -> bool {
+        let cos_phi = libm::cos(turn);
+        let eps = self.config.corner_cosine;
+        let (z_prev, z_i, z_next) = (tail.zeta_previous, tail.zeta, zeta_next);
+        // Rule (1): a curve starts at s_i (phase (1) if it goes on, (1)+(3) if it turns sharply).
+        let rule_1 = z_prev < 1.0 && z_i > 1.0 && z_next > 1.0;
+        // Rule (2): inside a curve (phase (2), or (3) at a sharp turn).
+        let rule_2 = z_prev > 1.0 && z_i > 1.0 && z_next > 1.0;
+        // Rule (3) and long segments come to rest (normal planning).
+        (rule_1 || rule_2) && cos_phi >= eps
+    }
+
+    /// The speed at a kink that cannot be blended: tiny kinks at speed, larger ones slowly.
+    fn kink_cap(&self, turn: f64) -> f64 {
+        if turn <= self.config.max_kink { f64::INFINITY } else { self.config.centripetal_acceleration * self.dt / turn }
+    }
+
+    /// Blends the corner between the tail line and a new line with a tangent arc that stays within
+    /// the deviation tolerance and uses at most half of the new line. Trims the tail piece and
+    /// appends the arc; returns the length trimmed from the new line, or None if no blend fits.
+    fn blend(&mut self, tail: &Tail, s: &Segment, length: f64, direction_in: Vector3<f64>, turn: f64) -> Option<f64> {
+        let half = 0.5 * turn;
+        let (tan_half, cos_half) = (libm::tan(half), libm::cos(half));
+        let tolerance = self.config.deviation_tolerance;
+        // Deviation of the arc midpoint from the corner: r (1/cos(φ/2) − 1).
+        let r_tolerance = tolerance * cos_half / (1.0 - cos_half);
+        let available_tail = tail.length - tail.trimmed_start;
+        let mut d = (r_tolerance * tan_half).min(available_tail).min(0.5 * length);
+        // The tail piece may already be under way: keep the blend beyond where the tool could stop.
+        let tail_piece = *self.pieces.get(tail.piece);
+        let stop = self.state.s + self.braking.stopping_distance(self.state.v, self.state.a);
+        d = d.min(tail_piece.end() - stop);
+        if d < 1e-7 {
+            return None;
+        }
+        let radius = d / tan_half;
+        let corner = tail.end;
+        let p_in = corner - tail.direction_out * d;
+        let bisector = (direction_in - tail.direction_out).normalize();
+        let centre = corner + bisector * (radius / cos_half);
+        let e1 = (p_in - centre).normalize();
+        let normal = e1.cross(&tail.direction_out).normalize();
+        let e2 = normal.cross(&e1);
+        let geometry = Geometry::Arc { centre, e1, e2, normal, radius, radius_rate: 0.0, pitch: 0.0, sweep: turn };
+        let arc_length = radius * turn;
+        // Trim the tail piece.
+        {
+            let tp = self.pieces.get_mut(tail.piece);
+            tp.length = (tp.length - d).max(0.0);
+            let rotation_fraction =
+                if tail.length - tail.trimmed_start > 0.0 { tp.length / (tail.length - tail.trimmed_start) } else { 1.0 };
+            tp.rotation *= rotation_fraction;
+        }
+        let q_in = slerp_along(&tail.q_start, &tail.q_end, (tail.length - d) / tail.length);
+        let q_out = slerp_along(&tail.q_end, &s.orientation, d / length);
+        let centripetal = (self.config.centripetal_acceleration * radius).sqrt();
+        let blend_start = self.pieces.get(tail.piece).end();
+        let mut arc = self.new_piece(geometry, arc_length, s, 0.0);
+        arc.start = blend_start;
+        arc.feed = tail.feed.min(s.feed);
+        arc.geometric_cap = self.config.max_speed.min(centripetal);
+        // Each half of the blend keeps its own segment's filament per metre, so the bead keeps its
+        // cross-section; the blend is shorter than the two trimmed ends, by (1 − φ/(2 tan(φ/2))).
+        arc.flow = if s.extrudes() || s.filament != 0.0 { s.filament / length } else { 0.0 };
+        arc.split = 0.5;
+        arc.first = (tail_piece.seq, tail_piece.source_line, tail_piece.flags, tail_piece.flow);
+        arc.orientation = q_in;
+        arc.rotation = geom::quaternion_log(&(q_out * q_in.inverse()));
+        self.pieces.push(arc);
+        self.stats.blends += 1;
+        Some(d)
+    }
+
+    /// One control tick. `speed_scale` is the fraction of the current path speed the caller could
+    /// follow last tick (the CLIK's joint-limit scale; 1 when unconstrained).
+    pub fn step(&mut self, speed_scale: f64) -> PathSample {
+        self.plan();
+        self.apply_speed_scale(speed_scale);
+        if self.replan && self.motion != Motion::Dwelling {
+            self.replan = false;
+            let moving = matches!(self.plan, Plan::Ruckig { .. });
+            self.start_plan_from(self.state, 0.0, moving);
+            if self.motion == Motion::Dwelling {
+                return self.sample();
+            }
+        }
+        self.advance();
+        self.sample()
+    }
+
+    fn apply_speed_scale(&mut self, scale: f64) {
+        let scale = if scale.is_finite() { scale.clamp(0.0, 1.0) } else { 0.0 };
+        if scale < 1.0 - 1e-9 && self.state.v > 0.0 {
+            let cap = (scale * self.state.v * 0.98).max(1e-4);
+            if cap < self.speed_cap {
+                self.speed_cap = cap;
+                self.cap_quiet_ticks = 0;
+                self.replan = true;
+            }
+        } else if self.speed_cap.is_finite() {
+            self.cap_quiet_ticks += 1;
+            // Recover in 10 % steps every 20 ms once the caller keeps up again.
+            if self.cap_quiet_ticks as f64 * self.dt >= 0.02 {
+                self.cap_quiet_ticks = 0;
+                self.speed_cap *= 1.1;
+                if self.speed_cap >= self.config.max_speed * 2.0 {
+                    self.speed_cap = f64::INFINITY;
+                }
+                self.replan = true;
+            }
+        }
+    }
+
+    /// Piece containing path position `s` at or after the cursor (holds are entered when reached).
+    fn locate(&mut self, s: f64) {
+        while self.piece + 1 < self.pieces.tail {
+            let p = self.pieces.get(self.piece);
+            // Pieces ending within a nanometre count as passed: a blend can leave a line stub of a
+            // few ulps, too short to plan a trajectory over.
+            let next_is_hold = self.pieces.get(self.piece + 1).is_hold();
+            if p.is_hold() || s < p.end() - if next_is_hold { 0.0 } else { 1e-9 } {
+                break;
+            }
+            self.piece += 1;
+        }
+        // Forget pieces behind the cursor.
+        while self.pieces.head < self.piece {
+            self.last_piece_orientation = {
+                let p = self.pieces.get(self.pieces.head);
+                geom::quaternion_exp(&p.rotation) * p.orientation
+            };
+            self.pieces.pop();
+        }
+    }
+
+    fn cap_of(&self, k: u64) -> f64 {
+        piece_cap(self.pieces.get(k), self.feed_override, self.config.max_speed).min(self.speed_cap)
+    }
+
+    /// Plans from `state`, reached `elapsed` seconds into the tick being computed.
+    fn start_plan(&mut self, state: PathState, elapsed: f64) {
+        self.start_plan_from(state, elapsed, false);
+    }
+
+    /// As [`start_plan`](Self::start_plan); `event` marks a re-plan in the middle of a trajectory
+    /// (new segments, override, speed scale), which may keep the current one if nothing better fits.
+    fn start_plan_from(&mut self, state: PathState, elapsed: f64, event: bool) {
+        let previous_time = self.plan_time;
+        self.plan_time = elapsed;
+        self.state = state;
+        loop {
+            self.locate(state.s);
+            if self.pieces.len() == 0 || self.piece >= self.pieces.tail {
+                self.plan = Plan::Rest;
+                return;
+            }
+            let current = *self.pieces.get(self.piece);
+            if current.is_hold() && state.v <= 1e-12 {
+                if current.hold_time > 0.0 {
+                    self.enter_dwell(elapsed);
+                    return;
+                }
+                if self.piece + 1 < self.pieces.tail {
+                    self.piece += 1;
+                    continue;
+                }
+                self.plan = Plan::Rest;
+                return;
+            }
+            break;
+        }
+        match self.config.mode {
+            PlanningMode::Lookahead => self.plan_ruckig(state, event, previous_time),
+            _ => self.plan_trapezoid(state),
+        }
+    }
+
+    fn boundary_position(&self, k: u64) -> f64 {
+        if k >= self.pieces.tail { self.path_end } else { self.pieces.get(k).start }
+    }
+
+    fn boundary_speed(&self, k: u64) -> f64 {
+        if k >= self.pieces.tail { 0.0 } else { self.pieces.get(k).vb }
+    }
+
+    fn plan_ruckig(&mut self, state: PathState, event: bool, previous_time: f64) {
+        let vrun = self.cap_of(self.piece);
+        if vrun <= 1e-12 {
+            // Standing on a hold while still creeping (within rounding of it): come to rest.
+            self.ruckig_velocity(state, 0.0);
+            std::mem::swap(&mut self.trajectory, &mut self.candidate);
+            self.plan = Plan::Ruckig { target: u64::MAX, position: f64::NAN, speed: 0.0, cap: 0.0 };
+            return;
+        }
+        let end = self.pieces.tail;
+        let last_clean = self.dirty_from.unwrap_or(u64::MAX);
+        let mut target = None;
+        let mut arrival_cap = vrun;
+        let mut jumped_over = None;
+        let mut k = self.piece + 1;
+        while k <= end && k <= self.piece + TARGET_WALK as u64 {
+            if k >= last_clean {
+                // Not yet planned: treat as a stop (conservative).
+                target = Some((k, 0.0, false));
+                break;
+            }
+            let vb = self.boundary_speed(k);
+            if vb < vrun {
+                let mut m = k;
+                if k < end {
+                    // Aim straight at the boundary whose braking curve holds this one down, so that
+                    // braking over many short pieces is one S-curve: any profile that decelerates
+                    // at most at `a` into that boundary stays under its v² curve, which lies under
+                    // the caps of the boundaries in between (their potentials are higher).
+                    // The bound is conservative, not exact, so the trajectory is checked at this
+                    // boundary below and falls back to stopping the braking here if it is too fast.
+                    let p = self.pieces.get(k);
+                    if vb < p.vcap && p.via_chain && p.later_arg < last_clean {
+                        m = p.later_arg;
+                        jumped_over = Some(k);
+                    }
+                }
+                target = Some((m, self.boundary_speed(m), true));
+                arrival_cap = if m < end { self.pieces.get(m).vcap } else { 0.0 };
+                break;
+            }
+            k += 1;
+        }
+        let (target, speed, _) = target.unwrap_or((k.min(end), vrun, true));
+        let speed = speed.min(vrun);
+        let position = self.boundary_position(target);
+        if position - state.s <= 1e-12 && state.v <= 1e-12 && target >= end {
+            self.plan = Plan::Rest;
+            return;
+        }
+        self.stats.replans += 1;
+        let mut planned = self.ruckig_to(state, position, speed, arrival_cap.min(vrun).max(speed), vrun);
+        let (mut target, mut speed, mut position) = (target, speed, position);
+        if let (Some(_), Some(k)) = (planned, jumped_over) {
+            let (at, cap) = {
+                let p = self.pieces.get(k);
+                (p.start, p.vcap)
+            };
+            let passing = self.candidate.get_first_time_at_position(0, at).map(|t| candidate_state(&self.candidate, t).v);
+            if passing.is_none_or(|v| v > cap * (1.0 + 1e-9)) {
+                // Braking straight through would pass this boundary too fast: stop braking here.
+                target = k;
+                position = at;
+                speed = self.boundary_speed(k).min(vrun);
+                planned = self.ruckig_to(state, at, speed, cap.min(vrun).max(speed), vrun);
+            }
+        }
+        match planned {
+            Some(speed) => {
+                std::mem::swap(&mut self.trajectory, &mut self.candidate);
+                self.plan = Plan::Ruckig { target, position, speed, cap: vrun };
+            }
+            None if event && matches!(self.plan, Plan::Ruckig { target, .. } if target != u64::MAX) => {
+                // A re-plan mid-trajectory found nothing better (numerically at the edge of
+                // feasibility): keep following the current trajectory, which meets its target.
+                self.plan_time = previous_time;
+            }
+            None => {
+                // The limits cannot be met from here (override or speed-scale drop): brake along
+                // the path as hard as allowed, then plan again.
+                self.stats.forced_brakes += 1;
+                self.ruckig_velocity(state, speed.min(vrun));
+                std::mem::swap(&mut self.trajectory, &mut self.candidate);
+                self.plan = Plan::Ruckig { target: u64::MAX, position: f64::NAN, speed, cap: vrun };
+            }
+        }
+    }
+
+    /// A position-interface trajectory to (`position`, `speed`, 0) that neither overshoots nor
+    /// backs up. If `speed` is out of reach from below, the highest reachable speed under it is
+    /// found by bisection; if the state is too fast to arrive that slowly (the conservative margin
+    /// of the braking bound was spent on an earlier boundary), the lowest reachable speed up to
+    /// `speed_cap` (the boundary's own cap) is used. Returns the arrival speed, or None.
+    fn ruckig_to(&mut self, state: PathState, position: f64, speed: f64, speed_cap: f64, vmax: f64) -> Option<f64> {
+        match self.ruckig_check(state, position, speed, vmax) {
+            Ok(()) => Some(speed),
+            Err(too_fast) => {
+                let (mut lo, mut hi) = if too_fast { (speed, speed_cap) } else { (0.0, speed) };
+                if too_fast && self.ruckig_check(state, position, speed_cap, vmax).is_err() {
+                    return None;
+                }
+                let mut found = if too_fast { speed_cap } else { 0.0 };
+                // Holding the current speed is the usual answer over a very short piece.
+                let hold = state.v.min(speed);
+                if !too_fast && state.a.abs() < 1e-9 && self.ruckig_check(state, position, hold, vmax).is_ok() {
+                    lo = hold;
+                    found = hold;
+                }
+                for _ in 0..20 {
+                    let mid = 0.5 * (lo + hi);
+                    match self.ruckig_check(state, position, mid, vmax) {
+                        Ok(()) => {
+                            found = mid;
+                            if too_fast { hi = mid } else { lo = mid }
+                        }
+                        Err(true) => lo = mid,
+                        Err(false) => hi = mid,
+                    }
+                }
+                self.ruckig_check(state, position, found, vmax).ok().map(|_| found)
+            }
+        }
+    }
+
+    /// Computes the trajectory to (`position`, `speed`, 0); Err(true) if it would overshoot (too
+    /// fast), Err(false) if it would back up (too slow).
+    fn ruckig_check(&mut self, state: PathState, position: f64, speed: f64, vmax: f64) -> Result<(), bool> {
+        self.input.control_interface = ControlInterface::Position;
+        self.input.current_position[0] = state.s;
+        self.input.current_velocity[0] = state.v;
+        self.input.current_acceleration[0] = state.a;
+        self.input.target_position[0] = position;
+        self.input.target_velocity[0] = speed;
+        self.input.target_acceleration[0] = 0.0;
+        self.input.max_velocity[0] = vmax.max(speed);
+        self.input.max_acceleration[0] = self.config.max_acceleration;
+        self.input.max_jerk[0] = self.config.max_jerk;
+        let result = self.otg.calculate(&self.input, &mut self.candidate);
+        if !matches!(result, Ok(RuckigResult::Working) | Ok(RuckigResult::Finished)) {
+            return Err(false);
+        }
+        // A trajectory that leaves [start, target] or backs up is infeasible. Which way: a target
+        // faster than now needs more run-up than there is (too slow); a slower one cannot be
+        // braked to in time (too fast).
+        let too_fast = speed < state.v;
+        let extrema = self.candidate.get_position_extrema()[0];
+        let slack = 1e-9 + 1e-12 * position.abs();
+        if extrema.max > position + slack || extrema.min < state.s - slack {
+            return Err(too_fast);
+        }
+        // The tool must never back up along the path, not even for a moment inside the range.
+        let profile = &self.candidate.get_profiles()[0][0];
+        let mut v_min = f64::INFINITY;
+        for i in 0..2 {
+            if profile.brake.t[i] > 0.0 {
+                v_min = v_min.min(phase_min_velocity(profile.brake.v[i], profile.brake.a[i], profile.brake.j[i], profile.brake.t[i]));
+            }
+        }
+        for i in 0..7 {
+            v_min = v_min.min(phase_min_velocity(profile.v[i], profile.a[i], profile.j[i], profile.t[i]));
+        }
+        if v_min < -1e-9 {
+            return Err(too_fast);
+        }
+        Ok(())
+    }
+
+    fn ruckig_velocity(&mut self, state: PathState, speed: f64) {
+        self.input.control_interface = ControlInterface::Velocity;
+        self.input.current_position[0] = state.s;
+        self.input.current_velocity[0] = state.v;
+        self.input.current_acceleration[0] = state.a;
+        self.input.target_velocity[0] = speed.max(0.0);
+        self.input.target_acceleration[0] = 0.0;
+        self.input.max_velocity[0] = state.v.max(speed).max(1e-9);
+        let _ = self.otg.calculate(&self.input, &mut self.candidate);
+    }
+
+    fn plan_trapezoid(&mut self, state: PathState) {
+        let mut k = self.piece;
+        while self.pieces.get(k).end() - state.s <= 1e-12 {
+            if k + 1 >= self.pieces.tail || self.pieces.get(k + 1).is_hold() {
+                if k + 1 < self.pieces.tail {
+                    self.piece = k + 1;
+                    let elapsed = self.plan_time;
+                    self.start_plan(state, elapsed);
+                } else {
+                    self.plan = Plan::Rest;
+                }
+                return;
+            }
+            k += 1;
+        }
+        self.piece = k;
+        let p = *self.pieces.get(k);
+        let v_cruise = self.cap_of(k);
+        let v_exit = self.boundary_speed(k + 1).min(v_cruise);
+        let remaining = p.end() - state.s;
+        let profile = Trapezoid::new(remaining, state.v, v_exit, v_cruise, self.config.max_acceleration);
+        self.stats.replans += 1;
+        self.plan = Plan::Trapezoid { piece: k, profile };
+        self.plan_origin = state.s;
+    }
+
+    /// Starts the dwell of the hold under the cursor, reached `elapsed` seconds into the tick.
+    fn enter_dwell(&mut self, elapsed: f64) {
+        let p = *self.pieces.get(self.piece);
+        self.motion = Motion::Dwelling;
+        self.dwell_left = p.hold_time - (self.dt - elapsed);
+        self.state = PathState { s: self.state.s.max(p.start), v: 0.0, a: 0.0, j: 0.0 };
+        self.plan = Plan::Rest;
+    }
+
+    /// Advances the executor by one tick.
+    fn advance(&mut self) {
+        let mut t = self.plan_time + self.dt;
+        if self.motion == Motion::Dwelling {
+            if self.dwell_left > 0.0 {
+                self.dwell_left -= self.dt;
+                if self.dwell_left > 0.0 {
+                    return;
+                }
+            }
+            // The dwell ended `leftover` seconds before the end of this tick: mark the hold done and
+            // move on for the rest of the tick.
+            let leftover = (-self.dwell_left).clamp(0.0, self.dt);
+            self.dwell_left = 0.0;
+            self.pieces.get_mut(self.piece).hold_time = 0.0;
+            self.motion = Motion::Moving;
+            self.start_plan(self.state, self.dt - leftover);
+            t = leftover;
+        }
+        for _ in 0..1024 {
+            match self.plan {
+                Plan::Rest => {
+                    self.settle_at_rest();
+                    return;
+                }
+                Plan::Ruckig { target, position, speed, .. } => {
+                    let duration = self.trajectory.get_duration();
+                    if t < duration {
+                        self.plan_time = t;
+                        self.state = self.ruckig_state(t);
+                        self.motion = Motion::Moving;
+                        self.locate(self.state.s);
+                        self.check_cap_raise();
+                        return;
+                    }
+                    let rest = t - duration;
+                    let end_state =
+                        if target == u64::MAX { self.ruckig_state(duration) } else { PathState { s: position, v: speed, a: 0.0, j: 0.0 } };
+                    self.start_plan(end_state, self.dt - rest);
+                    t = rest;
+                }
+                Plan::Trapezoid { piece, profile } => {
+                    let duration = profile.duration();
+                    if t < duration {
+                        let st = profile.at(t);
+                        self.plan_time = t;
+                        self.state = PathState { s: self.plan_origin + st.s, v: st.v, a: st.a, j: st.j };
+                        self.motion = Motion::Moving;
+                        self.locate(self.state.s);
+                        return;
+                    }
+                    let rest = t - duration;
+                    let end = self.pieces.get(piece).end();
+                    let end_state = PathState { s: end, v: profile.v_out, a: 0.0, j: 0.0 };
+                    if self.piece == piece && piece + 1 < self.pieces.tail {
+                        self.piece = piece + 1;
+                    }
+                    self.start_plan(end_state, self.dt - rest);
+                    t = rest;
+                }
+            }
+            if self.motion == Motion::Dwelling {
+                return;
+            }
+        }
+    }
+
+    fn settle_at_rest(&mut self) {
+        self.state.v = 0.0;
+        self.state.a = 0.0;
+        self.state.j = 0.0;
+        self.plan_time = 0.0;
+        let was_moving = self.motion == Motion::Moving;
+        let last = self.pieces.len() > 0 && self.pieces.get(self.pieces.tail - 1).flags.contains(SegmentFlags::LAST);
+        if last && self.intake.len() == 0 && self.state.s >= self.path_end - 1e-9 {
+            self.finish();
+        } else if self.pieces.len() > 0 || self.intake.len() > 0 {
+            if was_moving {
+                self.stats.underruns += 1;
+            }
+            self.motion = Motion::Starved;
+        } else {
+            self.motion = Motion::Idle;
+        }
+    }
+
+    fn finish(&mut self) {
+        self.motion = Motion::Finished;
+        self.finished = true;
+    }
+
+    fn check_cap_raise(&mut self) {
+        if let Plan::Ruckig { cap, .. } = self.plan
+            && self.cap_of(self.piece) > cap * (1.0 + 1e-9)
+        {
+            self.replan = true;
+        }
+    }
+
+    fn ruckig_state(&self, t: f64) -> PathState {
+        candidate_state(&self.trajectory, t)
+    }
+
+    fn sample_geometry(&self) -> super::geometry::PathPoint {
+        if self.pieces.len() == 0 || self.piece >= self.pieces.tail {
+            return super::geometry::PathPoint { position: self.rest_point, tangent: Vector3::zeros(), curvature: Vector3::zeros() };
+        }
+        let p = self.pieces.get(self.piece);
+        let local = (self.state.s - p.start).clamp(0.0, p.length);
+        p.geometry.point(local, p.length)
+    }
+
+    fn sample(&mut self) -> PathSample {
+        let state = self.state;
+        let point = self.sample_geometry();
+        self.rest_point = point.position;
+        let (orientation, angular_velocity, seq, source_line, flags, flow, dwell_rate) = if self.pieces.len() > 0
+            && self.piece < self.pieces.tail
+        {
+            let p = self.pieces.get(self.piece);
+            let u = if p.length > 0.0 { ((state.s - p.start) / p.length).clamp(0.0, 1.0) } else { 0.0 };
+            let q = if p.rotation.norm_squared() > 0.0 { geom::quaternion_exp(&(p.rotation * u)) * p.orientation } else { p.orientation };
+            let w = if p.length > 0.0 { p.rotation * (state.v / p.length) } else { Vector3::zeros() };
+            let dwell_rate = if self.motion == Motion::Dwelling && p.hold_time > 0.0 { p.hold_filament / p.hold_time } else { 0.0 };
+            if u < p.split {
+                let (seq, line, flags, flow) = p.first;
+                (q, w, seq, line, flags, flow, dwell_rate)
+            } else {
+                (q, w, p.seq, p.source_line, p.flags, p.flow, dwell_rate)
+            }
+        } else {
+            (self.last_piece_orientation, Vector3::zeros(), 0, 0, SegmentFlags::default(), 0.0, 0.0)
+        };
+        PathSample {
+            position: point.position,
+            velocity: point.tangent * state.v,
+            acceleration: point.curvature * (state.v * state.v) + point.tangent * state.a,
+            orientation,
+            angular_velocity,
+            s: state.s,
+            speed: state.v,
+            path_acceleration: state.a,
+            path_jerk: state.j,
+            seq,
+            source_line,
+            flags,
+            flow,
+            dwell_filament_rate: dwell_rate,
+            motion: self.motion,
+        }
+    }
+}
+
+/// The state of a one-DoF trajectory at time `t`.
+fn candidate_state(trajectory: &Trajectory<1>, t: f64) -> PathState {
+    let mut p = DataArrayOrVec::Stack([0.0f64; 1]);
+    let mut v = DataArrayOrVec::Stack([0.0f64; 1]);
+    let mut a = DataArrayOrVec::Stack([0.0f64; 1]);
+    let mut j = DataArrayOrVec::Stack([0.0f64; 1]);
+    let mut section = None;
+    trajectory.at_time(t, &mut Some(&mut p), &mut Some(&mut v), &mut Some(&mut a), &mut Some(&mut j), &mut section);
+    PathState { s: p[0], v: v[0].max(0.0), a: a[0], j: j[0] }
+}
+
+/// The lowest velocity of one constant-jerk phase starting at (`v`, `a`) and lasting `t`.
+fn phase_min_velocity(v: f64, a: f64, j: f64, t: f64) -> f64 {
+    let end = v + a * t + 0.5 * j * t * t;
+    let mut lowest = v.min(end);
+    if j != 0.0 {
+        let tau = -a / j;
+        if tau > 0.0 && tau < t {
+            lowest = lowest.min(v + a * tau + 0.5 * j * tau * tau);
+        }
+    }
+    lowest
+}
+
+/// The speed cap inside a piece (m/s): feed × override, the geometric cap.
+fn piece_cap(p: &Piece, feed_override: f64, max_speed: f64) -> f64 {
+    if p.is_hold() { 0.0 } else { (p.feed * feed_override).min(p.geometric_cap).min(max_speed) }
+}
+
+/// The angle (rad) between two unit vectors, accurate for small and large angles.
+fn angle_between(a: &Vector3<f64>, b: &Vector3<f64>) -> f64 {
+    libm::atan2(a.cross(b).norm(), a.dot(b))
+}
+
+/// Orientation a fraction `u` of the way from `a` to `b`.
+fn slerp_along(a: &UnitQuaternion<f64>, b: &UnitQuaternion<f64>, u: f64) -> UnitQuaternion<f64> {
+    let rotation = geom::quaternion_log(&(b * a.inverse()));
+    if rotation.norm_squared() == 0.0 { *a } else { geom::quaternion_exp(&(rotation * u.clamp(0.0, 1.0))) * a }
+}
+
+/// The arc from `start` that a segment describes, or None if the start lies on its axis.
+pub fn arc_geometry(start: &Vector3<f64>, s: &Segment) -> Option<Geometry> {
+    let n = s.normal.normalize();
+    let radial0 = start - s.centre;
+    let axial0 = radial0.dot(&n);
+    let radial0 = radial0 - n * axial0;
+    let radius = radial0.norm();
+    if radius < 1e-9 {
+        return None;
+    }
+    let e1 = radial0 / radius;
+    let e2 = n.cross(&e1);
+    let end_rel = s.end - s.centre;
+    let end_axial = end_rel.dot(&n);
+    let end_radial = end_rel - n * end_axial;
+    let radius_end = end_radial.norm();
+    let pitch = (end_axial - axial0) / s.sweep;
+    let radius_rate = (radius_end - radius) / s.sweep;
+    // The centre sits in the start's plane.
+    let centre = s.centre + n * axial0;
+    Some(Geometry::Arc { centre, e1, e2, normal: n, radius, radius_rate, pitch, sweep: s.sweep })
+}
