@@ -192,7 +192,7 @@ pub fn time_program(
     }
     report.ticks = tick;
     report.duration_s = tick as f64 * dt;
-    report.extrude_length_m = extruder_position(&mut extruder);
+    report.extrude_length_m = extruder.position();
     let stats = engine.stats();
     report.underruns = stats.underruns;
     report.forced_brakes = stats.forced_brakes;
@@ -200,8 +200,4 @@ pub fn time_program(
         report.warnings.push(format!("{} zero-length moves skipped", stats.skipped_zero_length));
     }
     Ok(report)
-}
-
-fn extruder_position(extruder: &mut Extruder) -> f64 {
-    extruder.position()
 }

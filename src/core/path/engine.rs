@@ -168,6 +168,34 @@ struct Piece {
 }
 
 impl Piece {
+    /// A piece with no length, no limits computed yet and no segment attached.
+    fn new(geometry: Geometry, orientation: UnitQuaternion<f64>) -> Piece {
+        Piece {
+            geometry,
+            start: 0.0,
+            length: 0.0,
+            feed: 0.0,
+            geometric_cap: 0.0,
+            junction_cap: f64::INFINITY,
+            flow: 0.0,
+            hold_time: 0.0,
+            hold_filament: 0.0,
+            orientation,
+            rotation: Vector3::zeros(),
+            seq: 0,
+            source_line: 0,
+            flags: SegmentFlags::default(),
+            split: 0.0,
+            first: (0, 0, SegmentFlags::default(), 0.0),
+            vcap: 0.0,
+            vb: 0.0,
+            potential: 0.0,
+            later_min: 0.0,
+            later_arg: 0,
+            via_chain: false,
+        }
+    }
+
     fn end(&self) -> f64 {
         self.start + self.length
     }
@@ -283,7 +311,6 @@ pub struct PathEngine {
     last_piece_orientation: UnitQuaternion<f64>,
     dwell_left: f64,
     motion: Motion,
-    finished: bool,
     otg: Ruckig<1, IgnoreErrorHandler>,
     input: InputParameter<1>,
     trajectory: Trajectory<1>,
@@ -305,30 +332,7 @@ impl PathEngine {
         }
         let jerk = if config.mode == PlanningMode::Lookahead { config.max_jerk } else { f64::INFINITY };
         let braking = Braking { acceleration: config.max_acceleration, jerk };
-        let blank = Piece {
-            geometry: Geometry::Hold { point: start },
-            start: 0.0,
-            length: 0.0,
-            feed: 0.0,
-            geometric_cap: 0.0,
-            junction_cap: 0.0,
-            flow: 0.0,
-            hold_time: 0.0,
-            hold_filament: 0.0,
-            orientation,
-            rotation: Vector3::zeros(),
-            seq: 0,
-            source_line: 0,
-            flags: SegmentFlags::default(),
-            split: 0.0,
-            first: (0, 0, SegmentFlags::default(), 0.0),
-            vcap: 0.0,
-            vb: 0.0,
-            potential: 0.0,
-            later_min: 0.0,
-            later_arg: 0,
-            via_chain: false,
-        };
+        let blank = Piece::new(Geometry::Hold { point: start }, orientation);
         let mut input = InputParameter::new(None);
         input.max_acceleration[0] = config.max_acceleration;
         input.max_jerk[0] = config.max_jerk;
@@ -357,7 +361,6 @@ impl PathEngine {
             last_piece_orientation: orientation,
             dwell_left: 0.0,
             motion: Motion::Idle,
-            finished: false,
             otg: Ruckig::new(None, dt),
             input,
             trajectory: Trajectory::new(None),
@@ -593,14 +596,12 @@ impl PathEngine {
     /// Turns one segment into pieces, blending the corner from the previous line in lookahead mode.
     fn append(&mut self, s: &Segment) {
         let start_point = self.tail.map_or(self.current_end_point(), |t| t.end);
-        if s.flags.contains(SegmentFlags::LAST) {
-            self.finished = false;
-        }
         match s.kind {
             SegmentKind::Dwell => {
                 self.tail = None;
                 let piece = self.new_piece(Geometry::Hold { point: start_point }, 0.0, s, 0.0);
                 let index = self.pieces.push(Piece { hold_time: s.duration, hold_filament: s.filament, ..piece });
+                self.path_end = self.pieces.get(index).end();
                 self.mark_dirty(index);
             }
             SegmentKind::Line | SegmentKind::Arc => {
@@ -678,36 +679,20 @@ impl PathEngine {
                 });
             }
         }
-        if s.kind == SegmentKind::Dwell {
-            self.path_end = self.pieces.get(self.pieces.tail - 1).end();
-        }
     }
 
     fn new_piece(&self, geometry: Geometry, length: f64, s: &Segment, flow: f64) -> Piece {
         let start = if self.pieces.len() > 0 { self.pieces.get(self.pieces.tail - 1).end() } else { self.state.s };
         Piece {
-            geometry,
             start,
             length,
             feed: s.feed,
             geometric_cap: self.config.max_speed,
-            junction_cap: f64::INFINITY,
             flow,
-            hold_time: 0.0,
-            hold_filament: 0.0,
-            orientation: s.orientation,
-            rotation: Vector3::zeros(),
             seq: s.seq,
             source_line: s.source_line,
             flags: s.flags,
-            split: 0.0,
-            first: (0, 0, SegmentFlags::default(), 0.0),
-            vcap: 0.0,
-            vb: 0.0,
-            potential: 0.0,
-            later_min: 0.0,
-            later_arg: 0,
-            via_chain: false,
+            ..Piece::new(geometry, s.orientation)
         }
     }
 
@@ -848,7 +833,7 @@ impl PathEngine {
     fn locate(&mut self, s: f64) {
         while self.piece + 1 < self.pieces.tail {
             let p = self.pieces.get(self.piece);
-            // Pieces ending within a nanometre count as passed: a blend can leave a line stub of a
+            // Pieces ending within a nanometre count as passed: a blend can leave a line remainder of a
             // few ulps, too short to plan a trajectory over.
             let next_is_hold = self.pieces.get(self.piece + 1).is_hold();
             if p.is_hold() || s < p.end() - if next_is_hold { 0.0 } else { 1e-9 } {
@@ -926,17 +911,11 @@ impl PathEngine {
             return;
         }
         let end = self.pieces.tail;
-        let last_clean = self.dirty_from.unwrap_or(u64::MAX);
         let mut target = None;
         let mut arrival_cap = vrun;
         let mut jumped_over = None;
         let mut k = self.piece + 1;
         while k <= end && k <= self.piece + TARGET_WALK as u64 {
-            if k >= last_clean {
-                // Not yet planned: treat as a stop (conservative).
-                target = Some((k, 0.0, false));
-                break;
-            }
             let vb = self.boundary_speed(k);
             if vb < vrun {
                 let mut m = k;
@@ -948,18 +927,18 @@ impl PathEngine {
                     // The bound is conservative, not exact, so the trajectory is checked at this
                     // boundary below and falls back to stopping the braking here if it is too fast.
                     let p = self.pieces.get(k);
-                    if vb < p.vcap && p.via_chain && p.later_arg < last_clean {
+                    if vb < p.vcap && p.via_chain {
                         m = p.later_arg;
                         jumped_over = Some(k);
                     }
                 }
-                target = Some((m, self.boundary_speed(m), true));
+                target = Some((m, self.boundary_speed(m)));
                 arrival_cap = if m < end { self.pieces.get(m).vcap } else { 0.0 };
                 break;
             }
             k += 1;
         }
-        let (target, speed, _) = target.unwrap_or((k.min(end), vrun, true));
+        let (target, speed) = target.unwrap_or((k.min(end), vrun));
         let speed = speed.min(vrun);
         let position = self.boundary_position(target);
         if position - state.s <= 1e-12 && state.v <= 1e-12 && target >= end {
@@ -1091,6 +1070,7 @@ impl PathEngine {
         self.input.target_velocity[0] = speed.max(0.0);
         self.input.target_acceleration[0] = 0.0;
         self.input.max_velocity[0] = state.v.max(speed).max(1e-9);
+        // The velocity interface always has a solution for finite inputs within the limits.
         let _ = self.otg.calculate(&self.input, &mut self.candidate);
     }
 
@@ -1217,7 +1197,6 @@ impl PathEngine {
 
     fn finish(&mut self) {
         self.motion = Motion::Finished;
-        self.finished = true;
     }
 
     fn check_cap_raise(&mut self) {

@@ -108,10 +108,11 @@ pub fn distance_to_segment(p: &Vector3<f64>, a: &Vector3<f64>, b: &Vector3<f64>)
     (a + ab * t - p).norm()
 }
 
-/// The distance (m) from `p` to an arc primitive, measured to the nearest point of the curve
-/// (found by projecting onto the angle, then refining on the sampled neighbourhood).
+/// The distance (m) from `p` to an arc primitive: the nearest of its two ends and the points at
+/// `p`'s projected angle on every turn (exact for planar arcs; for helices and spirals the point at
+/// the projected angle, which is within the pitch/radius mismatch of the nearest).
 pub fn distance_to_arc(p: &Vector3<f64>, geometry: &Geometry, length: f64) -> f64 {
-    let Geometry::Arc { centre, e1, e2, normal, pitch, sweep, .. } = *geometry else {
+    let Geometry::Arc { centre, e1, e2, sweep, .. } = *geometry else {
         return f64::INFINITY;
     };
     let d = p - centre;
@@ -130,6 +131,5 @@ pub fn distance_to_arc(p: &Vector3<f64>, geometry: &Geometry, length: f64) -> f6
             best = best.min((geometry.point(s, length).position - p).norm());
         }
     }
-    let _ = (normal, pitch);
     best
 }
