@@ -10,6 +10,9 @@ use std::path::{Path, PathBuf};
 use serde::Deserialize;
 use thiserror::Error;
 
+use crate::core::base::BaseConfig;
+pub use crate::core::controller::ControllerConfig;
+use crate::core::controller::ControllerSettings;
 use crate::core::extrude::ExtruderConfig;
 use crate::core::kin::{ClikConfig, Frame, RobotModel, geom};
 use crate::core::path::bed::BedConfig;
@@ -137,27 +140,8 @@ pub struct Config {
     pub extruder: ExtruderConfig,
     /// Print bed pose and tilt.
     pub bed: BedConfig,
-}
-
-/// `[controller]`: the control loop.
-#[derive(Clone, Debug, Deserialize, PartialEq)]
-#[serde(deny_unknown_fields, default)]
-pub struct ControllerConfig {
-    /// Tick rate (Hz), 1 to 8 kHz.
-    pub rate_hz: f64,
-}
-
-impl Default for ControllerConfig {
-    fn default() -> Self {
-        ControllerConfig { rate_hz: 1000.0 }
-    }
-}
-
-impl ControllerConfig {
-    /// The tick period (s).
-    pub fn dt(&self) -> f64 {
-        1.0 / self.rate_hz
-    }
+    /// Robot base: fixed mount or tracked.
+    pub base: BaseConfig,
 }
 
 #[derive(Deserialize)]
@@ -174,6 +158,8 @@ struct ConfigFile {
     extruder: ExtruderConfig,
     #[serde(default)]
     bed: BedConfig,
+    #[serde(default)]
+    base: BaseConfig,
 }
 
 impl Config {
@@ -181,9 +167,8 @@ impl Config {
     pub fn load(path: &Path) -> Result<Self, ConfigError> {
         let raw: ConfigFile = read_toml(path)?;
         raw.clik.validate().map_err(|m| ConfigError::new(path, m))?;
-        if !(raw.controller.rate_hz.is_finite() && (100.0..=8000.0).contains(&raw.controller.rate_hz)) {
-            return Err(ConfigError::new(path, "[controller] rate_hz: must be between 100 and 8000"));
-        }
+        raw.controller.validate().map_err(|m| ConfigError::new(path, m))?;
+        raw.base.validate().map_err(|m| ConfigError::new(path, m))?;
         raw.path.validate().map_err(|m| ConfigError::new(path, m.to_string()))?;
         raw.extruder.validate().map_err(|m| ConfigError::new(path, m))?;
         BedTransform::new(&raw.bed).map_err(|m| ConfigError::new(path, m))?;
@@ -200,6 +185,18 @@ impl Config {
             path: raw.path,
             extruder: raw.extruder,
             bed: raw.bed,
+            base: raw.base,
         })
+    }
+
+    /// The sections the controller core uses.
+    pub fn controller_settings(&self) -> ControllerSettings {
+        ControllerSettings {
+            controller: self.controller.clone(),
+            clik: self.clik,
+            path: self.path.clone(),
+            extruder: self.extruder.clone(),
+            base: self.base.clone(),
+        }
     }
 }

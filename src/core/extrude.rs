@@ -106,7 +106,7 @@ impl Extruder {
     pub fn step(&mut self, sample: &PathSample) -> ExtruderCommand {
         let path_rate = sample.flow * sample.speed + sample.dwell_filament_rate;
         let mut rate = path_rate + self.config.pressure_advance * sample.flow * sample.path_acceleration;
-        let stopped_unplanned = matches!(sample.motion, Motion::Starved);
+        let stopped_unplanned = matches!(sample.motion, Motion::Starved | Motion::Held);
         if stopped_unplanned && !self.retracted && self.config.retract_length > 0.0 {
             self.retracted = true;
             self.pending = self.config.retract_length;

@@ -1,6 +1,8 @@
 //! Helpers shared by the integration tests: the bundled robots, a seeded random source, paths.
 #![allow(dead_code)]
 
+pub mod cell;
+
 use std::path::PathBuf;
 
 use strand::config::RobotConfig;
@@ -31,6 +33,12 @@ impl Rng {
     /// Uniform in [0, 1).
     pub fn unit(&mut self) -> f64 {
         (self.next_u64() >> 11) as f64 / (1u64 << 53) as f64
+    }
+    /// Standard normal (Box-Muller).
+    pub fn normal(&mut self) -> f64 {
+        let u = self.unit().max(1e-300);
+        let v = self.unit();
+        (-2.0 * u.ln()).sqrt() * (2.0 * std::f64::consts::PI * v).cos()
     }
     pub fn range(&mut self, lo: f64, hi: f64) -> f64 {
         lo + (hi - lo) * self.unit()

@@ -65,6 +65,8 @@ pub enum Motion {
     Starved,
     /// Ran the segment flagged `LAST` to its end.
     Finished,
+    /// Brought to rest on the path by [`PathEngine::set_hold`] (a pause or a controlled stop).
+    Held,
 }
 
 /// One tick of the path: the TCP's motion in W and the progress along the job.
@@ -298,6 +300,8 @@ pub struct PathEngine {
     /// Global speed cap from the CLIK's scale (m/s), and ticks since it last bit.
     speed_cap: f64,
     cap_quiet_ticks: u32,
+    /// Consecutive ticks the caller reported a speed scale below 1.
+    scaled_ticks: u32,
     replan: bool,
     // Executor.
     state: PathState,
@@ -317,6 +321,8 @@ pub struct PathEngine {
     /// Where trial trajectories are computed; swapped in when one is taken.
     candidate: Trajectory<1>,
     stats: PathStats,
+    /// Stop on the path and stay there (pause or controlled stop).
+    held: bool,
 }
 
 impl PathEngine {
@@ -351,6 +357,7 @@ impl PathEngine {
             feed_override: 1.0,
             speed_cap: f64::INFINITY,
             cap_quiet_ticks: 0,
+            scaled_ticks: 0,
             replan: false,
             state: PathState::default(),
             piece: 0,
@@ -366,7 +373,57 @@ impl PathEngine {
             trajectory: Trajectory::new(None),
             candidate: Trajectory::new(None),
             stats: PathStats::default(),
+            held: false,
         })
+    }
+
+    /// Forgets everything queued and planned and rests at `start` (m, W) with `orientation`, as a
+    /// fresh engine would, keeping the counters, the feed override and all memory. The path position
+    /// starts again at 0. For a new job, or after a controlled stop has brought the tool to rest.
+    pub fn reset_at(&mut self, start: Vector3<f64>, orientation: UnitQuaternion<f64>) {
+        self.intake.head = self.intake.tail;
+        self.pieces.head = self.pieces.tail;
+        self.piece = self.pieces.tail;
+        self.tail = None;
+        self.last_end = start;
+        self.last_orientation = orientation;
+        self.last_seq = None;
+        self.path_end = 0.0;
+        self.dirty_from = None;
+        self.speed_cap = f64::INFINITY;
+        self.cap_quiet_ticks = 0;
+        self.scaled_ticks = 0;
+        self.replan = false;
+        self.state = PathState::default();
+        self.plan = Plan::Rest;
+        self.plan_time = 0.0;
+        self.plan_origin = 0.0;
+        self.rest_point = start;
+        self.last_piece_orientation = orientation;
+        self.dwell_left = 0.0;
+        self.motion = Motion::Idle;
+        self.held = false;
+    }
+
+    /// Holds the tool: with `true` the path speed falls to zero as fast as the acceleration and jerk
+    /// limits allow, staying on the path (a time-optimal stop, so it never runs past where the plan
+    /// would have stopped), and stays there with [`Motion::Held`]; with `false` it continues. A dwell
+    /// in progress runs to its end first.
+    pub fn set_hold(&mut self, hold: bool) {
+        if hold != self.held {
+            self.held = hold;
+            self.replan = true;
+        }
+    }
+
+    /// Whether the engine is holding (see [`set_hold`](Self::set_hold)).
+    pub fn is_held(&self) -> bool {
+        self.held
+    }
+
+    /// The tool's current path state: speed (m/s) and acceleration (m/s²) along the path.
+    pub fn path_motion(&self) -> (f64, f64) {
+        (self.state.v, self.state.a)
     }
 
     /// The configuration in use.
@@ -808,7 +865,11 @@ impl PathEngine {
 
     fn apply_speed_scale(&mut self, scale: f64) {
         let scale = if scale.is_finite() { scale.clamp(0.0, 1.0) } else { 0.0 };
-        if scale < 1.0 - 1e-9 && self.state.v > 0.0 {
+        // A few scaled ticks are a blip (a base-pose correction, a rounding edge): the CLIK has
+        // already kept the limits; only a scale that persists for 5 ticks says the path is too fast.
+        let persistent = scale < 1.0 - 1e-9 && self.scaled_ticks >= 4;
+        self.scaled_ticks = if scale < 1.0 - 1e-9 { self.scaled_ticks.saturating_add(1) } else { 0 };
+        if persistent && self.state.v > 0.0 {
             let cap = (scale * self.state.v * 0.98).max(1e-4);
             if cap < self.speed_cap {
                 self.speed_cap = cap;
@@ -817,10 +878,10 @@ impl PathEngine {
             }
         } else if self.speed_cap.is_finite() {
             self.cap_quiet_ticks += 1;
-            // Recover in 10 % steps every 20 ms once the caller keeps up again.
-            if self.cap_quiet_ticks as f64 * self.dt >= 0.02 {
+            // Recover in 25 % steps every 10 ms once the caller keeps up again.
+            if self.cap_quiet_ticks as f64 * self.dt >= 0.01 {
                 self.cap_quiet_ticks = 0;
-                self.speed_cap *= 1.1;
+                self.speed_cap *= 1.25;
                 if self.speed_cap >= self.config.max_speed * 2.0 {
                     self.speed_cap = f64::INFINITY;
                 }
@@ -866,6 +927,18 @@ impl PathEngine {
         let previous_time = self.plan_time;
         self.plan_time = elapsed;
         self.state = state;
+        if self.held {
+            self.locate(state.s);
+            if state.v <= 1e-12 && state.a.abs() <= 1e-12 {
+                self.plan = Plan::Rest;
+            } else {
+                // The time-optimal stop from here: the shortest distance any jerk-limited stop needs.
+                self.ruckig_velocity(state, 0.0);
+                std::mem::swap(&mut self.trajectory, &mut self.candidate);
+                self.plan = Plan::Ruckig { target: u64::MAX, position: f64::NAN, speed: 0.0, cap: 0.0 };
+            }
+            return;
+        }
         loop {
             self.locate(state.s);
             if self.pieces.len() == 0 || self.piece >= self.pieces.tail {
@@ -1182,6 +1255,10 @@ impl PathEngine {
         self.state.j = 0.0;
         self.plan_time = 0.0;
         let was_moving = self.motion == Motion::Moving;
+        if self.held {
+            self.motion = Motion::Held;
+            return;
+        }
         let last = self.pieces.len() > 0 && self.pieces.get(self.pieces.tail - 1).flags.contains(SegmentFlags::LAST);
         if last && self.intake.len() == 0 && self.state.s >= self.path_end - 1e-9 {
             self.finish();
