@@ -17,6 +17,8 @@ use crate::core::extrude::ExtruderConfig;
 use crate::core::kin::{ClikConfig, Frame, RobotModel, geom};
 use crate::core::path::bed::BedConfig;
 use crate::core::path::{BedTransform, PathConfig};
+use crate::io::rt::RealtimeConfig;
+use crate::io::runner::ServiceConfig;
 
 /// A configuration problem, naming the file and what in it is wrong.
 #[derive(Debug, Error)]
@@ -142,6 +144,10 @@ pub struct Config {
     pub bed: BedConfig,
     /// Robot base: fixed mount or tracked.
     pub base: BaseConfig,
+    /// Service names, clock, joint feedback.
+    pub service: ServiceConfig,
+    /// Real-time scheduling, affinity, memory locking.
+    pub realtime: RealtimeConfig,
 }
 
 #[derive(Deserialize)]
@@ -160,6 +166,10 @@ struct ConfigFile {
     bed: BedConfig,
     #[serde(default)]
     base: BaseConfig,
+    #[serde(default)]
+    service: ServiceConfig,
+    #[serde(default)]
+    realtime: RealtimeConfig,
 }
 
 impl Config {
@@ -169,6 +179,8 @@ impl Config {
         raw.clik.validate().map_err(|m| ConfigError::new(path, m))?;
         raw.controller.validate().map_err(|m| ConfigError::new(path, m))?;
         raw.base.validate().map_err(|m| ConfigError::new(path, m))?;
+        raw.service.validate().map_err(|m| ConfigError::new(path, m))?;
+        raw.realtime.validate().map_err(|m| ConfigError::new(path, m))?;
         raw.path.validate().map_err(|m| ConfigError::new(path, m.to_string()))?;
         raw.extruder.validate().map_err(|m| ConfigError::new(path, m))?;
         BedTransform::new(&raw.bed).map_err(|m| ConfigError::new(path, m))?;
@@ -186,6 +198,8 @@ impl Config {
             extruder: raw.extruder,
             bed: raw.bed,
             base: raw.base,
+            service: raw.service,
+            realtime: raw.realtime,
         })
     }
 

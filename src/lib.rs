@@ -9,4 +9,5 @@
 pub mod config;
 pub mod core;
 pub mod gcode;
+pub mod io;
 pub mod plan;

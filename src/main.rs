@@ -1,11 +1,16 @@
-//! strand: the service binary. Today it loads and validates a configuration (config file, robot file,
-//! URDF) and reports the chain it would drive; the cycle runner joins it with the controller issue.
+//! strand: the service binary. `strand run` loads the configuration, builds the robot and the
+//! controller and runs the cycle over iceoryx2 until interrupted; `strand check-config` validates a
+//! configuration and reports the chain it would drive.
 
 use std::path::PathBuf;
 use std::process::ExitCode;
+use std::sync::atomic::{AtomicBool, Ordering};
 
 use clap::{Parser, Subcommand};
 use strand::config::Config;
+use strand::core::controller::Controller;
+use strand::io::clock::ClockMode;
+use strand::io::runner::{JointFeedback, NullSink, Runner, StopWhen};
 
 #[derive(Parser)]
 #[command(name = "strand", version, about = "Real-time streaming motion controller for robot-arm additive manufacturing")]
@@ -16,6 +21,27 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
+    /// Run the controller service until Ctrl-C (or until a job ends, with --exit-when-done).
+    Run {
+        /// The service configuration file.
+        #[arg(long, default_value = "config/default.toml")]
+        config: PathBuf,
+        /// Override `[service] prefix` (service names).
+        #[arg(long)]
+        prefix: Option<String>,
+        /// Override `[service] clock`: timer, robot or free-run.
+        #[arg(long, value_parser = parse_clock)]
+        clock: Option<ClockMode>,
+        /// Echo commands as joint state (no robot driver).
+        #[arg(long)]
+        echo: bool,
+        /// Stop after this many ticks.
+        #[arg(long)]
+        ticks: Option<u64>,
+        /// Exit when a job has ended (finished, stopped or faulted).
+        #[arg(long)]
+        exit_when_done: bool,
+    },
     /// Load and validate a configuration and the robot it names; print what it describes.
     CheckConfig {
         /// The service configuration file.
@@ -24,8 +50,46 @@ enum Command {
     },
 }
 
+fn parse_clock(s: &str) -> Result<ClockMode, String> {
+    match s {
+        "timer" => Ok(ClockMode::Timer),
+        "robot" => Ok(ClockMode::Robot),
+        "free-run" => Ok(ClockMode::FreeRun),
+        _ => Err(format!("unknown clock {s:?}: timer, robot or free-run")),
+    }
+}
+
+static STOP: AtomicBool = AtomicBool::new(false);
+
+extern "C" fn on_signal(_: libc::c_int) {
+    STOP.store(true, Ordering::Relaxed);
+}
+
 fn main() -> ExitCode {
     match Cli::parse().command {
+        Command::Run { config, prefix, clock, echo, ticks, exit_when_done } => {
+            tracing_subscriber::fmt()
+                .with_env_filter(tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info".into()))
+                .with_writer(std::io::stderr)
+                .init();
+            let mut cfg = match Config::load(&config) {
+                Ok(c) => c,
+                Err(e) => {
+                    eprintln!("strand: {e}");
+                    return ExitCode::from(2);
+                }
+            };
+            if let Some(p) = prefix {
+                cfg.service.prefix = p;
+            }
+            if let Some(c) = clock {
+                cfg.service.clock = c;
+            }
+            if echo {
+                cfg.service.joint_feedback = JointFeedback::Echo;
+            }
+            run(&cfg, StopWhen { max_ticks: ticks, job_done: exit_when_done })
+        }
         Command::CheckConfig { config } => match Config::load(&config).and_then(|c| c.robot.build_model().map(|m| (c, m))) {
             Ok((cfg, model)) => {
                 println!("{}: ok", cfg.file.display());
@@ -38,6 +102,7 @@ fn main() -> ExitCode {
                     model.dof()
                 );
                 println!("clik: task {:?}, gains {:?} 1/s, damping below σ = {}", cfg.clik.task, cfg.clik.gains, cfg.clik.sigma_threshold);
+                println!("service: prefix {}, clock {:?}, {} Hz, base {:?}", cfg.service.prefix, cfg.service.clock, cfg.controller.rate_hz, cfg.base.mode);
                 ExitCode::SUCCESS
             }
             Err(e) => {
@@ -45,5 +110,78 @@ fn main() -> ExitCode {
                 ExitCode::from(2)
             }
         },
+    }
+}
+
+fn run(cfg: &Config, when: StopWhen) -> ExitCode {
+    let model = match cfg.robot.build_model() {
+        Ok(m) => m,
+        Err(e) => {
+            eprintln!("strand: {e}");
+            return ExitCode::from(2);
+        }
+    };
+    let controller = match Controller::new(&cfg.controller_settings(), model) {
+        Ok(c) => c,
+        Err(e) => {
+            eprintln!("strand: {}: {e}", cfg.file.display());
+            return ExitCode::from(2);
+        }
+    };
+    // SAFETY: the handler only stores to an atomic.
+    unsafe {
+        libc::signal(libc::SIGINT, on_signal as *const () as libc::sighandler_t);
+        libc::signal(libc::SIGTERM, on_signal as *const () as libc::sighandler_t);
+    }
+    let mut runner = match Runner::new(controller, &cfg.service, cfg.controller.joint_state_timeout, cfg.controller.rate_hz) {
+        Ok(r) => r,
+        Err(e) => {
+            eprintln!("strand: {e}");
+            return ExitCode::from(1);
+        }
+    };
+    tracing::info!(
+        "strand {}: {} ({} joints) at {} Hz, clock {:?}, services under {}",
+        env!("CARGO_PKG_VERSION"),
+        runner.controller().model().name(),
+        runner.controller().model().dof(),
+        cfg.controller.rate_hz,
+        cfg.service.clock,
+        cfg.service.prefix
+    );
+    match runner.run(&cfg.realtime, &STOP, when, &mut NullSink) {
+        Ok(s) => {
+            let us = |ns: u64| ns as f64 / 1e3;
+            let st = &s.status;
+            eprintln!(
+                "ticks {} | step p50 {:.1} µs p99 {:.1} µs max {:.1} µs | tick p50 {:.1} µs p99 {:.1} µs | lateness p50 {:.1} µs p99 {:.1} µs max {:.1} µs | late {} overruns {}",
+                s.ticks,
+                us(s.step_cost.percentile(50.0)),
+                us(s.step_cost.percentile(99.0)),
+                us(s.step_cost.max()),
+                us(s.tick_cost.percentile(50.0)),
+                us(s.tick_cost.percentile(99.0)),
+                us(s.lateness.percentile(50.0)),
+                us(s.lateness.percentile(99.0)),
+                us(s.lateness.max()),
+                s.cycle.late_wakeups,
+                s.cycle.overruns
+            );
+            eprintln!(
+                "state {:?} fault {:?} job {:?} | segments {} rejected {} underruns {} clamps {}",
+                strand_ipc::RunState::from_u32(st.run_state),
+                strand_ipc::FaultCode::from_u32(st.fault),
+                strand_ipc::JobOutcome::from_u32(st.job_outcome),
+                st.segments_accepted,
+                st.rejected,
+                st.underruns,
+                st.clamps
+            );
+            if st.fault != 0 { ExitCode::from(3) } else { ExitCode::SUCCESS }
+        }
+        Err(e) => {
+            eprintln!("strand: {e}");
+            ExitCode::from(1)
+        }
     }
 }

@@ -142,3 +142,50 @@ fn path_engine_and_extruder_ticks_allocate_nothing() {
         assert!(engine.stats().replans > 100, "{mode:?}: the planner did not run");
     }
 }
+
+/// `Controller::step` allocates nothing over a whole job on a tracked base: intake, approach (IK and
+/// the joint-space trajectory), running with base correction, pause, resume, feed override, stop, a
+/// second job, emergency stop, fault and clear.
+#[test]
+fn controller_steps_allocate_nothing() {
+    use common::cell::{Cell, IIWA_START, config, square_job};
+    use strand_ipc::{BasePose, Command, RunState};
+    let cfg = config(|c| c.base.mode = strand::core::base::BaseMode::Tracked);
+    let mut cell = Cell::new(&cfg, &IIWA_START);
+    let job = square_job(1, [0.45, -0.02, 0.2], 0.03, 3, 0.04);
+    let second = square_job(100, [0.45, -0.02, 0.2], 0.02, 1, 0.04);
+    let mut total = 0;
+    let mut states = std::collections::BTreeSet::new();
+    for k in 0..30_000u64 {
+        match k {
+            0 => cell.send(&job),
+            10 => cell.control(Command::Start, 0.0),
+            4000 => cell.control(Command::Pause, 0.0),
+            4500 => cell.control(Command::Resume, 0.0),
+            5000 => cell.control(Command::FeedOverride, 0.5),
+            7000 => cell.control(Command::Stop, 0.0),
+            9000 => {
+                cell.send(&second);
+                cell.control(Command::Start, 0.0);
+            }
+            12_000 => cell.control(Command::EmergencyStop, 0.0),
+            14_000 => cell.control(Command::ClearFault, 0.0),
+            _ => {}
+        }
+        if k % 5 == 0 {
+            let t = cell.now_ns();
+            cell.poses.push(BasePose { seq: k + 1, stamp_ns: t, position: [1e-7 * k as f64, 0.0, 0.0], orientation: [1.0, 0.0, 0.0, 0.0] });
+        }
+        let input = cell.input();
+        let before = allocations();
+        let out = cell.ctl.step(&input);
+        total += allocations() - before;
+        cell.q_robot = out.joint_command.position;
+        cell.tick += 1;
+        states.insert(cell.state() as u32);
+    }
+    for s in [RunState::Approaching, RunState::Running, RunState::Pausing, RunState::Paused, RunState::Stopping, RunState::EmergencyStopping, RunState::Fault, RunState::Idle] {
+        assert!(states.contains(&(s as u32)), "never in {s:?}: {states:?}");
+    }
+    assert_eq!(total, 0, "allocations inside Controller::step");
+}

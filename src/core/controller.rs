@@ -439,6 +439,7 @@ pub struct Controller {
     last_rejected_seq: u64,
     last_reject_reason: RejectReason,
     rejected: u64,
+    accepted: u64,
     clamps: u64,
     flow_override: f64,
     last_sample: Option<PathSample>,
@@ -510,6 +511,7 @@ impl Controller {
             last_rejected_seq: 0,
             last_reject_reason: RejectReason::None,
             rejected: 0,
+            accepted: 0,
             clamps: 0,
             flow_override: 1.0,
             last_sample: None,
@@ -802,6 +804,7 @@ impl Controller {
         match self.engine.push(&segment) {
             Ok(()) => {
                 self.job_open = true;
+                self.accepted += 1;
                 self.expected_seq = Some(seq.wrapping_add(1));
                 self.last_received_seq = seq;
                 if self.state == RunState::Idle {
@@ -1242,7 +1245,7 @@ impl Controller {
             last_received_seq: self.last_received_seq,
             last_rejected_seq: self.last_rejected_seq,
             executing_seq: sample.map_or(0, |s| s.seq),
-            segments_accepted: stats.accepted,
+            segments_accepted: self.accepted,
             rejected: self.rejected,
             underruns: stats.underruns,
             overruns: input.cycle.overruns,

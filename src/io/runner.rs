@@ -1,0 +1,341 @@
+//! The cycle runner: waits for each tick (timer, robot or free-run clock), drains the iceoryx2
+//! subscribers into a `TickInput`, calls `Controller::step`, publishes the commands and Status, and
+//! hands the tick's record to a [`TickSink`] (the MCAP logger's seam).
+//!
+//! Nothing between the wake-up and the publish allocates, locks or logs; the events a tick returns
+//! are logged through `tracing` after publishing.
+
+use std::sync::atomic::{AtomicBool, Ordering};
+
+use serde::Deserialize;
+use strand_ipc as ipc;
+use strand_ipc::{JobOutcome, RunState, ServiceNames};
+
+use super::clock::{ClockMode, CycleStats, TimerClock, monotonic_ns};
+use super::histogram::Histogram;
+use super::ports::{PortError, ServicePorts};
+use super::rt::{self, RealtimeConfig};
+use crate::core::controller::{Controller, Event, TickInput, TickOutput};
+
+/// Where the controller learns the joint positions.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum JointFeedback {
+    /// From the robot driver's JointState (the real thing).
+    #[default]
+    Driver,
+    /// The last command is taken as the state (a robot that follows exactly): for CI, dry runs and
+    /// clients tested without a driver. The first state is `initial_joints`.
+    Echo,
+}
+
+/// `[service]`: how the service meets the outside world.
+#[derive(Clone, Debug, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ServiceConfig {
+    /// Prefix of every service name, e.g. `strand/cell`.
+    pub prefix: String,
+    /// What starts a tick.
+    pub clock: ClockMode,
+    /// Busy-wait before each timer deadline (s), 0 to 0.0005.
+    pub spin: f64,
+    /// A wake-up later than this (s) counts as late.
+    pub late_threshold: f64,
+    /// Joint positions from the driver, or echoed commands.
+    pub joint_feedback: JointFeedback,
+    /// Joint positions (rad or m) the echo starts from; empty: the middle of each range.
+    pub initial_joints: Vec<f64>,
+}
+
+impl Default for ServiceConfig {
+    fn default() -> Self {
+        ServiceConfig {
+            prefix: ipc::DEFAULT_PREFIX.to_string(),
+            clock: ClockMode::Timer,
+            spin: 0.0,
+            late_threshold: 50e-6,
+            joint_feedback: JointFeedback::Driver,
+            initial_joints: Vec::new(),
+        }
+    }
+}
+
+impl ServiceConfig {
+    /// Checks every key; the message names it and its allowed range.
+    pub fn validate(&self) -> Result<(), String> {
+        if self.prefix.is_empty() || self.prefix.len() > 200 || self.prefix.contains(char::is_whitespace) {
+            return Err(format!("[service] prefix = {:?}: must be 1 to 200 characters without spaces", self.prefix));
+        }
+        if !(self.spin.is_finite() && (0.0..=0.0005).contains(&self.spin)) {
+            return Err(format!("[service] spin = {}: must lie in [0, 0.0005] s", self.spin));
+        }
+        if !(self.late_threshold.is_finite() && self.late_threshold > 0.0 && self.late_threshold <= 1.0) {
+            return Err(format!("[service] late_threshold = {}: must lie in (0, 1] s", self.late_threshold));
+        }
+        if self.initial_joints.iter().any(|v| !v.is_finite()) {
+            return Err("[service] initial_joints: values must be finite".to_string());
+        }
+        Ok(())
+    }
+}
+
+/// Receives every tick's input and output after publishing (the logger). Must not block.
+pub trait TickSink {
+    /// One tick.
+    fn record(&mut self, input: &TickInput, output: &TickOutput);
+    /// Records the sink could not take so far (reported in Status).
+    fn drops(&self) -> u64 {
+        0
+    }
+}
+
+/// A sink that keeps nothing.
+pub struct NullSink;
+
+impl TickSink for NullSink {
+    fn record(&mut self, _: &TickInput, _: &TickOutput) {}
+}
+
+/// When the runner returns.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct StopWhen {
+    /// After this many ticks.
+    pub max_ticks: Option<u64>,
+    /// When a job has ended (finished, stopped or faulted) and the controller is at rest.
+    pub job_done: bool,
+}
+
+/// What a run measured.
+pub struct RunSummary {
+    /// Ticks run.
+    pub ticks: u64,
+    /// Timing counters.
+    pub cycle: CycleStats,
+    /// Wake-up lateness per tick (ns; timer mode).
+    pub lateness: Histogram,
+    /// Controller step cost per tick (ns).
+    pub step_cost: Histogram,
+    /// Wake-up to last publish per tick (ns).
+    pub tick_cost: Histogram,
+    /// The last Status.
+    pub status: ipc::Status,
+    /// What the real-time set-up did.
+    pub realtime: rt::RealtimeReport,
+}
+
+/// Why the runner could not run.
+#[derive(Debug, thiserror::Error)]
+pub enum RunError {
+    /// Opening or using a port failed.
+    #[error("{0}")]
+    Port(#[from] PortError),
+}
+
+/// The cycle runner. See the module documentation.
+pub struct Runner {
+    ports: ServicePorts,
+    controller: Controller,
+    service: ServiceConfig,
+    dt_ns: u64,
+    joint_state_timeout_ns: u64,
+    /// Segments of a batch that did not fit in the last tick.
+    carry: Option<(ipc::SegmentBatch, usize)>,
+    echo_state: ipc::JointState,
+}
+
+impl Runner {
+    /// Opens the ports under the configured prefix. `node_name` names this process to iceoryx2.
+    pub fn new(controller: Controller, service: &ServiceConfig, joint_state_timeout: f64, rate_hz: f64) -> Result<Self, RunError> {
+        let _ = super::ports::cleanup_dead_nodes();
+        let ports = ServicePorts::open(&ServiceNames::new(&service.prefix), "strand")?;
+        let n = controller.model().dof();
+        let mut echo_state = ipc::JointState { dof: n as u32, ..Default::default() };
+        let middle = controller.model().middle_configuration();
+        for i in 0..n {
+            echo_state.position[i] = service.initial_joints.get(i).copied().unwrap_or(middle[i]);
+        }
+        Ok(Runner {
+            ports,
+            controller,
+            service: service.clone(),
+            dt_ns: (1e9 / rate_hz).round() as u64,
+            joint_state_timeout_ns: (joint_state_timeout * 1e9) as u64,
+            carry: None,
+            echo_state,
+        })
+    }
+
+    /// The controller (for its model and counters).
+    pub fn controller(&self) -> &Controller {
+        &self.controller
+    }
+
+    /// Runs ticks until `stop` is set or `when` says so. Real-time settings are applied to the
+    /// calling thread first (refusals are logged as one-line warnings and the run goes on).
+    pub fn run(&mut self, realtime: &RealtimeConfig, stop: &AtomicBool, when: StopWhen, sink: &mut dyn TickSink) -> Result<RunSummary, RunError> {
+        let report = rt::apply(realtime);
+        for w in report.warnings() {
+            tracing::warn!("real-time: {w}");
+        }
+        tracing::info!("real-time: {report}");
+        let mut input = TickInput::new(0, 0);
+        let mut summary = RunSummary {
+            ticks: 0,
+            cycle: CycleStats::default(),
+            lateness: Histogram::new(),
+            step_cost: Histogram::new(),
+            tick_cost: Histogram::new(),
+            status: ipc::Status::default(),
+            realtime: report,
+        };
+        let late_ns = (self.service.late_threshold * 1e9) as u64;
+        let mut timer = TimerClock::new(self.dt_ns, (self.service.spin * 1e9) as u64, late_ns);
+        let t0 = monotonic_ns();
+        timer.start(t0);
+        let mut job_seen = false;
+        let cleanup_every = (250_000_000 / self.dt_ns).max(1);
+        let mut tick: u64 = 0;
+        while !stop.load(Ordering::Relaxed) {
+            // 1. Wait for the tick.
+            let now = match self.service.clock {
+                ClockMode::Timer => {
+                    let wake = timer.wait();
+                    summary.cycle.record_wake(&wake, late_ns);
+                    summary.lateness.record(wake.lateness_ns);
+                    wake.deadline_ns
+                }
+                ClockMode::Robot => {
+                    // One tick per joint state; past the timeout, tick anyway so the controller
+                    // can notice the silence.
+                    let timeout = self.joint_state_timeout_ns.max(2 * self.dt_ns);
+                    self.ports.wait_joint_state(timeout)?;
+                    summary.cycle.ticks += 1;
+                    monotonic_ns()
+                }
+                ClockMode::FreeRun => {
+                    summary.cycle.ticks += 1;
+                    t0 + tick * self.dt_ns
+                }
+            };
+            let woke = monotonic_ns();
+            // 2. Drain the subscribers.
+            input.reset(tick, now);
+            self.drain(&mut input)?;
+            input.feeder_lost = job_seen_open(&summary.status) && self.ports.segment_publishers() == 0;
+            input.cycle.overruns = summary.cycle.overruns;
+            input.cycle.late_wakeups = summary.cycle.late_wakeups;
+            input.cycle.worst_lateness_ns = summary.cycle.worst_lateness_ns;
+            input.cycle.log_drops = sink.drops();
+            // 3. Step.
+            let before = monotonic_ns();
+            let out = self.controller.step(&input);
+            let after = monotonic_ns();
+            // 4. Publish.
+            if out.joint_command.valid == 1 {
+                self.ports.publish_joint_command(&out.joint_command)?;
+                if self.service.joint_feedback == JointFeedback::Echo {
+                    self.echo_state.position = out.joint_command.position;
+                    self.echo_state.velocity = out.joint_command.velocity;
+                }
+            }
+            self.ports.publish_extruder_command(&out.extruder)?;
+            self.ports.publish_status(&out.status)?;
+            let published = monotonic_ns();
+            summary.step_cost.record(after - before);
+            summary.tick_cost.record(published - woke);
+            if self.service.clock == ClockMode::Timer {
+                summary.cycle.record_work_end(published, timer.next_deadline_ns());
+            }
+            sink.record(&input, &out);
+            // 5. Off the tick: tell humans what happened; every 0.25 s, let iceoryx2 forget dead
+            //    peers (a crashed feeder or driver counts as a publisher until then).
+            log_events(&out);
+            if tick % cleanup_every == 0 {
+                let _ = super::ports::cleanup_dead_nodes();
+            }
+            summary.status = out.status;
+            summary.ticks += 1;
+            tick += 1;
+            job_seen |= out.status.job_outcome == JobOutcome::InProgress as u32;
+            if when.max_ticks.is_some_and(|m| tick >= m) {
+                break;
+            }
+            if when.job_done && job_seen && job_ended(&out.status) {
+                break;
+            }
+        }
+        Ok(summary)
+    }
+
+    fn drain(&mut self, input: &mut TickInput) -> Result<(), RunError> {
+        // Segments: what is left of the last batch first, then new batches while they fit.
+        loop {
+            let (batch, from) = match self.carry.take() {
+                Some(c) => c,
+                None => match self.ports.receive_segments()? {
+                    Some(b) => (b, 0),
+                    None => break,
+                },
+            };
+            let segments = batch.as_slice();
+            let mut k = from;
+            while k < segments.len() && input.push_segment(&segments[k]) {
+                k += 1;
+            }
+            if k < segments.len() {
+                self.carry = Some((batch, k));
+                break;
+            }
+        }
+        while input.control_count < crate::core::controller::MAX_CONTROLS_PER_TICK as u32 {
+            match self.ports.receive_control()? {
+                Some(c) => {
+                    input.push_control(&c);
+                }
+                None => break,
+            }
+        }
+        while let Some(js) = self.ports.receive_joint_state()? {
+            input.joint_state = Some(js);
+        }
+        if self.service.joint_feedback == JointFeedback::Echo {
+            self.echo_state.seq += 1;
+            self.echo_state.stamp_ns = input.time_ns;
+            input.joint_state = Some(self.echo_state);
+        }
+        while let Some(p) = self.ports.receive_base_pose()? {
+            input.push_base_pose(&p);
+        }
+        Ok(())
+    }
+}
+
+fn job_seen_open(status: &ipc::Status) -> bool {
+    status.job_outcome == JobOutcome::InProgress as u32
+        && matches!(RunState::from_u32(status.run_state), Some(RunState::Running | RunState::Pausing | RunState::Paused))
+}
+
+fn job_ended(status: &ipc::Status) -> bool {
+    let outcome = JobOutcome::from_u32(status.job_outcome);
+    let state = RunState::from_u32(status.run_state);
+    matches!(outcome, Some(JobOutcome::Finished | JobOutcome::Stopped | JobOutcome::Faulted))
+        && matches!(state, Some(RunState::Idle | RunState::Fault))
+}
+
+fn log_events(out: &TickOutput) {
+    for e in out.events() {
+        match e {
+            Event::SegmentRejected { seq, reason, field } => tracing::warn!("segment {seq} rejected: {reason:?} {field}"),
+            Event::ControlRejected { command, reason } => tracing::warn!("control {command} rejected: {reason:?}"),
+            Event::JointStateRejected { seq, reason } => tracing::warn!("joint state {seq} rejected: {reason:?}"),
+            Event::BasePoseRejected { seq } => tracing::warn!("base pose {seq} rejected"),
+            Event::StateChanged { from, to } => tracing::info!("state {from:?} -> {to:?}"),
+            Event::Fault { code } => tracing::error!("fault: {code:?}"),
+            Event::JobEnded { outcome, last_seq } => tracing::info!("job ended: {outcome:?} (last segment {last_seq})"),
+            Event::Clamped { joint } => tracing::warn!("final stage clamped joint {joint}"),
+        }
+    }
+    if out.events_dropped > 0 {
+        tracing::warn!("{} events not reported (more than fit in one tick)", out.events_dropped);
+    }
+}
