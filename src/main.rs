@@ -102,7 +102,10 @@ fn main() -> ExitCode {
                     model.dof()
                 );
                 println!("clik: task {:?}, gains {:?} 1/s, damping below σ = {}", cfg.clik.task, cfg.clik.gains, cfg.clik.sigma_threshold);
-                println!("service: prefix {}, clock {:?}, {} Hz, base {:?}", cfg.service.prefix, cfg.service.clock, cfg.controller.rate_hz, cfg.base.mode);
+                println!(
+                    "service: prefix {}, clock {:?}, {} Hz, base {:?}",
+                    cfg.service.prefix, cfg.service.clock, cfg.controller.rate_hz, cfg.base.mode
+                );
                 ExitCode::SUCCESS
             }
             Err(e) => {

@@ -184,7 +184,16 @@ fn controller_steps_allocate_nothing() {
         cell.tick += 1;
         states.insert(cell.state() as u32);
     }
-    for s in [RunState::Approaching, RunState::Running, RunState::Pausing, RunState::Paused, RunState::Stopping, RunState::EmergencyStopping, RunState::Fault, RunState::Idle] {
+    for s in [
+        RunState::Approaching,
+        RunState::Running,
+        RunState::Pausing,
+        RunState::Paused,
+        RunState::Stopping,
+        RunState::EmergencyStopping,
+        RunState::Fault,
+        RunState::Idle,
+    ] {
         assert!(states.contains(&(s as u32)), "never in {s:?}: {states:?}");
     }
     assert_eq!(total, 0, "allocations inside Controller::step");

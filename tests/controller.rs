@@ -366,7 +366,8 @@ fn silent_tracking_stops_the_job_then_faults() {
     });
     let mut cell = Cell::new(&cfg, &IIWA_START);
     cell.send(&square_job(1, ORIGIN, 0.04, 2, 0.03));
-    let pose = |cell: &Cell, seq| strand_ipc::BasePose { seq, stamp_ns: cell.now_ns(), position: [0.0; 3], orientation: [1.0, 0.0, 0.0, 0.0] };
+    let pose =
+        |cell: &Cell, seq| strand_ipc::BasePose { seq, stamp_ns: cell.now_ns(), position: [0.0; 3], orientation: [1.0, 0.0, 0.0, 0.0] };
     let mut seq = 0;
     cell.control(Command::Start, 0.0);
     for _ in 0..3000 {
@@ -470,9 +471,7 @@ fn every_bundled_config_prints_a_square() {
         cell.control(Command::Start, 0.0);
         let tracked = cfg.base.mode == BaseMode::Tracked;
         let mount = cfg.base.mount_xyz;
-        let r = run(&mut cell, 60_000, |c| {
-            c.state() == RunState::Idle || c.state() == RunState::Fault
-        });
+        let r = run(&mut cell, 60_000, |c| c.state() == RunState::Idle || c.state() == RunState::Fault);
         let _ = (tracked, mount);
         let out = cell.last.unwrap();
         assert_eq!(out.status.job_outcome, JobOutcome::Finished as u32, "{name}: {:?} {:?}", cell.ctl.fault(), r.visited);

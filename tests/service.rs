@@ -196,7 +196,9 @@ fn a_job_streams_with_back_pressure_and_finishes() {
     // 1201 segments: more than the 1024 the queue holds.
     let job = square_job(300, 0.004, 0.2);
     feed(&ports, &job);
-    let s = wait_for(&ports, 120, "the job to finish", |s| s.job_outcome != JobOutcome::InProgress as u32 && s.run_state == RunState::Idle as u32);
+    let s = wait_for(&ports, 120, "the job to finish", |s| {
+        s.job_outcome != JobOutcome::InProgress as u32 && s.run_state == RunState::Idle as u32
+    });
     assert_eq!(s.job_outcome, JobOutcome::Finished as u32, "{s:?}");
     assert_eq!(s.rejected, 0);
     assert_eq!(s.segments_accepted, job.len() as u64);

@@ -317,7 +317,9 @@ impl BaseEstimator {
         let gap = self.last_sample_ns.map(|last| (t - last) as f64 * 1e-9);
         self.estimate = match (self.config.estimator, gap) {
             // First sample, or a gap long enough that the old velocity means nothing: start over.
-            (_, None) => BaseState { position: p_m, orientation: q_m, linear_velocity: Vector3::zeros(), angular_velocity: Vector3::zeros() },
+            (_, None) => {
+                BaseState { position: p_m, orientation: q_m, linear_velocity: Vector3::zeros(), angular_velocity: Vector3::zeros() }
+            }
             (_, Some(g)) if g > self.config.timeout => {
                 BaseState { position: p_m, orientation: q_m, linear_velocity: Vector3::zeros(), angular_velocity: Vector3::zeros() }
             }
@@ -349,7 +351,8 @@ impl BaseEstimator {
         };
         if !self.estimate.is_finite() {
             // Cannot happen with finite inputs and Δ > 0; never let it through if it does.
-            self.estimate = BaseState { position: p_m, orientation: q_m, linear_velocity: Vector3::zeros(), angular_velocity: Vector3::zeros() };
+            self.estimate =
+                BaseState { position: p_m, orientation: q_m, linear_velocity: Vector3::zeros(), angular_velocity: Vector3::zeros() };
         }
         self.time_ns = t;
         self.last_sample_ns = Some(t);

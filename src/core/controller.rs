@@ -579,7 +579,10 @@ impl Controller {
         for c in input.controls() {
             self.take_control(c, input.time_ns, &mut out);
         }
-        if input.feeder_lost && self.job_open && matches!(self.state, RunState::Running | RunState::Pausing | RunState::Paused) {
+        if input.feeder_lost
+            && self.job_open
+            && matches!(self.state, RunState::Approaching | RunState::Running | RunState::Pausing | RunState::Paused)
+        {
             self.begin_stop(FaultCode::None);
         }
         self.supervise(input.time_ns, &mut out);
@@ -952,7 +955,6 @@ impl Controller {
         self.base.timeout()
     }
 
-
     /// The joint positions this tick wants, before the final stage.
     fn motion(&mut self, base: &BaseState, out: &mut TickOutput) -> JointVector {
         if !self.known {
@@ -966,7 +968,9 @@ impl Controller {
             RunState::Running if self.settling => {
                 let (p, q) = self.first_point.unwrap_or_else(|| self.tool_world(0));
                 let step = self.clik.step(&self.model, &self.q, &base.world_to_base(&TcpTarget::at_rest(p, q)), self.dt);
-                if step.position_error <= self.cfg.approach_position_tolerance && step.orientation_error <= self.cfg.approach_orientation_tolerance {
+                if step.position_error <= self.cfg.approach_position_tolerance
+                    && step.orientation_error <= self.cfg.approach_orientation_tolerance
+                {
                     self.settling = false;
                 }
                 let d = &mut out.diagnostics;
@@ -1152,7 +1156,8 @@ impl Controller {
             RunState::Pausing if motion == Some(Motion::Held) => self.set_state(RunState::Paused),
             RunState::Stopping => {
                 let at_rest = if self.stop_by_brake { !self.is_moving() } else { self.engine.is_held() && motion == Some(Motion::Held) };
-                let path_done = motion.is_some_and(|m| matches!(m, Motion::Finished | Motion::Idle | Motion::Starved) && self.engine.path_motion().0 == 0.0);
+                let path_done = motion
+                    .is_some_and(|m| matches!(m, Motion::Finished | Motion::Idle | Motion::Starved) && self.engine.path_motion().0 == 0.0);
                 if at_rest || (!self.stop_by_brake && path_done) {
                     self.stop_by_brake = false;
                     let then = self.fault_after_stop;

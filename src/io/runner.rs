@@ -172,7 +172,13 @@ impl Runner {
 
     /// Runs ticks until `stop` is set or `when` says so. Real-time settings are applied to the
     /// calling thread first (refusals are logged as one-line warnings and the run goes on).
-    pub fn run(&mut self, realtime: &RealtimeConfig, stop: &AtomicBool, when: StopWhen, sink: &mut dyn TickSink) -> Result<RunSummary, RunError> {
+    pub fn run(
+        &mut self,
+        realtime: &RealtimeConfig,
+        stop: &AtomicBool,
+        when: StopWhen,
+        sink: &mut dyn TickSink,
+    ) -> Result<RunSummary, RunError> {
         let report = rt::apply(realtime);
         for w in report.warnings() {
             tracing::warn!("real-time: {w}");
@@ -312,7 +318,10 @@ impl Runner {
 
 fn job_seen_open(status: &ipc::Status) -> bool {
     status.job_outcome == JobOutcome::InProgress as u32
-        && matches!(RunState::from_u32(status.run_state), Some(RunState::Running | RunState::Pausing | RunState::Paused))
+        && matches!(
+            RunState::from_u32(status.run_state),
+            Some(RunState::Approaching | RunState::Running | RunState::Pausing | RunState::Paused)
+        )
 }
 
 fn job_ended(status: &ipc::Status) -> bool {

@@ -7,9 +7,10 @@
 # Starts the service on a private prefix with a timer clock, echoed joint state and
 # --exit-when-done, waits until its Status is visible (up to 10 s), runs strand_client.py (60 s
 # limit), waits for the service to exit (it does when the job ends), kills it if it does not, and
-# exits with the client's status. Needs `pip install iceoryx2==0.10.0`. Environment: STRAND_BIN
-# (service binary), PYTHON (interpreter, default python3), CLIENT_ARGS (extra client arguments,
-# e.g. -v).
+# exits with the client's status. First checks strand_ipc.py against ipc/src/lib.rs
+# (test_strand_ipc.py, no service needed). Needs `pip install iceoryx2==0.10.0`.
+# Environment: STRAND_BIN (service binary, default target/debug/strand), PYTHON (interpreter,
+# default python3), CLIENT_ARGS (extra client arguments, e.g. -v).
 set -u
 
 here=$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)
@@ -27,6 +28,13 @@ cd "$root" || exit 2
 if [ ! -x "$bin" ]; then
     echo "run_client_test: no service binary at $bin (set STRAND_BIN)" >&2
     exit 2
+fi
+
+# The ctypes mirrors against ipc/src/lib.rs (field order, type names, enums): no service needed.
+if ! "$python" "$here/test_strand_ipc.py" >/dev/null; then
+    "$python" "$here/test_strand_ipc.py" >&2
+    echo "run_client_test: strand_ipc.py does not match ipc/src/lib.rs" >&2
+    exit 1
 fi
 
 log=$(mktemp "${TMPDIR:-/tmp}/strand-pytest-$$.XXXXXX.log")
@@ -55,7 +63,12 @@ done
 wait "$probe"
 probe_rc=$?
 if [ "$probe_rc" -ne 0 ]; then
-    echo "run_client_test: the service's Status did not appear (probe exit $probe_rc); service log:" >&2
+    if kill -0 "$svc" 2>/dev/null; then
+        echo "run_client_test: the service's Status did not appear within 10 s; service log:" >&2
+    else
+        wait "$svc"
+        echo "run_client_test: the service exited (code $?) before its Status appeared; service log:" >&2
+    fi
     cat "$log" >&2
     exit 1
 fi
