@@ -943,16 +943,12 @@ impl Controller {
             }
         }
         let in_motion = matches!(self.state, RunState::Approaching | RunState::Running | RunState::Pausing | RunState::Paused);
-        if self.base.is_tracked() && in_motion && self.base.age(now_ns) > self.base_timeout() {
+        if self.base.is_tracked() && in_motion && self.base.age(now_ns) > self.base.timeout() {
             if self.state == RunState::Approaching {
                 return self.latch_fault(FaultCode::TrackingLost, out);
             }
             self.begin_stop(FaultCode::TrackingLost);
         }
-    }
-
-    fn base_timeout(&self) -> f64 {
-        self.base.timeout()
     }
 
     /// The joint positions this tick wants, before the final stage.
@@ -1189,7 +1185,7 @@ impl Controller {
     fn extruder_command(&mut self) -> super::extrude::ExtruderCommand {
         match self.state {
             RunState::Running | RunState::Pausing | RunState::Paused | RunState::Stopping if !self.stop_by_brake => {
-                let mut s = self.last_sample.unwrap_or_else(|| rest_sample(Vector3::zeros()));
+                let mut s = self.last_sample.unwrap_or_else(|| rest_sample());
                 s.flow *= self.flow_override;
                 s.dwell_filament_rate *= self.flow_override;
                 self.extruder.step(&s)
@@ -1198,7 +1194,7 @@ impl Controller {
                 // Extrusion off at once: no retraction, nothing pushed.
                 super::extrude::ExtruderCommand { position: self.extruder.position(), ..Default::default() }
             }
-            _ => self.extruder.step(&rest_sample(Vector3::zeros())),
+            _ => self.extruder.step(&rest_sample()),
         }
     }
 
@@ -1267,10 +1263,10 @@ impl Controller {
     }
 }
 
-/// A path sample of a tool at rest at `position`, extruding nothing.
-fn rest_sample(position: Vector3<f64>) -> PathSample {
+/// A path sample of a tool at rest, extruding nothing (what the extruder sees outside a job).
+fn rest_sample() -> PathSample {
     PathSample {
-        position,
+        position: Vector3::zeros(),
         velocity: Vector3::zeros(),
         acceleration: Vector3::zeros(),
         orientation: UnitQuaternion::identity(),
