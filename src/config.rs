@@ -7,7 +7,7 @@
 
 use std::path::{Path, PathBuf};
 
-use serde::Deserialize;
+use serde::{Deserialize, Serialize};
 use thiserror::Error;
 
 use crate::core::base::BaseConfig;
@@ -19,6 +19,7 @@ use crate::core::path::bed::BedConfig;
 use crate::core::path::{BedTransform, PathConfig};
 use crate::io::rt::RealtimeConfig;
 use crate::io::runner::ServiceConfig;
+use crate::log::LogConfig;
 
 /// A configuration problem, naming the file and what in it is wrong.
 #[derive(Debug, Error)]
@@ -43,7 +44,7 @@ fn read_toml<T: for<'de> Deserialize<'de>>(path: &Path) -> Result<T, ConfigError
 
 /// The tool: tip link (flange) → TCP at the nozzle tip. The TCP's z axis points along the nozzle, out
 /// of the tool towards the substrate.
-#[derive(Clone, Debug, Default, Deserialize, PartialEq)]
+#[derive(Clone, Debug, Default, Deserialize, Serialize, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct ToolConfig {
     /// Translation (m), in the tip link's frame.
@@ -64,7 +65,7 @@ impl ToolConfig {
 }
 
 /// Joint limits that URDF does not carry, one value per joint in chain order.
-#[derive(Clone, Debug, Deserialize, PartialEq)]
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct DynamicLimits {
     /// Acceleration limits (rad/s² or m/s²).
@@ -74,7 +75,7 @@ pub struct DynamicLimits {
 }
 
 /// A robot file.
-#[derive(Clone, Debug, Deserialize, PartialEq)]
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct RobotConfig {
     /// Path of the URDF, relative to the robot file.
@@ -91,6 +92,9 @@ pub struct RobotConfig {
     /// Where the robot file was read from (set by [`RobotConfig::load`]).
     #[serde(skip)]
     pub file: PathBuf,
+    /// The URDF's text, read once at load (so a log can carry exactly what was used).
+    #[serde(skip)]
+    pub urdf_text: String,
 }
 
 impl RobotConfig {
@@ -98,12 +102,22 @@ impl RobotConfig {
     pub fn load(path: &Path) -> Result<Self, ConfigError> {
         let mut cfg: RobotConfig = read_toml(path)?;
         cfg.file = path.to_path_buf();
+        let urdf = cfg.urdf_path();
+        cfg.urdf_text =
+            std::fs::read_to_string(&urdf).map_err(|e| ConfigError::new(path, format!("urdf: cannot read {}: {e}", urdf.display())))?;
+        cfg.check()?;
+        Ok(cfg)
+    }
+
+    fn check(&self) -> Result<(), ConfigError> {
+        let path = &self.file;
+        let cfg = self;
         for (key, v) in [("tool.xyz", cfg.tool.xyz), ("tool.rpy", cfg.tool.rpy)] {
             if v.iter().any(|x| !x.is_finite()) {
                 return Err(ConfigError::new(path, format!("{key}: values must be finite")));
             }
         }
-        Ok(cfg)
+        Ok(())
     }
 
     /// The URDF path, resolved against the robot file's folder.
@@ -111,10 +125,10 @@ impl RobotConfig {
         self.file.parent().unwrap_or(Path::new(".")).join(&self.urdf)
     }
 
-    /// Loads the URDF and builds the chain with the tool and all limits.
+    /// Builds the chain from the URDF read at load, with the tool and all limits.
     pub fn build_model(&self) -> Result<RobotModel, ConfigError> {
         let urdf = self.urdf_path();
-        let model = RobotModel::from_urdf_file(&urdf, &self.root_link, &self.tip_link)
+        let model = RobotModel::from_urdf_str(&self.urdf_text, &urdf.display().to_string(), &self.root_link, &self.tip_link)
             .map_err(|e| ConfigError { file: self.file.display().to_string(), message: format!("urdf: {e}") })?;
         let in_file = |e: crate::core::kin::ModelError| ConfigError::new(&self.file, e.to_string());
         model
@@ -148,12 +162,14 @@ pub struct Config {
     pub service: ServiceConfig,
     /// Real-time scheduling, affinity, memory locking.
     pub realtime: RealtimeConfig,
+    /// The MCAP log.
+    pub log: LogConfig,
 }
 
-#[derive(Deserialize)]
+#[derive(Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
-struct ConfigFile {
-    robot: PathBuf,
+struct ConfigFile<R> {
+    robot: R,
     #[serde(default)]
     clik: ClikConfig,
     #[serde(default)]
@@ -170,37 +186,84 @@ struct ConfigFile {
     service: ServiceConfig,
     #[serde(default)]
     realtime: RealtimeConfig,
+    #[serde(default)]
+    log: LogConfig,
+}
+
+impl<R> ConfigFile<R> {
+    fn validate(&self, path: &Path) -> Result<(), ConfigError> {
+        self.clik.validate().map_err(|m| ConfigError::new(path, m))?;
+        self.controller.validate().map_err(|m| ConfigError::new(path, m))?;
+        self.base.validate().map_err(|m| ConfigError::new(path, m))?;
+        self.service.validate().map_err(|m| ConfigError::new(path, m))?;
+        self.realtime.validate().map_err(|m| ConfigError::new(path, m))?;
+        self.path.validate().map_err(|m| ConfigError::new(path, m.to_string()))?;
+        self.extruder.validate().map_err(|m| ConfigError::new(path, m))?;
+        self.log.validate().map_err(|m| ConfigError::new(path, m))?;
+        BedTransform::new(&self.bed).map_err(|m| ConfigError::new(path, m))?;
+        Ok(())
+    }
+
+    fn into_config(self, file: &Path, robot: RobotConfig) -> Config {
+        Config {
+            file: file.to_path_buf(),
+            robot,
+            clik: self.clik,
+            controller: self.controller,
+            path: self.path,
+            extruder: self.extruder,
+            bed: self.bed,
+            base: self.base,
+            service: self.service,
+            realtime: self.realtime,
+            log: self.log,
+        }
+    }
 }
 
 impl Config {
     /// Reads and validates a config file and the robot file it names.
     pub fn load(path: &Path) -> Result<Self, ConfigError> {
-        let raw: ConfigFile = read_toml(path)?;
-        raw.clik.validate().map_err(|m| ConfigError::new(path, m))?;
-        raw.controller.validate().map_err(|m| ConfigError::new(path, m))?;
-        raw.base.validate().map_err(|m| ConfigError::new(path, m))?;
-        raw.service.validate().map_err(|m| ConfigError::new(path, m))?;
-        raw.realtime.validate().map_err(|m| ConfigError::new(path, m))?;
-        raw.path.validate().map_err(|m| ConfigError::new(path, m.to_string()))?;
-        raw.extruder.validate().map_err(|m| ConfigError::new(path, m))?;
-        BedTransform::new(&raw.bed).map_err(|m| ConfigError::new(path, m))?;
+        let raw: ConfigFile<PathBuf> = read_toml(path)?;
+        raw.validate(path)?;
         let robot_path = path.parent().unwrap_or(Path::new(".")).join(&raw.robot);
         if !robot_path.is_file() {
             return Err(ConfigError::new(path, format!("robot: no robot file at {}", robot_path.display())));
         }
         let robot = RobotConfig::load(&robot_path)?;
-        Ok(Config {
-            file: path.to_path_buf(),
-            robot,
-            clik: raw.clik,
-            controller: raw.controller,
-            path: raw.path,
-            extruder: raw.extruder,
-            bed: raw.bed,
-            base: raw.base,
-            service: raw.service,
-            realtime: raw.realtime,
-        })
+        Ok(raw.into_config(path, robot))
+    }
+
+    /// The configuration in force, as one self-contained TOML text: every section with its values
+    /// after command-line overrides, and the robot file inline under `[robot]` (its URDF travels
+    /// separately). A log stores this; [`Config::from_effective`] reads it back to the same values.
+    pub fn effective_toml(&self) -> String {
+        let file = ConfigFile {
+            robot: self.robot.clone(),
+            clik: self.clik,
+            controller: self.controller.clone(),
+            path: self.path.clone(),
+            extruder: self.extruder.clone(),
+            bed: self.bed.clone(),
+            base: self.base.clone(),
+            service: self.service.clone(),
+            realtime: self.realtime.clone(),
+            log: self.log.clone(),
+        };
+        toml::to_string(&file).expect("every config value is representable in TOML")
+    }
+
+    /// Reads an [`effective_toml`](Config::effective_toml) text with the URDF it used. `origin`
+    /// names where the text came from (the log file) in errors.
+    pub fn from_effective(origin: &Path, text: &str, urdf_text: &str) -> Result<Self, ConfigError> {
+        let raw: ConfigFile<RobotConfig> =
+            toml::from_str(text).map_err(|e| ConfigError::new(origin, format!("effective config: {}", e.to_string().trim_end())))?;
+        raw.validate(origin)?;
+        let mut robot = raw.robot.clone();
+        robot.file = origin.join("robot");
+        robot.urdf_text = urdf_text.to_string();
+        robot.check()?;
+        Ok(raw.into_config(origin, robot))
     }
 
     /// The sections the controller core uses.

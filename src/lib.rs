@@ -10,4 +10,5 @@ pub mod config;
 pub mod core;
 pub mod gcode;
 pub mod io;
+pub mod log;
 pub mod plan;

@@ -2,7 +2,7 @@
 //! controller and runs the cycle over iceoryx2 until interrupted; `strand check-config` validates a
 //! configuration and reports the chain it would drive.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::sync::atomic::{AtomicBool, Ordering};
 
@@ -11,6 +11,7 @@ use strand::config::Config;
 use strand::core::controller::Controller;
 use strand::io::clock::ClockMode;
 use strand::io::runner::{JointFeedback, NullSink, Runner, StopWhen};
+use strand::log::writer::{LogContext, Logger};
 
 #[derive(Parser)]
 #[command(name = "strand", version, about = "Real-time streaming motion controller for robot-arm additive manufacturing")]
@@ -41,6 +42,12 @@ enum Command {
         /// Exit when a job has ended (finished, stopped or faulted).
         #[arg(long)]
         exit_when_done: bool,
+        /// Write the MCAP log to this file (overrides `[log] dir` and `name`).
+        #[arg(long, conflicts_with = "no_log")]
+        log: Option<PathBuf>,
+        /// Do not write a log (overrides `[log] enabled`).
+        #[arg(long)]
+        no_log: bool,
     },
     /// Load and validate a configuration and the robot it names; print what it describes.
     CheckConfig {
@@ -67,7 +74,7 @@ extern "C" fn on_signal(_: libc::c_int) {
 
 fn main() -> ExitCode {
     match Cli::parse().command {
-        Command::Run { config, prefix, clock, echo, ticks, exit_when_done } => {
+        Command::Run { config, prefix, clock, echo, ticks, exit_when_done, log, no_log } => {
             tracing_subscriber::fmt()
                 .with_env_filter(tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info".into()))
                 .with_writer(std::io::stderr)
@@ -88,7 +95,13 @@ fn main() -> ExitCode {
             if echo {
                 cfg.service.joint_feedback = JointFeedback::Echo;
             }
-            run(&cfg, StopWhen { max_ticks: ticks, job_done: exit_when_done })
+            if no_log {
+                cfg.log.enabled = false;
+            }
+            if log.is_some() {
+                cfg.log.enabled = true;
+            }
+            run(&cfg, log.as_deref(), StopWhen { max_ticks: ticks, job_done: exit_when_done })
         }
         Command::CheckConfig { config } => match Config::load(&config).and_then(|c| c.robot.build_model().map(|m| (c, m))) {
             Ok((cfg, model)) => {
@@ -116,13 +129,32 @@ fn main() -> ExitCode {
     }
 }
 
-fn run(cfg: &Config, when: StopWhen) -> ExitCode {
+fn run(cfg: &Config, log_path: Option<&Path>, when: StopWhen) -> ExitCode {
     let model = match cfg.robot.build_model() {
         Ok(m) => m,
         Err(e) => {
             eprintln!("strand: {e}");
             return ExitCode::from(2);
         }
+    };
+    let logger = if cfg.log.enabled {
+        let ctx = LogContext::new(cfg, &model);
+        let started = match log_path {
+            Some(p) => Logger::start_at(&cfg.log, ctx, p),
+            None => Logger::start(&cfg.log, ctx),
+        };
+        match started {
+            Ok(l) => {
+                tracing::info!("logging every tick to {}", l.path().display());
+                Some(l)
+            }
+            Err(e) => {
+                eprintln!("strand: log: {e}");
+                return ExitCode::from(2);
+            }
+        }
+    } else {
+        None
     };
     let controller = match Controller::new(&cfg.controller_settings(), model) {
         Ok(c) => c,
@@ -152,7 +184,26 @@ fn run(cfg: &Config, when: StopWhen) -> ExitCode {
         cfg.service.clock,
         cfg.service.prefix
     );
-    match runner.run(&cfg.realtime, &STOP, when, &mut NullSink) {
+    let mut logger = logger;
+    let result = match logger.as_mut() {
+        Some(l) => runner.run(&cfg.realtime, &STOP, when, l),
+        None => runner.run(&cfg.realtime, &STOP, when, &mut NullSink),
+    };
+    if let Some(l) = logger {
+        let r = l.finish();
+        let files: Vec<String> = r.files.iter().map(|f| f.display().to_string()).collect();
+        eprintln!(
+            "log {} | {} ticks, {} dropped, {:.1} MB | writer CPU {:.2} s of {:.2} s{}",
+            files.join(" "),
+            r.ticks_written,
+            r.drops,
+            r.bytes as f64 / 1e6,
+            r.writer_cpu_s,
+            r.writer_wall_s,
+            r.error.map_or(String::new(), |e| format!(" | STOPPED: {e}"))
+        );
+    }
+    match result {
         Ok(s) => {
             let us = |ns: u64| ns as f64 / 1e3;
             let st = &s.status;

@@ -446,7 +446,7 @@ impl JobOutcome {
 
 /// The controller's state, published every tick. Feeders use `last_received_seq + queue_free` as the
 /// last segment sequence number they may send (credit-based back-pressure: nothing is ever dropped).
-/// 184 bytes.
+/// 192 bytes.
 #[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
 #[type_name("strand.v1.Status")]
 #[repr(C)]
@@ -505,6 +505,36 @@ pub struct Status {
     pub path_speed: f64,
     /// TCP position error the CLIK corrected this tick (m).
     pub tcp_error: f64,
+    /// [`LogState`] as u32: whether the MCAP log is being written.
+    pub log_state: u32,
+    /// Padding (zero).
+    pub _reserved: u32,
+}
+
+/// Whether the service is logging (`Status::log_state`).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+#[repr(u32)]
+pub enum LogState {
+    /// No log configured.
+    #[default]
+    Off = 0,
+    /// Every tick is written.
+    Recording = 1,
+    /// A write failed (disk full, I/O error): logging stopped, control goes on, and every tick
+    /// since is counted in `Status::log_drops`.
+    Failed = 2,
+}
+
+impl LogState {
+    /// From the wire value.
+    pub fn from_u32(v: u32) -> Option<Self> {
+        Some(match v {
+            0 => LogState::Off,
+            1 => LogState::Recording,
+            2 => LogState::Failed,
+            _ => return None,
+        })
+    }
 }
 
 /// The service names of one cell, all under one prefix (default [`DEFAULT_PREFIX`]). Each
@@ -572,7 +602,7 @@ mod tests {
         assert_eq!(size_of::<BasePose>(), 72);
         assert_eq!(size_of::<JointCommand>(), 48 + 3 * 64);
         assert_eq!(size_of::<ExtruderCommand>(), 64);
-        assert_eq!(size_of::<Status>(), 184);
+        assert_eq!(size_of::<Status>(), 192);
         for a in [align_of::<Segment>(), align_of::<Status>(), align_of::<JointCommand>()] {
             assert_eq!(a, 8);
         }

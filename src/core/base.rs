@@ -20,12 +20,12 @@
 //! Everything here is deterministic and allocation-free; time comes in as arguments.
 
 use nalgebra::{Translation3, UnitQuaternion, Vector3};
-use serde::Deserialize;
+use serde::{Deserialize, Serialize};
 
 use super::kin::{Frame, TcpTarget, geom};
 
 /// How the base pose is known.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Deserialize)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Deserialize, Serialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum BaseMode {
     /// Bolted down: the mount transform from config; no tracking input needed.
@@ -36,7 +36,7 @@ pub enum BaseMode {
 }
 
 /// Which estimator turns tracking samples into a pose at the tick time.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Deserialize)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Deserialize, Serialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum EstimatorKind {
     /// Constant-velocity alpha-beta filter, predicted to the command time (the default).
@@ -52,7 +52,7 @@ pub enum EstimatorKind {
 pub const MAX_WINDOW: usize = 64;
 
 /// `[base]`: where the base is and how it is tracked.
-#[derive(Clone, Debug, PartialEq, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Deserialize, Serialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct BaseConfig {
     /// Fixed or tracked.
@@ -141,7 +141,7 @@ impl BaseConfig {
 }
 
 /// The base's pose and twist at one time, in W.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct BaseState {
     /// Base origin (m, W).
     pub position: Vector3<f64>,

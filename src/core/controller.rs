@@ -22,7 +22,7 @@
 
 use nalgebra::{UnitQuaternion, Vector3};
 use rsruckig::prelude::*;
-use serde::Deserialize;
+use serde::{Deserialize, Serialize};
 use strand_ipc as ipc;
 use strand_ipc::{Command, FaultCode, JobOutcome, RejectReason, RunState};
 
@@ -41,7 +41,7 @@ pub const MAX_BASE_POSES_PER_TICK: usize = 8;
 pub const MAX_EVENTS: usize = 16;
 
 /// `[controller]`: the control loop and its supervision.
-#[derive(Clone, Debug, Deserialize, PartialEq)]
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
 #[serde(deny_unknown_fields, default)]
 pub struct ControllerConfig {
     /// Tick rate (Hz), 250 to 8000.
@@ -124,6 +124,8 @@ pub struct CycleCounters {
     pub worst_lateness_ns: u64,
     /// Log records dropped.
     pub log_drops: u64,
+    /// [`ipc::LogState`] as u32.
+    pub log_state: u32,
 }
 
 /// Everything that may influence one tick.
@@ -151,6 +153,12 @@ pub struct TickInput {
     pub feeder_lost: bool,
     /// The shell's timing counters.
     pub cycle: CycleCounters,
+}
+
+impl Default for TickInput {
+    fn default() -> Self {
+        TickInput::new(0, 0)
+    }
 }
 
 impl TickInput {
@@ -295,7 +303,7 @@ pub enum Event {
 }
 
 /// Diagnostic values of a tick that are not on the wire but belong in the log.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct TickDiagnostics {
     /// Where the path wants the TCP (m, W).
     pub tcp_target_world: Vector3<f64>,
@@ -332,13 +340,28 @@ pub struct TickOutput {
     pub diagnostics: TickDiagnostics,
 }
 
+impl Default for TickOutput {
+    fn default() -> Self {
+        TickOutput {
+            joint_command: ipc::JointCommand::default(),
+            extruder: ipc::ExtruderCommand::default(),
+            status: ipc::Status::default(),
+            events: [Event::Clamped { joint: 0 }; MAX_EVENTS],
+            event_count: 0,
+            events_dropped: 0,
+            diagnostics: TickDiagnostics::default(),
+        }
+    }
+}
+
 impl TickOutput {
     /// The events used.
     pub fn events(&self) -> &[Event] {
         &self.events[..self.event_count as usize]
     }
 
-    fn push(&mut self, e: Event) {
+    /// Adds an event (counted as dropped when the tick has no room left).
+    pub fn push(&mut self, e: Event) {
         let n = self.event_count as usize;
         if n < MAX_EVENTS {
             self.events[n] = e;
@@ -1254,6 +1277,8 @@ impl Controller {
             worst_lateness_ns: input.cycle.worst_lateness_ns,
             clamps: self.clamps,
             log_drops: input.cycle.log_drops,
+            log_state: input.cycle.log_state,
+            _reserved: 0,
             feed_override: self.engine.feed_override(),
             flow_override: self.flow_override,
             path_position: sample.map_or(0.0, |s| s.s),

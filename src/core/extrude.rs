@@ -6,12 +6,12 @@
 //! ṡ is the path speed in W, the substrate frame (the engine plans in W), so on a moving base the
 //! flow follows the nozzle's motion over the part, not the arm's motion relative to its base.
 
-use serde::Deserialize;
+use serde::{Deserialize, Serialize};
 
 use crate::core::path::{Motion, PathSample};
 
 /// `[extruder]`.
-#[derive(Clone, Debug, Deserialize, PartialEq)]
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
 #[serde(deny_unknown_fields, default)]
 pub struct ExtruderConfig {
     /// Radius of the drive (friction) wheel r_w (m), 002 Eq. 19.

@@ -5,7 +5,7 @@
 //! wire. Deadlines are absolute (tick k is due at `start + (k + 1) · period`), so a late wake-up
 //! never shifts the ticks after it.
 
-use serde::Deserialize;
+use serde::{Deserialize, Serialize};
 
 /// Now, in ns of `CLOCK_MONOTONIC`. Tick-path safe (a vDSO call, no allocation).
 pub fn monotonic_ns() -> u64 {
@@ -16,7 +16,7 @@ pub fn monotonic_ns() -> u64 {
 }
 
 /// What starts a tick.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Deserialize, Serialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum ClockMode {
     /// `timer`: an absolute `clock_nanosleep` on `CLOCK_MONOTONIC` at the configured rate

@@ -12,7 +12,7 @@
 
 use std::fmt;
 
-use serde::Deserialize;
+use serde::{Deserialize, Serialize};
 
 /// Largest stack pre-fault [`RealtimeConfig::validate`] accepts (bytes): 8 MiB, the usual main-thread
 /// stack limit.
@@ -24,7 +24,7 @@ const STACK_MARGIN_BYTES: usize = 256 * 1024;
 
 /// The `[realtime]` config section. The default turns every step off: the process keeps
 /// SCHED_OTHER, floats over all CPUs, pages normally and keeps the default 50 µs timer slack.
-#[derive(Clone, Debug, Default, PartialEq, Deserialize)]
+#[derive(Clone, Debug, Default, PartialEq, Deserialize, Serialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct RealtimeConfig {
     /// SCHED_FIFO priority of the cycle thread, 1..=99; 0 leaves it on SCHED_OTHER. Keep it below

@@ -7,7 +7,7 @@
 
 use std::sync::atomic::{AtomicBool, Ordering};
 
-use serde::Deserialize;
+use serde::{Deserialize, Serialize};
 use strand_ipc as ipc;
 use strand_ipc::{JobOutcome, RunState, ServiceNames};
 
@@ -16,9 +16,10 @@ use super::histogram::Histogram;
 use super::ports::{PortError, ServicePorts};
 use super::rt::{self, RealtimeConfig};
 use crate::core::controller::{Controller, Event, TickInput, TickOutput};
+use crate::log::messages::TickTiming;
 
 /// Where the controller learns the joint positions.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Deserialize)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Deserialize, Serialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum JointFeedback {
     /// From the robot driver's JointState (the real thing).
@@ -30,7 +31,7 @@ pub enum JointFeedback {
 }
 
 /// `[service]`: how the service meets the outside world.
-#[derive(Clone, Debug, PartialEq, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Deserialize, Serialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct ServiceConfig {
     /// Prefix of every service name, e.g. `strand/cell`.
@@ -79,13 +80,18 @@ impl ServiceConfig {
     }
 }
 
-/// Receives every tick's input and output after publishing (the logger). Must not block.
+/// Receives every tick's input and output after publishing (the logger). Must not block,
+/// allocate or lock.
 pub trait TickSink {
-    /// One tick.
-    fn record(&mut self, input: &TickInput, output: &TickOutput);
+    /// One tick and what it cost.
+    fn record(&mut self, input: &TickInput, output: &TickOutput, timing: &TickTiming);
     /// Records the sink could not take so far (reported in Status).
     fn drops(&self) -> u64 {
         0
+    }
+    /// [`ipc::LogState`] as u32 (reported in Status).
+    fn log_state(&self) -> u32 {
+        ipc::LogState::Off as u32
     }
 }
 
@@ -93,7 +99,7 @@ pub trait TickSink {
 pub struct NullSink;
 
 impl TickSink for NullSink {
-    fn record(&mut self, _: &TickInput, _: &TickOutput) {}
+    fn record(&mut self, _: &TickInput, _: &TickOutput, _: &TickTiming) {}
 }
 
 /// When the runner returns.
@@ -203,11 +209,13 @@ impl Runner {
         let mut tick: u64 = 0;
         while !stop.load(Ordering::Relaxed) {
             // 1. Wait for the tick.
+            let mut wake_lateness_ns = 0;
             let now = match self.service.clock {
                 ClockMode::Timer => {
                     let wake = timer.wait();
                     summary.cycle.record_wake(&wake, late_ns);
                     summary.lateness.record(wake.lateness_ns);
+                    wake_lateness_ns = wake.lateness_ns;
                     wake.deadline_ns
                 }
                 ClockMode::Robot => {
@@ -232,6 +240,7 @@ impl Runner {
             input.cycle.late_wakeups = summary.cycle.late_wakeups;
             input.cycle.worst_lateness_ns = summary.cycle.worst_lateness_ns;
             input.cycle.log_drops = sink.drops();
+            input.cycle.log_state = sink.log_state();
             // 3. Step.
             let before = monotonic_ns();
             let out = self.controller.step(&input);
@@ -252,7 +261,8 @@ impl Runner {
             if self.service.clock == ClockMode::Timer {
                 summary.cycle.record_work_end(published, timer.next_deadline_ns());
             }
-            sink.record(&input, &out);
+            let timing = TickTiming { wake_lateness_ns, step_ns: after - before, tick_ns: published - woke };
+            sink.record(&input, &out, &timing);
             // 5. Off the tick: tell humans what happened; every 0.25 s, let iceoryx2 forget dead
             //    peers (a crashed feeder or driver counts as a publisher until then).
             log_events(&out);

@@ -152,6 +152,14 @@ class JobOutcome(enum.IntEnum):
     FAULTED = 4
 
 
+class LogState(enum.IntEnum):
+    """``Status.log_state``."""
+
+    OFF = 0
+    RECORDING = 1
+    FAILED = 2
+
+
 def enum_name(cls: type[enum.IntEnum], value: int) -> str:
     """``cls(value).name``, or ``"<unknown N>"`` for a wire value the enum does not name."""
     try:
@@ -347,7 +355,7 @@ class ExtruderCommand(_Message):
 
 
 class Status(_Message):
-    """The controller's state, published every tick. 184 bytes.
+    """The controller's state, published every tick. 192 bytes.
 
     Credit-based back-pressure: a feeder may send segment sequence numbers up to
     ``last_received_seq + queue_free`` (see :meth:`credit_limit`).
@@ -381,6 +389,8 @@ class Status(_Message):
         ("path_position", _f64),
         ("path_speed", _f64),
         ("tcp_error", _f64),
+        ("log_state", _u32),
+        ("_reserved", _u32),
     ]
 
     @staticmethod
@@ -449,7 +459,7 @@ EXPECTED_SIZES = {
     BasePose: 72,
     JointCommand: 48 + 3 * 64,
     ExtruderCommand: 64,
-    Status: 184,
+    Status: 192,
 }
 
 assert ctypes.sizeof(Segment) == 168
@@ -459,7 +469,7 @@ assert ctypes.sizeof(JointState) == 216
 assert ctypes.sizeof(BasePose) == 72
 assert ctypes.sizeof(JointCommand) == 240
 assert ctypes.sizeof(ExtruderCommand) == 64
-assert ctypes.sizeof(Status) == 184
+assert ctypes.sizeof(Status) == 192
 for _t in MESSAGE_TYPES:
     assert ctypes.sizeof(_t) == EXPECTED_SIZES[_t], _t
     assert ctypes.alignment(_t) == 8, _t

@@ -113,6 +113,7 @@ def test_enums():
         "FaultCode": ipc.FaultCode,
         "RejectReason": ipc.RejectReason,
         "JobOutcome": ipc.JobOutcome,
+        "LogState": ipc.LogState,
     }
     assert set(enums) == set(mapping), sorted(enums)
     for rust_name, py in mapping.items():

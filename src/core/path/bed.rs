@@ -3,13 +3,13 @@
 //! default tool orientation keeps the nozzle normal to the tilted bed (Eq. 10).
 
 use nalgebra::{Rotation3, UnitQuaternion, Vector3};
-use serde::Deserialize;
+use serde::{Deserialize, Serialize};
 
 use super::segment::{Segment, SegmentKind};
 use crate::core::kin::geom;
 
 /// `[bed]`: where the print bed is in W and how far it is tilted.
-#[derive(Clone, Debug, Default, Deserialize, PartialEq)]
+#[derive(Clone, Debug, Default, Deserialize, Serialize, PartialEq)]
 #[serde(deny_unknown_fields, default)]
 pub struct BedConfig {
     /// Tilt α about the bed's x axis (rad), 004 Eq. 7-8; 0 for a flat bed.

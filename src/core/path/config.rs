@@ -1,9 +1,9 @@
 //! Path engine settings (`[path]` in the service config), validated once at start-up.
 
-use serde::Deserialize;
+use serde::{Deserialize, Serialize};
 
 /// How the engine decides the speed at segment junctions.
-#[derive(Clone, Copy, Debug, Default, Deserialize, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, Default, Deserialize, Serialize, PartialEq, Eq)]
 #[serde(rename_all = "kebab-case")]
 pub enum PlanningMode {
     /// Every segment on its own trapezoid from rest to rest (004's "normal planning").
@@ -29,7 +29,7 @@ impl PlanningMode {
 }
 
 /// `[path]`: limits along the path and the lookahead window.
-#[derive(Clone, Debug, Deserialize, PartialEq)]
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
 #[serde(deny_unknown_fields, default)]
 pub struct PathConfig {
     /// Junction planning mode.

@@ -1,0 +1,179 @@
+//! The MCAP log: every tick, on its own thread, in files that Foxglove, PlotJuggler, rosbags and
+//! the `mcap` Python package read, and that `strand-replay` re-runs bit for bit.
+//!
+//! - [`cdr`]: CDR by hand and the [`cdr::CdrType`] trait; [`messages`]: what each channel carries;
+//!   [`dynamic`]: schema-driven decoding of any channel.
+//! - [`writer`]: the tick side ([`writer::Logger`], a [`crate::io::runner::TickSink`]: one copy into a
+//!   preallocated slot, no allocation, no lock, a full queue is a counted drop) and the writer thread
+//!   (encoding, chunks closed at least every `chunk_interval`, rotation, a write error stops logging
+//!   and never control).
+//! - [`reader`]: reads a log (finished or cut short) back: metadata, attachments, ticks, channels.
+//! - [`recover`]: rewrites a log cut short by a crash into a valid, indexed file.
+
+pub mod cdr;
+pub mod dynamic;
+pub mod messages;
+pub mod reader;
+pub mod recover;
+pub mod replay;
+pub mod writer;
+
+use serde::{Deserialize, Serialize};
+
+/// Channel topics.
+pub mod topics {
+    /// Measured joint states (`sensor_msgs/msg/JointState`).
+    pub const JOINT_STATES: &str = "/joint_states";
+    /// Joint commands (`sensor_msgs/msg/JointState`; effort empty).
+    pub const JOINT_COMMAND: &str = "/joint_command";
+    /// The path's TCP target in the world frame (`geometry_msgs/msg/PoseStamped`).
+    pub const TCP_TARGET: &str = "/tcp/target";
+    /// The TCP from the measured joints and the estimated base, world frame.
+    pub const TCP_ACTUAL: &str = "/tcp/actual";
+    /// Tracking samples as received (`geometry_msgs/msg/PoseStamped`).
+    pub const BASE_MEASURED: &str = "/base/measured";
+    /// The base pose the controller used.
+    pub const BASE_ESTIMATED: &str = "/base/estimated";
+    /// Extruder commands (`strand_msgs/msg/ExtruderCommand`).
+    pub const EXTRUDER: &str = "/extruder";
+    /// Status (`strand_msgs/msg/Status`).
+    pub const STATUS: &str = "/status";
+    /// Segments as received (`strand_msgs/msg/Segment`).
+    pub const SEGMENTS: &str = "/segments";
+    /// Each tick's complete input, output and timing (`strand_msgs/msg/Tick`).
+    pub const TICK: &str = "/strand/tick";
+}
+
+/// Attachment and metadata names.
+pub mod names {
+    /// The effective configuration (TOML, robot inline).
+    pub const EFFECTIVE_CONFIG: &str = "effective-config.toml";
+    /// The robot's URDF.
+    pub const URDF: &str = "robot.urdf";
+    /// The metadata record.
+    pub const METADATA: &str = "strand";
+}
+
+/// Chunk compression.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Deserialize, Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum LogCompression {
+    /// zstd (smallest files; default).
+    #[default]
+    Zstd,
+    /// lz4 (faster, larger).
+    Lz4,
+    /// None.
+    None,
+}
+
+/// `[log]`: where and how ticks are written.
+#[derive(Clone, Debug, PartialEq, Deserialize, Serialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct LogConfig {
+    /// Write a log at all.
+    pub enabled: bool,
+    /// Folder for log files (relative to the working directory); created if missing.
+    pub dir: String,
+    /// File name without `.mcap`; empty: `strand-<UTC start time>`. Rotated parts add `-001`, `-002`...
+    pub name: String,
+    /// Ticks the queue between the tick and the writer holds (each slot is about 13 kB, allocated at
+    /// start), 64 to 65536.
+    pub queue_ticks: usize,
+    /// Longest time a chunk stays open (s), 0.005 to 0.1: a crash loses at most this much.
+    pub chunk_interval: f64,
+    /// Uncompressed size at which a chunk is closed earlier (bytes), 4 KiB to 64 MiB.
+    pub chunk_bytes: u64,
+    /// Chunk compression.
+    pub compression: LogCompression,
+    /// Start a new file after this many bytes (0: never).
+    pub rotate_bytes: u64,
+    /// Start a new file after this long (s; 0: never).
+    pub rotate_seconds: f64,
+    /// `fdatasync` after each chunk (survives a power loss, costs writer time).
+    pub fsync: bool,
+}
+
+impl Default for LogConfig {
+    fn default() -> Self {
+        LogConfig {
+            enabled: true,
+            dir: "logs".to_string(),
+            name: String::new(),
+            queue_ticks: 2048,
+            chunk_interval: 0.1,
+            chunk_bytes: 1 << 20,
+            compression: LogCompression::Zstd,
+            rotate_bytes: 0,
+            rotate_seconds: 0.0,
+            fsync: false,
+        }
+    }
+}
+
+impl LogConfig {
+    /// Checks every key; the message names it and its allowed range.
+    pub fn validate(&self) -> Result<(), String> {
+        if !(64..=65536).contains(&self.queue_ticks) {
+            return Err(format!("[log] queue_ticks = {}: must lie in [64, 65536]", self.queue_ticks));
+        }
+        if !(self.chunk_interval.is_finite() && (0.005..=0.1).contains(&self.chunk_interval)) {
+            return Err(format!("[log] chunk_interval = {}: must lie in [0.005, 0.1] s", self.chunk_interval));
+        }
+        if !(4096..=64 << 20).contains(&self.chunk_bytes) {
+            return Err(format!("[log] chunk_bytes = {}: must lie in [4096, 67108864]", self.chunk_bytes));
+        }
+        if self.rotate_bytes != 0 && self.rotate_bytes < 1 << 16 {
+            return Err(format!("[log] rotate_bytes = {}: must be 0 (off) or at least 65536", self.rotate_bytes));
+        }
+        if !(self.rotate_seconds.is_finite() && (self.rotate_seconds == 0.0 || self.rotate_seconds >= 1.0)) {
+            return Err(format!("[log] rotate_seconds = {}: must be 0 (off) or at least 1 s", self.rotate_seconds));
+        }
+        if self.name.contains(['/', '\\']) {
+            return Err(format!("[log] name = {:?}: a file name, without folders (use dir)", self.name));
+        }
+        Ok(())
+    }
+}
+
+/// Formats a Unix time (ns) as `YYYYMMDDTHHMMSSZ` (UTC), for file names.
+pub fn utc_stamp(unix_ns: u64) -> String {
+    let secs = unix_ns / 1_000_000_000;
+    let (days, rem) = (secs / 86_400, secs % 86_400);
+    // Civil date from days since 1970-01-01 (H. Hinnant's algorithm).
+    let z = days as i64 + 719_468;
+    let era = z.div_euclid(146_097);
+    let doe = z - era * 146_097;
+    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
+    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
+    let mp = (5 * doy + 2) / 153;
+    let d = doy - (153 * mp + 2) / 5 + 1;
+    let m = if mp < 10 { mp + 3 } else { mp - 9 };
+    let y = yoe + era * 400 + if m <= 2 { 1 } else { 0 };
+    format!("{y:04}{m:02}{d:02}T{:02}{:02}{:02}Z", rem / 3600, rem % 3600 / 60, rem % 60)
+}
+
+/// Nanoseconds since the Unix epoch now.
+pub fn unix_now_ns() -> u64 {
+    std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_nanos() as u64)
+}
+
+/// The build's version: crate version and, when built from a git checkout, the commit.
+pub fn build_version() -> String {
+    match option_env!("STRAND_GIT_COMMIT") {
+        Some(c) if !c.is_empty() => format!("{} ({c})", env!("CARGO_PKG_VERSION")),
+        _ => env!("CARGO_PKG_VERSION").to_string(),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn utc_stamps() {
+        assert_eq!(utc_stamp(0), "19700101T000000Z");
+        assert_eq!(utc_stamp(951_782_400 * 1_000_000_000), "20000229T000000Z");
+        assert_eq!(utc_stamp(1_795_000_000 * 1_000_000_000 + 5), "20261018T084640Z");
+    }
+}

@@ -1,0 +1,569 @@
+//! The logger: a [`Logger`] on the tick side and a writer thread that owns the MCAP file.
+//!
+//! The tick side takes a preallocated slot from a free list, copies the tick into it (only the used
+//! segments, controls and samples) and pushes it to the writer: two lock-free `ArrayQueue`
+//! operations and one copy of about 2 kB, no allocation, no lock, no system call. With no free slot
+//! the tick is counted as dropped and the controller goes on. The writer thread polls every
+//! millisecond, encodes each tick onto its channels, closes a chunk at least every
+//! `chunk_interval` (so a crash loses at most that much), rotates files by size or duration, and on
+//! a write error (disk full) stops writing, marks `LogState::Failed` and counts every later tick as
+//! lost; control is never touched.
+
+use std::collections::BTreeMap;
+use std::fs::File;
+use std::io::{BufWriter, Seek, SeekFrom, Write};
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, AtomicU32, AtomicU64, Ordering};
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
+
+use crossbeam_queue::ArrayQueue;
+use mcap::records::{MessageHeader, Metadata};
+use mcap::{Attachment, Compression, WriteOptions};
+use strand_ipc::LogState;
+
+use super::cdr::{CdrWriter, encode, schema_text};
+use super::messages::{Tick, TickTiming, ros};
+use super::{LogCompression, LogConfig, build_version, names, topics, unix_now_ns, utc_stamp};
+use crate::config::Config;
+use crate::core::controller::{TickInput, TickOutput};
+use crate::core::kin::{JointVector, RobotModel};
+use crate::io::runner::TickSink;
+
+/// Why logging could not start or went wrong.
+#[derive(Debug, thiserror::Error)]
+pub enum LogError {
+    /// A file or folder could not be created or written.
+    #[error("{path}: {message}")]
+    Io {
+        /// The file or folder.
+        path: String,
+        /// What failed.
+        message: String,
+    },
+}
+
+impl LogError {
+    fn io(path: &Path, e: impl std::fmt::Display) -> Self {
+        LogError::Io { path: path.display().to_string(), message: e.to_string() }
+    }
+}
+
+/// What the log needs to be self-contained: the configuration in force, the URDF, the chain.
+#[derive(Clone)]
+pub struct LogContext {
+    /// [`Config::effective_toml`].
+    pub effective_config: String,
+    /// The URDF text the robot was built from.
+    pub urdf_text: String,
+    /// Where the configuration was read from.
+    pub config_file: String,
+    /// The chain (joint names; FK for `/tcp/actual`).
+    pub model: RobotModel,
+    /// Tick rate (Hz).
+    pub rate_hz: f64,
+}
+
+impl LogContext {
+    /// From the configuration in force and the model built from it.
+    pub fn new(cfg: &Config, model: &RobotModel) -> Self {
+        LogContext {
+            effective_config: cfg.effective_toml(),
+            urdf_text: cfg.robot.urdf_text.clone(),
+            config_file: cfg.file.display().to_string(),
+            model: model.clone(),
+            rate_hz: cfg.controller.rate_hz,
+        }
+    }
+}
+
+#[derive(Default)]
+struct Shared {
+    drops: AtomicU64,
+    state: AtomicU32,
+    stop: AtomicBool,
+    written: AtomicU64,
+    bytes: AtomicU64,
+}
+
+/// What the writer did, at the end.
+#[derive(Clone, Debug, Default)]
+pub struct LogReport {
+    /// Files written, in order.
+    pub files: Vec<PathBuf>,
+    /// Ticks written.
+    pub ticks_written: u64,
+    /// Ticks not logged (queue full or after a write error).
+    pub drops: u64,
+    /// Bytes written (all files).
+    pub bytes: u64,
+    /// The write error that stopped logging, if one did.
+    pub error: Option<String>,
+    /// CPU time of the writer thread (s).
+    pub writer_cpu_s: f64,
+    /// Wall time the writer thread ran (s).
+    pub writer_wall_s: f64,
+}
+
+/// The tick side of the log. See the module documentation.
+pub struct Logger {
+    free: Arc<ArrayQueue<Box<Tick>>>,
+    full: Arc<ArrayQueue<Box<Tick>>>,
+    shared: Arc<Shared>,
+    thread: Option<JoinHandle<LogReport>>,
+    first_file: PathBuf,
+}
+
+impl Logger {
+    /// Creates the first file (so a bad folder is an error now, not later), allocates the queue and
+    /// starts the writer thread.
+    pub fn start(cfg: &LogConfig, ctx: LogContext) -> Result<Logger, LogError> {
+        let dir = PathBuf::from(&cfg.dir);
+        std::fs::create_dir_all(&dir).map_err(|e| LogError::io(&dir, e))?;
+        let stem = if cfg.name.is_empty() { format!("strand-{}", utc_stamp(unix_now_ns())) } else { cfg.name.clone() };
+        Self::start_at(cfg, ctx, &dir.join(format!("{stem}.mcap")))
+    }
+
+    /// As [`start`](Logger::start), writing to `path` (rotated parts go beside it as `STEM-001.mcap`...).
+    pub fn start_at(cfg: &LogConfig, ctx: LogContext, path: &Path) -> Result<Logger, LogError> {
+        let free = Arc::new(ArrayQueue::new(cfg.queue_ticks));
+        for _ in 0..cfg.queue_ticks {
+            let _ = free.push(Box::default());
+        }
+        let full = Arc::new(ArrayQueue::new(cfg.queue_ticks));
+        let shared = Arc::new(Shared::default());
+        shared.state.store(LogState::Recording as u32, Ordering::Relaxed);
+        let mut writer = WriterThread::new(cfg.clone(), ctx, path.to_path_buf(), shared.clone());
+        writer.open(0)?;
+        let (f, q) = (free.clone(), full.clone());
+        let thread =
+            std::thread::Builder::new().name("strand-log".into()).spawn(move || writer.run(&f, &q)).map_err(|e| LogError::io(path, e))?;
+        Ok(Logger { free, full, shared, thread: Some(thread), first_file: path.to_path_buf() })
+    }
+
+    /// The first file.
+    pub fn path(&self) -> &Path {
+        &self.first_file
+    }
+
+    /// Queues one tick. Tick-path safe: no allocation, lock or system call.
+    pub fn push(&self, input: &TickInput, output: &TickOutput, timing: &TickTiming) {
+        let Some(mut slot) = self.free.pop() else {
+            self.shared.drops.fetch_add(1, Ordering::Relaxed);
+            return;
+        };
+        copy_tick(&mut slot, input, output, timing);
+        if let Err(slot) = self.full.push(slot) {
+            // Cannot happen (both queues hold at most every slot); keep the slot anyway.
+            let _ = self.free.push(slot);
+            self.shared.drops.fetch_add(1, Ordering::Relaxed);
+        }
+    }
+
+    /// Ticks not logged so far.
+    pub fn dropped(&self) -> u64 {
+        self.shared.drops.load(Ordering::Relaxed)
+    }
+
+    /// [`LogState`] as u32.
+    pub fn state(&self) -> u32 {
+        self.shared.state.load(Ordering::Relaxed)
+    }
+
+    /// Ticks written so far.
+    pub fn written(&self) -> u64 {
+        self.shared.written.load(Ordering::Relaxed)
+    }
+
+    /// Writes what is queued, closes the file and reports.
+    pub fn finish(mut self) -> LogReport {
+        self.shared.stop.store(true, Ordering::Release);
+        self.thread.take().and_then(|t| t.join().ok()).unwrap_or_default()
+    }
+}
+
+impl Drop for Logger {
+    fn drop(&mut self) {
+        self.shared.stop.store(true, Ordering::Release);
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
+    }
+}
+
+impl TickSink for Logger {
+    fn record(&mut self, input: &TickInput, output: &TickOutput, timing: &TickTiming) {
+        self.push(input, output, timing);
+    }
+    fn drops(&self) -> u64 {
+        self.dropped()
+    }
+    fn log_state(&self) -> u32 {
+        self.state()
+    }
+}
+
+/// Copies what a tick used (not the empty tails of its fixed arrays).
+fn copy_tick(slot: &mut Tick, input: &TickInput, output: &TickOutput, timing: &TickTiming) {
+    let d = &mut slot.input;
+    d.tick = input.tick;
+    d.time_ns = input.time_ns;
+    let n = input.segment_count as usize;
+    d.segments[..n].copy_from_slice(&input.segments[..n]);
+    d.segment_count = input.segment_count;
+    let n = input.control_count as usize;
+    d.controls[..n].copy_from_slice(&input.controls[..n]);
+    d.control_count = input.control_count;
+    d.joint_state = input.joint_state;
+    let n = input.base_pose_count as usize;
+    d.base_poses[..n].copy_from_slice(&input.base_poses[..n]);
+    d.base_pose_count = input.base_pose_count;
+    d.feeder_lost = input.feeder_lost;
+    d.cycle = input.cycle;
+    slot.output = *output;
+    slot.timing = *timing;
+}
+
+/// The file under the MCAP writer: buffered, counting the bytes on their way (for rotation and the
+/// report), and with `fsync` set, syncing on every flush (mcap flushes when it closes a chunk).
+struct LogSink {
+    inner: BufWriter<File>,
+    bytes: Arc<AtomicU64>,
+    sync: Option<File>,
+}
+
+impl Write for LogSink {
+    fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
+        let n = self.inner.write(buf)?;
+        self.bytes.fetch_add(n as u64, Ordering::Relaxed);
+        Ok(n)
+    }
+    fn flush(&mut self) -> std::io::Result<()> {
+        self.inner.flush()?;
+        match &self.sync {
+            Some(f) => f.sync_data(),
+            None => Ok(()),
+        }
+    }
+}
+
+impl Seek for LogSink {
+    fn seek(&mut self, pos: SeekFrom) -> std::io::Result<u64> {
+        self.inner.seek(pos)
+    }
+}
+
+type McapWriter = mcap::Writer<LogSink>;
+
+struct Channels {
+    tick: u16,
+    joint_states: u16,
+    joint_command: u16,
+    tcp_target: u16,
+    tcp_actual: u16,
+    base_measured: u16,
+    base_estimated: u16,
+    extruder: u16,
+    status: u16,
+    segments: u16,
+}
+
+struct OpenFile {
+    mcap: McapWriter,
+    channels: Channels,
+    path: PathBuf,
+    bytes: Arc<AtomicU64>,
+    first_time_ns: Option<u64>,
+    sequence: u32,
+}
+
+struct WriterThread {
+    cfg: LogConfig,
+    ctx: LogContext,
+    first_path: PathBuf,
+    shared: Arc<Shared>,
+    file: Option<OpenFile>,
+    part: u32,
+    report: LogReport,
+    joint_names: Vec<String>,
+    /// Unix time − monotonic time at start (ns): log times are Unix times, as viewers expect.
+    clock_offset_ns: i128,
+    cdr: CdrWriter,
+    last_measured: Option<JointVector>,
+    bytes_closed: u64,
+}
+
+impl WriterThread {
+    fn new(cfg: LogConfig, ctx: LogContext, first_path: PathBuf, shared: Arc<Shared>) -> Self {
+        let joint_names = ctx.model.joints().iter().map(|j| j.name.clone()).collect();
+        let clock_offset_ns = unix_now_ns() as i128 - crate::io::clock::monotonic_ns() as i128;
+        WriterThread {
+            cfg,
+            ctx,
+            first_path,
+            shared,
+            file: None,
+            part: 0,
+            report: LogReport::default(),
+            joint_names,
+            clock_offset_ns,
+            cdr: CdrWriter::new(),
+            last_measured: None,
+            bytes_closed: 0,
+        }
+    }
+
+    fn part_path(&self, part: u32) -> PathBuf {
+        if part == 0 {
+            return self.first_path.clone();
+        }
+        let stem = self.first_path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
+        self.first_path.with_file_name(format!("{stem}-{part:03}.mcap"))
+    }
+
+    fn open(&mut self, first_tick: u64) -> Result<(), LogError> {
+        let path = self.part_path(self.part);
+        let file = File::create(&path).map_err(|e| LogError::io(&path, e))?;
+        let sync = if self.cfg.fsync { Some(file.try_clone().map_err(|e| LogError::io(&path, e))?) } else { None };
+        let bytes = Arc::new(AtomicU64::new(0));
+        let compression = match self.cfg.compression {
+            LogCompression::Zstd => Some(Compression::Zstd),
+            LogCompression::Lz4 => Some(Compression::Lz4),
+            LogCompression::None => None,
+        };
+        let io = |e: mcap::McapError| LogError::io(&path, e);
+        let mut w = WriteOptions::new()
+            .compression(compression)
+            .compression_threads(0)
+            .chunk_size(Some(self.cfg.chunk_bytes))
+            .profile("ros2")
+            .library(format!("strand {}", build_version()))
+            .create(LogSink { inner: BufWriter::with_capacity(1 << 20, file), bytes: bytes.clone(), sync })
+            .map_err(io)?;
+        let mut meta = BTreeMap::new();
+        meta.insert("version".to_string(), build_version());
+        meta.insert("contract_version".to_string(), strand_ipc::CONTRACT_VERSION.to_string());
+        meta.insert("config_file".to_string(), self.ctx.config_file.clone());
+        meta.insert("robot".to_string(), self.ctx.model.name().to_string());
+        meta.insert("urdf".to_string(), self.ctx.model.source().to_string());
+        meta.insert("rate_hz".to_string(), format!("{}", self.ctx.rate_hz));
+        meta.insert("dof".to_string(), self.joint_names.len().to_string());
+        meta.insert("joint_names".to_string(), self.joint_names.join(","));
+        meta.insert("clock_offset_ns".to_string(), self.clock_offset_ns.to_string());
+        meta.insert("part".to_string(), self.part.to_string());
+        meta.insert("first_tick".to_string(), first_tick.to_string());
+        meta.insert("started_utc".to_string(), utc_stamp(unix_now_ns()));
+        w.write_metadata(&Metadata { name: names::METADATA.to_string(), metadata: meta }).map_err(io)?;
+        let now = unix_now_ns();
+        for (name, media, data) in [
+            (names::EFFECTIVE_CONFIG, "application/toml", self.ctx.effective_config.as_bytes()),
+            (names::URDF, "application/xml", self.ctx.urdf_text.as_bytes()),
+        ] {
+            w.attach(&Attachment {
+                log_time: now,
+                create_time: now,
+                name: name.to_string(),
+                media_type: media.to_string(),
+                data: std::borrow::Cow::Borrowed(data),
+            })
+            .map_err(io)?;
+        }
+        let mut channel = |topic: &str, schema_name: &str, schema: &str| -> Result<u16, LogError> {
+            let sid = w.add_schema(schema_name, "ros2msg", schema.as_bytes()).map_err(io)?;
+            w.add_channel(sid, topic, "cdr", &BTreeMap::new()).map_err(io)
+        };
+        let js = ros::joint_state_schema();
+        let pose = ros::pose_stamped_schema();
+        let channels = Channels {
+            tick: channel(topics::TICK, "strand_msgs/msg/Tick", &schema_text::<Tick>())?,
+            joint_states: channel(topics::JOINT_STATES, ros::JOINT_STATE, &js)?,
+            joint_command: channel(topics::JOINT_COMMAND, ros::JOINT_STATE, &js)?,
+            tcp_target: channel(topics::TCP_TARGET, ros::POSE_STAMPED, &pose)?,
+            tcp_actual: channel(topics::TCP_ACTUAL, ros::POSE_STAMPED, &pose)?,
+            base_measured: channel(topics::BASE_MEASURED, ros::POSE_STAMPED, &pose)?,
+            base_estimated: channel(topics::BASE_ESTIMATED, ros::POSE_STAMPED, &pose)?,
+            extruder: channel(topics::EXTRUDER, "strand_msgs/msg/ExtruderCommand", &schema_text::<strand_ipc::ExtruderCommand>())?,
+            status: channel(topics::STATUS, "strand_msgs/msg/Status", &schema_text::<strand_ipc::Status>())?,
+            segments: channel(topics::SEGMENTS, "strand_msgs/msg/Segment", &schema_text::<strand_ipc::Segment>())?,
+        };
+        // Make the header, metadata and attachments durable at once: a crash in the first
+        // chunk still leaves a file that names its config.
+        w.flush().map_err(io)?;
+        self.report.files.push(path.clone());
+        self.file = Some(OpenFile { mcap: w, channels, path, bytes, first_time_ns: None, sequence: 0 });
+        Ok(())
+    }
+
+    fn close(&mut self) -> Result<(), LogError> {
+        if let Some(mut f) = self.file.take() {
+            f.mcap.finish().map_err(|e| LogError::io(&f.path, e))?;
+            let mut inner = f.mcap.into_inner();
+            inner.flush().map_err(|e| LogError::io(&f.path, e))?;
+            self.bytes_closed += f.bytes.load(Ordering::Relaxed);
+        }
+        Ok(())
+    }
+
+    fn bytes(&self) -> u64 {
+        self.bytes_closed + self.file.as_ref().map_or(0, |f| f.mcap_bytes())
+    }
+
+    fn run(mut self, free: &ArrayQueue<Box<Tick>>, full: &ArrayQueue<Box<Tick>>) -> LogReport {
+        let started = Instant::now();
+        let cpu0 = thread_cpu_s();
+        let interval = Duration::from_secs_f64(self.cfg.chunk_interval);
+        let mut last_close = Instant::now();
+        let mut dirty = false;
+        loop {
+            let stopping = self.shared.stop.load(Ordering::Acquire);
+            let mut any = false;
+            while let Some(tick) = full.pop() {
+                any = true;
+                if self.file.is_some() {
+                    match self.write_tick(&tick) {
+                        Ok(()) => {
+                            dirty = true;
+                            self.report.ticks_written += 1;
+                            self.shared.written.fetch_add(1, Ordering::Relaxed);
+                        }
+                        Err(e) => self.fail(e),
+                    }
+                } else {
+                    self.shared.drops.fetch_add(1, Ordering::Relaxed);
+                }
+                let _ = free.push(tick);
+                if dirty && last_close.elapsed() >= interval {
+                    break;
+                }
+            }
+            if dirty && last_close.elapsed() >= interval {
+                if let Err(e) = self.close_chunk() {
+                    self.fail(e);
+                }
+                dirty = false;
+                last_close = Instant::now();
+            }
+            self.shared.bytes.store(self.bytes(), Ordering::Relaxed);
+            if stopping && full.is_empty() {
+                break;
+            }
+            if !any {
+                std::thread::sleep(Duration::from_millis(1));
+            }
+        }
+        if self.file.is_some()
+            && let Err(e) = self.close()
+        {
+            self.fail(e);
+        }
+        self.report.bytes = self.bytes_closed;
+        self.report.drops = self.shared.drops.load(Ordering::Relaxed);
+        self.report.writer_cpu_s = thread_cpu_s() - cpu0;
+        self.report.writer_wall_s = started.elapsed().as_secs_f64();
+        self.report
+    }
+
+    fn fail(&mut self, e: LogError) {
+        tracing::error!("log: {e}; logging stopped, control goes on");
+        self.report.error = Some(e.to_string());
+        self.shared.state.store(LogState::Failed as u32, Ordering::Relaxed);
+        // Dropping the writer would try to finish the file (and fail again): forget the open file,
+        // keeping what its closed chunks hold, which `strand-replay recover` can read.
+        if let Some(f) = self.file.take() {
+            std::mem::forget(f);
+        }
+    }
+
+    fn close_chunk(&mut self) -> Result<(), LogError> {
+        if let Some(f) = self.file.as_mut() {
+            f.mcap.flush().map_err(|e| LogError::io(&f.path, e))?;
+        }
+        Ok(())
+    }
+
+    fn write_tick(&mut self, t: &Tick) -> Result<(), LogError> {
+        // Rotation, between ticks.
+        let rotate = {
+            let f = self.file.as_ref().expect("open");
+            (self.cfg.rotate_bytes > 0 && f.mcap_bytes() >= self.cfg.rotate_bytes)
+                || (self.cfg.rotate_seconds > 0.0
+                    && f.first_time_ns.is_some_and(|t0| t.input.time_ns.saturating_sub(t0) as f64 >= self.cfg.rotate_seconds * 1e9))
+        };
+        if rotate {
+            self.close()?;
+            self.part += 1;
+            self.open(t.input.tick)?;
+        }
+        let log_time = (t.input.time_ns as i128 + self.clock_offset_ns).max(0) as u64;
+        let stamp = |ns: u64| (ns as i128 + self.clock_offset_ns).max(0) as u64;
+        let dof = self.joint_names.len();
+        let f = self.file.as_mut().expect("open");
+        f.first_time_ns.get_or_insert(t.input.time_ns);
+        let cdr = &mut self.cdr;
+        let put = |f: &mut OpenFile, channel: u16, bytes: &[u8]| -> Result<(), LogError> {
+            f.sequence = f.sequence.wrapping_add(1);
+            let header = MessageHeader { channel_id: channel, sequence: f.sequence, log_time, publish_time: log_time };
+            f.mcap.write_to_known_channel(&header, bytes).map_err(|e| LogError::io(&f.path, e))
+        };
+        encode(cdr, t);
+        put(f, f.channels.tick, cdr.bytes())?;
+        for s in t.input.segments() {
+            encode(cdr, s);
+            put(f, f.channels.segments, cdr.bytes())?;
+        }
+        if let Some(js) = &t.input.joint_state {
+            let n = (js.dof as usize).min(dof);
+            ros::joint_state(cdr, stamp(js.stamp_ns), &self.joint_names, &js.position[..n], &js.velocity[..n], &js.effort[..n]);
+            put(f, f.channels.joint_states, cdr.bytes())?;
+            if n == dof && js.position[..n].iter().all(|v| v.is_finite()) {
+                let mut q = JointVector::zeros();
+                q.as_mut_slice()[..n].copy_from_slice(&js.position[..n]);
+                self.last_measured = Some(q);
+            }
+        }
+        let o = &t.output;
+        if o.joint_command.valid == 1 {
+            let c = &o.joint_command;
+            ros::joint_state(cdr, log_time, &self.joint_names, &c.position[..dof], &c.velocity[..dof], &[]);
+            put(f, f.channels.joint_command, cdr.bytes())?;
+        }
+        let d = &o.diagnostics;
+        let quat = |q: &nalgebra::UnitQuaternion<f64>| [q.w, q.i, q.j, q.k];
+        ros::pose_stamped(cdr, log_time, "world", d.tcp_target_world.into(), quat(&d.tcp_target_orientation));
+        put(f, f.channels.tcp_target, cdr.bytes())?;
+        if let Some(q) = &self.last_measured {
+            let tcp_b = self.ctx.model.forward_kinematics(q);
+            let rot_b = nalgebra::UnitQuaternion::from_rotation_matrix(&tcp_b.rotation);
+            let (p_w, r_w) = d.base.base_to_world(&tcp_b.translation.vector, &rot_b);
+            ros::pose_stamped(cdr, log_time, "world", p_w.into(), quat(&r_w));
+            put(f, f.channels.tcp_actual, cdr.bytes())?;
+        }
+        for p in t.input.base_poses() {
+            ros::pose_stamped(cdr, stamp(p.stamp_ns), "world", p.position, p.orientation);
+            put(f, f.channels.base_measured, cdr.bytes())?;
+        }
+        ros::pose_stamped(cdr, log_time, "world", d.base.position.into(), quat(&d.base.orientation));
+        put(f, f.channels.base_estimated, cdr.bytes())?;
+        encode(cdr, &o.extruder);
+        put(f, f.channels.extruder, cdr.bytes())?;
+        encode(cdr, &o.status);
+        put(f, f.channels.status, cdr.bytes())?;
+        Ok(())
+    }
+}
+
+impl OpenFile {
+    /// Bytes handed to the file so far (an open chunk counts once it closes).
+    fn mcap_bytes(&self) -> u64 {
+        self.bytes.load(Ordering::Relaxed)
+    }
+}
+
+/// CPU time of the calling thread (s).
+pub fn thread_cpu_s() -> f64 {
+    let mut ts = libc::timespec { tv_sec: 0, tv_nsec: 0 };
+    // SAFETY: valid pointer to a timespec.
+    unsafe { libc::clock_gettime(libc::CLOCK_THREAD_CPUTIME_ID, &mut ts) };
+    ts.tv_sec as f64 + ts.tv_nsec as f64 * 1e-9
+}
