@@ -100,8 +100,14 @@ impl Cell {
 
     /// One tick; the robot follows the command exactly.
     pub fn step(&mut self) -> TickOutput {
+        self.step_observed(&mut |_, _| {})
+    }
+
+    /// One tick, handing its input and output to `observe` (a logger).
+    pub fn step_observed(&mut self, observe: &mut dyn FnMut(&TickInput, &TickOutput)) -> TickOutput {
         let input = self.input();
         let out = self.ctl.step(&input);
+        observe(&input, &out);
         if out.joint_command.valid == 1 {
             self.q_robot = out.joint_command.position;
         }

@@ -1,3 +1,5 @@
 //! Shared pieces of the strand command-line tools.
 
+pub mod replay;
+pub mod replay_plot;
 pub mod robot_arg;

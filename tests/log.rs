@@ -1,0 +1,441 @@
+//! The MCAP log: every record type round-trips bit for bit, every channel's schema describes its
+//! bytes, a replay of a job with faults, pause/resume and an underrun is identical, a changed gain is
+//! caught at the first divergent tick, a file cut anywhere is recovered up to its last closed chunk,
+//! rotation splits a run into parts that replay together, and a full queue is counted, not waited on.
+
+mod common;
+
+use std::path::{Path, PathBuf};
+
+use common::Rng;
+use common::cell::{Cell, IIWA_START, config, line, square_job};
+use strand::config::Config;
+use strand::core::controller::{TickInput, TickOutput};
+use strand::log::cdr::{CdrType, CdrWriter, Scalar, decode, encode};
+use strand::log::dynamic::{Schema, Value};
+use strand::log::messages::{Tick, TickTiming};
+use strand::log::reader::LogFile;
+use strand::log::replay::{ReplayError, Verdict, verify, verify_with};
+use strand::log::writer::{LogContext, Logger};
+use strand::log::{LogConfig, topics};
+use strand_ipc as ipc;
+use strand_ipc::{Command, RunState};
+
+fn temp_dir(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("strand-log-test-{}-{name}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+fn log_cfg(f: impl FnOnce(&mut LogConfig)) -> LogConfig {
+    let mut c = LogConfig { queue_ticks: 65536, ..LogConfig::default() };
+    f(&mut c);
+    c
+}
+
+/// Steps a cell, logging every tick; the writer is given time so nothing is dropped.
+fn step_logged(cell: &mut Cell, logger: &Logger) -> TickOutput {
+    cell.step_observed(&mut |i: &TickInput, o: &TickOutput| {
+        logger.push(i, o, &TickTiming { wake_lateness_ns: 1000 + i.tick % 7, step_ns: 5000, tick_ns: 9000 });
+    })
+}
+
+fn run_logged(cell: &mut Cell, logger: &Logger, max: u64, mut until: impl FnMut(&TickOutput) -> bool) -> TickOutput {
+    for _ in 0..max {
+        let out = step_logged(cell, logger);
+        if until(&out) {
+            return out;
+        }
+    }
+    panic!("condition not reached in {max} ticks (state {:?})", cell.state());
+}
+
+/// A job with everything a replay must reproduce: an approach, an underrun (half the job, then
+/// the rest), a rejected segment, pause and resume, a feed override, the end of the job, an
+/// emergency stop (fault) and its clearing, and a silent driver (fault).
+fn eventful_run(cfg: &Config, path: &Path) -> (u64, Vec<ipc::Segment>) {
+    let model = cfg.robot.build_model().unwrap();
+    let logger = Logger::start_at(&log_cfg(|_| {}), LogContext::new(cfg, &model), path).unwrap();
+    let mut cell = Cell::new(cfg, &IIWA_START);
+    let job = square_job(1, [0.45, 0.0, 0.3], 0.02, 2, 0.03);
+    let (first, rest) = job.split_at(4);
+    cell.send(first);
+    cell.control(Command::Start, 0.0);
+    run_logged(&mut cell, &logger, 60_000, |o| o.status.underruns > 0);
+    // A segment with a NaN is rejected; the next good one carries on.
+    let mut bad = rest[0];
+    bad.feed = f64::NAN;
+    cell.send(&[bad]);
+    for _ in 0..20 {
+        step_logged(&mut cell, &logger);
+    }
+    cell.send(rest);
+    for _ in 0..200 {
+        step_logged(&mut cell, &logger);
+    }
+    cell.control(Command::Pause, 0.0);
+    run_logged(&mut cell, &logger, 5_000, |o| o.status.run_state == RunState::Paused as u32);
+    for _ in 0..100 {
+        step_logged(&mut cell, &logger);
+    }
+    cell.control(Command::Resume, 0.0);
+    cell.control(Command::FeedOverride, 0.8);
+    run_logged(&mut cell, &logger, 40_000, |o| {
+        o.status.job_outcome == ipc::JobOutcome::Finished as u32 && o.status.run_state == RunState::Idle as u32
+    });
+    // Another job, cut by an emergency stop.
+    cell.send(&square_job(job.len() as u64 + 1, [0.45, 0.0, 0.3], 0.02, 1, 0.03));
+    cell.control(Command::Start, 0.0);
+    run_logged(&mut cell, &logger, 60_000, |o| o.status.run_state == RunState::Running as u32 && o.status.path_position > 0.01);
+    cell.control(Command::EmergencyStop, 0.0);
+    run_logged(&mut cell, &logger, 5_000, |o| o.status.run_state == RunState::Fault as u32);
+    cell.control(Command::ClearFault, 0.0);
+    for _ in 0..50 {
+        step_logged(&mut cell, &logger);
+    }
+    // The driver goes silent.
+    cell.driver = false;
+    run_logged(&mut cell, &logger, 5_000, |o| o.status.run_state == RunState::Fault as u32);
+    for _ in 0..20 {
+        step_logged(&mut cell, &logger);
+    }
+    let ticks = cell.tick;
+    let report = logger.finish();
+    assert_eq!(report.drops, 0, "the writer kept up");
+    assert_eq!(report.ticks_written, ticks);
+    assert!(report.error.is_none(), "{:?}", report.error);
+    (ticks, job)
+}
+
+fn eventful_log() -> (PathBuf, u64) {
+    static ONCE: std::sync::OnceLock<(PathBuf, u64)> = std::sync::OnceLock::new();
+    ONCE.get_or_init(|| {
+        let dir = temp_dir("eventful");
+        let path = dir.join("run.mcap");
+        let (ticks, _) = eventful_run(&config(|_| {}), &path);
+        (path, ticks)
+    })
+    .clone()
+}
+
+fn flat<T: CdrType>(v: &T) -> Vec<(String, Scalar)> {
+    let mut out = Vec::new();
+    v.flatten("", &mut out);
+    out
+}
+
+fn bytes<T: CdrType>(v: &T) -> Vec<u8> {
+    let mut w = CdrWriter::new();
+    encode(&mut w, v);
+    w.bytes().to_vec()
+}
+
+fn random_f64(rng: &mut Rng) -> f64 {
+    // Any bit pattern: NaN payloads, infinities, subnormals, -0.
+    match rng.next_u64() % 6 {
+        0 => f64::from_bits(rng.next_u64()),
+        1 => -0.0,
+        2 => f64::NAN,
+        3 => f64::from_bits(1),
+        _ => rng.normal() * 10f64.powi((rng.next_u64() % 20) as i32 - 10),
+    }
+}
+
+#[test]
+fn every_record_type_round_trips_bit_for_bit() {
+    let mut rng = Rng(7);
+    for _ in 0..200 {
+        let mut f = || random_f64(&mut rng);
+        let seg = ipc::Segment {
+            seq: 17,
+            stamp_ns: u64::MAX,
+            kind: 2,
+            flags: 0xdead,
+            end: [f(), f(), f()],
+            centre: [f(), f(), f()],
+            normal: [f(), f(), f()],
+            sweep: f(),
+            orientation: [f(), f(), f(), f()],
+            feed: f(),
+            filament: f(),
+            duration: f(),
+            source_line: 99,
+            _reserved: 0,
+        };
+        assert_eq!(bytes(&decode::<ipc::Segment>(&bytes(&seg)).unwrap()), bytes(&seg));
+        let st = ipc::Status { seq: 3, tcp_error: f(), path_speed: f(), feed_override: f(), log_state: 2, ..Default::default() };
+        let back: ipc::Status = decode(&bytes(&st)).unwrap();
+        assert_eq!(flat(&back), flat(&st));
+        let js = ipc::JointState { dof: 7, position: [f(), f(), f(), f(), f(), f(), f(), f()], ..Default::default() };
+        assert_eq!(flat(&decode::<ipc::JointState>(&bytes(&js)).unwrap()), flat(&js));
+    }
+    // Whole ticks from a real run: each decodes to the same bytes and the same fields.
+    let (path, ticks) = eventful_log();
+    let log = LogFile::open(&path).unwrap();
+    assert!(log.finished);
+    let mut n = 0;
+    let mut kinds = std::collections::BTreeSet::new();
+    let mut with_segments = 0;
+    for m in log.channel(topics::TICK) {
+        let t: Tick = decode(&m.data).unwrap();
+        assert_eq!(bytes(&t), m.data.as_ref(), "tick {} re-encodes to the logged bytes", t.input.tick);
+        assert_eq!(flat(&decode::<Tick>(&bytes(&t)).unwrap()), flat(&t));
+        for e in t.output.events() {
+            kinds.insert(format!("{:?}", e).split([' ', '{', '(']).next().unwrap().to_string());
+        }
+        with_segments += (t.input.segment_count > 0) as u32;
+        n += 1;
+    }
+    assert_eq!(n, ticks);
+    assert!(with_segments >= 2);
+    for k in ["SegmentRejected", "StateChanged", "Fault", "JobEnded"] {
+        assert!(kinds.contains(k), "a {k} event was logged and decoded: {kinds:?}");
+    }
+}
+
+#[test]
+fn every_channel_schema_describes_its_bytes_and_channels_agree() {
+    let (path, ticks) = eventful_log();
+    let log = LogFile::open(&path).unwrap();
+    let mut counts = std::collections::BTreeMap::<String, u64>::new();
+    let mut schemas = std::collections::BTreeMap::<String, Schema>::new();
+    let mut last_tick = None;
+    let names: Vec<String> = log.meta("joint_names").unwrap().split(',').map(str::to_string).collect();
+    assert_eq!(names.len(), 7);
+    let mut checked_commands = 0;
+    for m in log.messages() {
+        let topic = m.channel.topic.clone();
+        *counts.entry(topic.clone()).or_default() += 1;
+        let schema = schemas.entry(topic.clone()).or_insert_with(|| {
+            let s = m.channel.schema.as_ref().unwrap();
+            assert_eq!(s.encoding, "ros2msg");
+            assert_eq!(m.channel.message_encoding, "cdr");
+            Schema::parse(&s.name, &String::from_utf8_lossy(&s.data)).unwrap()
+        });
+        let values = schema.decode(&m.data).unwrap_or_else(|e| panic!("{topic}: {e}"));
+        let get = |k: &str| values.iter().find(|(p, _)| p == k).map(|(_, v)| v.clone());
+        if topic == topics::TICK {
+            last_tick = Some(decode::<Tick>(&m.data).unwrap());
+        }
+        if topic == topics::JOINT_COMMAND {
+            // A known joint command: the same values the tick record holds, under the URDF's names.
+            let t = last_tick.as_ref().unwrap();
+            for (j, name) in names.iter().enumerate() {
+                assert_eq!(get(&format!("name[{j}]")), Some(Value::S(name.clone())));
+                assert_eq!(get(&format!("position[{j}]")), Some(Value::F(t.output.joint_command.position[j])));
+            }
+            let stamp = match (get("header.stamp.sec"), get("header.stamp.nanosec")) {
+                (Some(Value::I(s)), Some(Value::U(ns))) => s as u64 * 1_000_000_000 + ns,
+                other => panic!("{other:?}"),
+            };
+            assert_eq!(stamp, m.log_time);
+            checked_commands += 1;
+        }
+    }
+    assert!(checked_commands > 1000);
+    for t in [topics::TICK, topics::STATUS, topics::EXTRUDER, topics::TCP_TARGET, topics::BASE_ESTIMATED] {
+        assert_eq!(counts[t], ticks, "{t}");
+    }
+    assert!(counts[topics::JOINT_STATES] < ticks, "the silent driver's ticks have no joint state");
+    assert!(counts[topics::SEGMENTS] >= 14);
+}
+
+#[test]
+fn a_replay_of_faults_pause_resume_and_underrun_is_identical() {
+    let (path, ticks) = eventful_log();
+    let log = LogFile::open(&path).unwrap();
+    assert_eq!(verify(&[log]).unwrap(), Verdict::Identical { ticks });
+}
+
+#[test]
+fn a_changed_gain_is_reported_at_the_first_divergent_tick() {
+    let (path, _) = eventful_log();
+    let log = LogFile::open(&path).unwrap();
+    // 10 % less (the gains are capped at 1/dt, so a raise from the default would change nothing).
+    let change = |c: &mut Config| c.clik.gains[0] *= 0.9;
+    let Verdict::Diverged { tick, field, logged, replayed } = verify_with(std::slice::from_ref(&log), change).unwrap() else {
+        panic!("a changed gain must diverge");
+    };
+    // Independently: step the logged inputs through a controller with the changed gain and find
+    // the first tick whose output differs from the log.
+    let mut cfg = log.config().unwrap();
+    change(&mut cfg);
+    let mut ctl = strand::core::controller::Controller::new(&cfg.controller_settings(), cfg.robot.build_model().unwrap()).unwrap();
+    let first = log.ticks().map(Result::unwrap).find(|t| bytes(&ctl.step(&t.input)) != bytes(&t.output)).unwrap();
+    assert_eq!(tick, first.input.tick);
+    assert!(field.starts_with("output."), "{field}");
+    assert_ne!(logged, replayed);
+    // The gain acts once the CLIK follows a target: not before the approach has begun.
+    assert!(first.output.status.run_state != RunState::Idle as u32, "{field} at tick {tick}");
+}
+
+/// Message identity for prefix checks.
+fn message_keys(log: &LogFile) -> Vec<(String, u64, Vec<u8>)> {
+    log.messages().map(|m| (m.channel.topic.clone(), m.log_time, m.data.into_owned())).collect()
+}
+
+#[test]
+fn a_file_cut_anywhere_is_recovered_up_to_its_last_closed_chunk() {
+    // A log with many small chunks.
+    let dir = temp_dir("recover");
+    let cfg = config(|_| {});
+    let model = cfg.robot.build_model().unwrap();
+    let path = dir.join("run.mcap");
+    let logger = Logger::start_at(&log_cfg(|c| c.chunk_bytes = 16 * 1024), LogContext::new(&cfg, &model), &path).unwrap();
+    let mut cell = Cell::new(&cfg, &IIWA_START);
+    cell.send(&square_job(1, [0.45, 0.0, 0.3], 0.02, 1, 0.03));
+    cell.control(Command::Start, 0.0);
+    for _ in 0..3000 {
+        step_logged(&mut cell, &logger);
+    }
+    logger.finish();
+    let bytes = std::fs::read(&path).unwrap();
+    let full = LogFile::open(&path).unwrap();
+    let all = message_keys(&full);
+    let summary = mcap::Summary::read(&bytes).unwrap().unwrap();
+    assert!(summary.chunk_indexes.len() > 20, "{} chunks", summary.chunk_indexes.len());
+    let mut rng = Rng(11);
+    let mut cuts: Vec<usize> = (0..24).map(|_| (rng.unit() * bytes.len() as f64) as usize).collect();
+    cuts.extend([0, 8, 100, bytes.len() - 1, bytes.len()]);
+    let mut previous = 0;
+    cuts.sort();
+    for cut in cuts {
+        let cut_path = dir.join("cut.mcap");
+        std::fs::write(&cut_path, &bytes[..cut]).unwrap();
+        let out = dir.join("cut.recovered.mcap");
+        let r = match strand::log::recover::recover(&cut_path, &out) {
+            Ok(r) => r,
+            Err(e) => {
+                assert!(cut < 8, "only a file without its magic is refused (cut {cut}): {e}");
+                continue;
+            }
+        };
+        let rec = LogFile::open(&out).unwrap();
+        assert!(rec.finished, "the recovered file is finished");
+        assert!(mcap::Summary::read(rec.bytes()).unwrap().is_some(), "and indexed");
+        let got = message_keys(&rec);
+        assert_eq!(got.len() as u64, r.messages);
+        assert_eq!(&all[..got.len()], &got[..], "cut at {cut}: a prefix of the original, in order");
+        // Everything logged before the end of the last chunk that closed before the cut is there.
+        let closed = summary.chunk_indexes.iter().filter(|c| c.chunk_start_offset + c.chunk_length <= cut as u64);
+        if let Some(last) = closed.max_by_key(|c| c.chunk_start_offset) {
+            let must = all.iter().filter(|m| m.1 < last.message_end_time).count();
+            assert!(got.len() >= must, "cut at {cut}: {} recovered, {must} were in closed chunks", got.len());
+        }
+        assert!(got.len() >= previous, "a later cut never recovers less");
+        previous = got.len();
+        if cut == bytes.len() {
+            assert_eq!(got.len(), all.len());
+        }
+        // With its config attachments intact, the recovered prefix replays identically.
+        if rec.attachments.len() == 2 && got.iter().any(|m| m.0 == topics::TICK) {
+            assert!(matches!(verify(&[rec]).unwrap(), Verdict::Identical { .. }), "cut at {cut}");
+        }
+    }
+}
+
+#[test]
+fn rotated_parts_replay_together_and_a_later_part_alone_is_refused() {
+    let dir = temp_dir("rotate");
+    let cfg = config(|_| {});
+    let model = cfg.robot.build_model().unwrap();
+    let path = dir.join("run.mcap");
+    let logger = Logger::start_at(&log_cfg(|c| c.rotate_bytes = 1 << 16), LogContext::new(&cfg, &model), &path).unwrap();
+    let mut cell = Cell::new(&cfg, &IIWA_START);
+    cell.send(&square_job(1, [0.45, 0.0, 0.3], 0.02, 1, 0.03));
+    cell.control(Command::Start, 0.0);
+    for _ in 0..4000 {
+        step_logged(&mut cell, &logger);
+    }
+    let report = logger.finish();
+    assert!(report.files.len() >= 3, "{:?}", report.files);
+    assert_eq!(report.files[1], dir.join("run-001.mcap"));
+    let parts: Vec<LogFile> = report.files.iter().map(|p| LogFile::open(p).unwrap()).collect();
+    for (k, p) in parts.iter().enumerate() {
+        assert!(p.finished);
+        assert_eq!(p.meta("part"), Some(k.to_string().as_str()));
+        assert!(p.attachment("robot.urdf").is_some(), "every part is self-contained");
+    }
+    let second_first_tick: u64 = parts[1].meta("first_tick").unwrap().parse().unwrap();
+    assert_eq!(parts[1].ticks().next().unwrap().unwrap().input.tick, second_first_tick);
+    assert_eq!(verify(&parts).unwrap(), Verdict::Identical { ticks: 4000 });
+    let alone = LogFile::open(&report.files[1]).unwrap();
+    match verify(&[alone]) {
+        Err(ReplayError::Gap { expected: 0, found, .. }) => assert_eq!(found, second_first_tick),
+        other => panic!("{other:?}"),
+    }
+}
+
+#[test]
+fn a_full_queue_is_counted_and_never_waited_on() {
+    let dir = temp_dir("queue");
+    let cfg = config(|_| {});
+    let model = cfg.robot.build_model().unwrap();
+    let logger = Logger::start_at(&log_cfg(|c| c.queue_ticks = 64), LogContext::new(&cfg, &model), &dir.join("q.mcap")).unwrap();
+    let input = TickInput::new(0, 1);
+    let output = TickOutput::default();
+    let pushed = 50_000u64;
+    for k in 0..pushed {
+        let mut i = input;
+        i.tick = k;
+        logger.push(&i, &output, &TickTiming::default());
+    }
+    let dropped_while_pushing = logger.dropped();
+    let report = logger.finish();
+    assert_eq!(report.ticks_written + report.drops, pushed);
+    assert_eq!(report.drops, dropped_while_pushing);
+    assert!(report.drops > 0, "64 slots cannot hold 50 000 ticks pushed at once");
+}
+
+#[test]
+fn a_log_that_cannot_be_created_names_the_path() {
+    let dir = temp_dir("bad");
+    let file = dir.join("not-a-dir");
+    std::fs::write(&file, b"x").unwrap();
+    let cfg = config(|_| {});
+    let model = cfg.robot.build_model().unwrap();
+    let err = Logger::start_at(&LogConfig::default(), LogContext::new(&cfg, &model), &file.join("run.mcap")).err().unwrap();
+    assert!(err.to_string().contains("not-a-dir"), "{err}");
+    let err =
+        Logger::start(&LogConfig { dir: file.display().to_string(), ..LogConfig::default() }, LogContext::new(&cfg, &model)).err().unwrap();
+    assert!(err.to_string().contains("not-a-dir"), "{err}");
+}
+
+#[test]
+fn the_effective_config_reads_back_to_the_same_values() {
+    let cfg = config(|c| {
+        c.clik.gains[2] = 123.456_789_012_345_67;
+        c.controller.rate_hz = 4000.0;
+        c.path.max_speed = 0.1 + 0.2;
+    });
+    let text = cfg.effective_toml();
+    let back = Config::from_effective(Path::new("x.mcap"), &text, &cfg.robot.urdf_text).unwrap();
+    assert_eq!(back.controller_settings(), cfg.controller_settings());
+    assert_eq!(back.robot.build_model().unwrap().dof(), 7);
+    let broken = text.replace("rate_hz = 4000.0", "rate_hz = 40.0");
+    let err = Config::from_effective(Path::new("x.mcap"), &broken, &cfg.robot.urdf_text).unwrap_err();
+    assert!(err.to_string().contains("rate_hz"), "{err}");
+}
+
+#[test]
+fn bad_segments_keep_their_reasons_in_the_log() {
+    let cfg = config(|_| {});
+    let dir = temp_dir("reasons");
+    let model = cfg.robot.build_model().unwrap();
+    let path = dir.join("r.mcap");
+    let logger = Logger::start_at(&log_cfg(|_| {}), LogContext::new(&cfg, &model), &path).unwrap();
+    let mut cell = Cell::new(&cfg, &IIWA_START);
+    let mut s = line(1, [0.45, 0.0, 0.3], 0.05, 0.0);
+    s.end[1] = f64::INFINITY;
+    cell.send(&[s]);
+    for _ in 0..5 {
+        step_logged(&mut cell, &logger);
+    }
+    logger.finish();
+    let log = LogFile::open(&path).unwrap();
+    let found = log.ticks().map(Result::unwrap).flat_map(|t| t.output.events().to_vec()).any(|e| {
+        matches!(e, strand::core::controller::Event::SegmentRejected { seq: 1, reason: ipc::RejectReason::NonFinite, field: "end" })
+    });
+    assert!(found);
+}
