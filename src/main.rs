@@ -130,6 +130,14 @@ fn main() -> ExitCode {
 }
 
 fn run(cfg: &Config, log_path: Option<&Path>, when: StopWhen) -> ExitCode {
+    // SAFETY: the handler only stores to an atomic; SIG_IGN is always valid. A log file that
+    // reaches the file-size limit must fail its write (EFBIG, handled: logging stops), not kill the
+    // controller with SIGXFSZ.
+    unsafe {
+        libc::signal(libc::SIGINT, on_signal as *const () as libc::sighandler_t);
+        libc::signal(libc::SIGTERM, on_signal as *const () as libc::sighandler_t);
+        libc::signal(libc::SIGXFSZ, libc::SIG_IGN);
+    }
     let model = match cfg.robot.build_model() {
         Ok(m) => m,
         Err(e) => {
@@ -163,11 +171,6 @@ fn run(cfg: &Config, log_path: Option<&Path>, when: StopWhen) -> ExitCode {
             return ExitCode::from(2);
         }
     };
-    // SAFETY: the handler only stores to an atomic.
-    unsafe {
-        libc::signal(libc::SIGINT, on_signal as *const () as libc::sighandler_t);
-        libc::signal(libc::SIGTERM, on_signal as *const () as libc::sighandler_t);
-    }
     let mut runner = match Runner::new(controller, &cfg.service, cfg.controller.joint_state_timeout, cfg.controller.rate_hz) {
         Ok(r) => r,
         Err(e) => {
@@ -222,14 +225,16 @@ fn run(cfg: &Config, log_path: Option<&Path>, when: StopWhen) -> ExitCode {
                 s.cycle.overruns
             );
             eprintln!(
-                "state {:?} fault {:?} job {:?} | segments {} rejected {} underruns {} clamps {}",
+                "state {:?} fault {:?} job {:?} | segments {} rejected {} underruns {} clamps {} | log {:?}, {} ticks not logged",
                 strand_ipc::RunState::from_u32(st.run_state),
                 strand_ipc::FaultCode::from_u32(st.fault),
                 strand_ipc::JobOutcome::from_u32(st.job_outcome),
                 st.segments_accepted,
                 st.rejected,
                 st.underruns,
-                st.clamps
+                st.clamps,
+                strand_ipc::LogState::from_u32(st.log_state),
+                st.log_drops
             );
             if st.fault != 0 { ExitCode::from(3) } else { ExitCode::SUCCESS }
         }

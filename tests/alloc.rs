@@ -1,7 +1,8 @@
 //! The per-tick kinematics path does not touch the heap: a counting global allocator sees zero
 //! allocations over 10,000 CLIK steps (FK, Jacobian, SVD, gradient, limits) on the 7-axis iiwa and on
 //! the 6-axis VP6242 in the 5-D task, none in FK or the gradient alone, and none on the rare paths:
-//! joints saturating at their limits (re-solves), NaN targets (braking) and repaired joint input.
+//! joints saturating at their limits (re-solves), NaN targets (braking) and repaired joint input;
+//! and none in a whole controller tick with its log record queued.
 
 mod common;
 #[path = "common/paths.rs"]
@@ -131,6 +132,13 @@ fn controller_steps_allocate_nothing() {
     let mut cell = Cell::new(&cfg, &IIWA_START);
     let job = square_job(1, [0.45, -0.02, 0.2], 0.03, 3, 0.04);
     let second = square_job(100, [0.45, -0.02, 0.2], 0.02, 1, 0.04);
+    // The log's tick side runs in the same ticks (its writer thread allocates as it likes).
+    let dir = std::env::temp_dir().join(format!("strand-alloc-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let model = cfg.robot.build_model().unwrap();
+    let log_cfg = strand::log::LogConfig { queue_ticks: 65536, ..Default::default() };
+    let logger = strand::log::writer::Logger::start_at(&log_cfg, strand::log::writer::LogContext::new(&cfg, &model), &dir.join("a.mcap")).unwrap();
+    let timing = strand::log::messages::TickTiming::default();
     let mut total = 0;
     let mut states = std::collections::BTreeSet::new();
     for k in 0..30_000u64 {
@@ -156,6 +164,7 @@ fn controller_steps_allocate_nothing() {
         let input = cell.input();
         let before = allocations();
         let out = cell.ctl.step(&input);
+        logger.push(&input, &out, &timing);
         total += allocations() - before;
         cell.q_robot = out.joint_command.position;
         cell.tick += 1;
@@ -173,5 +182,8 @@ fn controller_steps_allocate_nothing() {
     ] {
         assert!(states.contains(&(s as u32)), "never in {s:?}: {states:?}");
     }
-    assert_eq!(total, 0, "allocations inside Controller::step");
+    assert_eq!(total, 0, "allocations inside Controller::step and Logger::push");
+    let report = logger.finish();
+    assert_eq!(report.ticks_written + report.drops, 30_000);
+    let _ = std::fs::remove_dir_all(&dir);
 }

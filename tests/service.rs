@@ -35,6 +35,9 @@ impl Drop for Service {
 fn service(prefix: &str, extra: &[&str]) -> Service {
     let mut args = vec!["run", "--config", "config/default.toml", "--prefix", prefix];
     args.extend_from_slice(extra);
+    if !extra.contains(&"--log") {
+        args.push("--no-log");
+    }
     let child = Command::new(env!("CARGO_BIN_EXE_strand"))
         .args(&args)
         .current_dir(env!("CARGO_MANIFEST_DIR"))

@@ -55,7 +55,7 @@ from mcap_ros2.decoder import DecoderFactory
 from rosbags.typesys import Stores, get_typestore, get_types_from_msg
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from strand_ipc import JobOutcome, LogState  # noqa: E402
+from strand_ipc import JobOutcome, LogState, RunState, enum_name  # noqa: E402
 
 # Topics (src/log/mod.rs, `topics`) and the type each carries.
 TICK = "/strand/tick"
@@ -83,8 +83,6 @@ TOPIC_TYPES = {
     STATUS: "strand_msgs/msg/Status",
     SEGMENTS: "strand_msgs/msg/Segment",
 }
-# Standard ROS types: rosbags decodes these with its own ROS 2 Humble definitions.
-STANDARD_TYPES = {JOINT_STATE_TYPE, POSE_STAMPED_TYPE}
 
 # Topics that must hold messages in every log, and in a log of a job.
 ALWAYS_PRESENT = (TICK, JOINT_COMMAND, STATUS, EXTRUDER, TCP_TARGET, BASE_ESTIMATED)
@@ -95,7 +93,9 @@ EVERY_TICK = (STATUS, EXTRUDER, TCP_TARGET, BASE_ESTIMATED)
 MANY_PER_TICK = {SEGMENTS, BASE_MEASURED}
 
 METADATA_NAME = "strand"
-METADATA_KEYS = ("version", "contract_version", "robot", "rate_hz", "dof", "joint_names", "part", "first_tick", "clock_offset_ns")
+METADATA_KEYS = (
+    "version", "contract_version", "robot", "rate_hz", "dof", "joint_names", "part", "first_tick", "clock_offset_ns",
+)
 CONFIG_ATTACHMENT = "effective-config.toml"
 URDF_ATTACHMENT = "robot.urdf"
 SCHEMA_SEPARATOR = "=" * 80
@@ -148,6 +148,14 @@ class Results:
             if len(o.details) < self.MAX_DETAILS:
                 o.details.append(failure)
 
+    def run(self, check: Callable[..., Optional[str]], *args: Any) -> None:
+        """Runs a check on one item and records it (a check that raises fails with the exception; the run goes on)."""
+        try:
+            failure = check(*args)
+        except Exception as e:  # noqa: BLE001 (unexpected data: report it as this check's failure)
+            failure = f"raised {type(e).__name__}: {e}"
+        self.record(check, failure)
+
     def not_run(self, checks: list[Callable[..., Optional[str]]], why: str) -> None:
         for c in checks:
             o = self.outcomes.setdefault(self.name(c), Outcome(self.name(c)))
@@ -186,6 +194,7 @@ class Log:
     header: Any = None
     summary: Any = None
     metadata: Optional[dict[str, str]] = None
+    metadata_records: int = 0
     attachments: dict[str, Any] = dataclasses.field(default_factory=dict)
     # From the "strand" metadata (None when it is missing or unreadable).
     joint_names: Optional[list[str]] = None
@@ -357,7 +366,10 @@ def check_summary_statistics(log: Log) -> Optional[str]:
     if s.message_start_time > s.message_end_time:
         return f"message_start_time {s.message_start_time} > message_end_time {s.message_end_time}"
     if s.channel_count != len(log.summary.channels) or s.schema_count != len(log.summary.schemas):
-        return f"statistics count {s.channel_count} channels / {s.schema_count} schemas, summary holds {len(log.summary.channels)} / {len(log.summary.schemas)}"
+        return (
+            f"statistics count {s.channel_count} channels / {s.schema_count} schemas, "
+            f"summary holds {len(log.summary.channels)} / {len(log.summary.schemas)}"
+        )
     return None
 
 
@@ -404,7 +416,7 @@ def check_schema_texts(log: Log) -> Optional[str]:
 def check_metadata(log: Log) -> Optional[str]:
     """The "strand" metadata record is present once, complete, and its dof equals len(joint_names)."""
     if log.metadata is None:
-        return f"no metadata record named {METADATA_NAME!r}"
+        return f"{log.metadata_records} metadata records named {METADATA_NAME!r}, expected 1"
     m = log.metadata
     missing = [k for k in METADATA_KEYS if k not in m]
     if missing:
@@ -458,7 +470,8 @@ def check_attachments(log: Log) -> Optional[str]:
 
 
 def check_message_counts(log: Log) -> Optional[str]:
-    """Statistics: every tick has one /status, /extruder, /tcp/target, /base/estimated; the rest at most one (but segments, base poses)."""
+    """Statistics: required topics have messages; /status, /extruder, /tcp/target, /base/estimated have one per tick,
+    /joint_command, /joint_states, /tcp/actual at most one."""
     ticks = log.stats_count(TICK)
     if ticks is None:
         return "no statistics"
@@ -514,7 +527,7 @@ def check_messages_in_their_tick(log: Log, topic: str, log_time: int, msg: Any) 
 
 
 def check_joint_command_well_formed(log: Log, topic: str, log_time: int, msg: Any) -> Optional[str]:
-    """/joint_command: names == metadata joint_names, dof finite positions and velocities, no effort, stamp == log time."""
+    """/joint_command: names == metadata joint_names, dof finite positions, velocities; no effort, stamp == log_time."""
     if log.joint_names is None:
         return "no joint names (metadata)"
     dof = log.dof
@@ -560,7 +573,7 @@ MESSAGE_CHECKS: list[tuple[Optional[str], Callable[..., Optional[str]]]] = [
 
 
 def check_tick_numbering(log: Log, g: TickGroup) -> Optional[str]:
-    """Ticks start at first_tick and go up by 1; the outputs (status, joint command, extruder) carry the input's tick."""
+    """Ticks start at first_tick and go up by 1; the outputs (status, joint command, extruder) carry the tick number."""
     i, o = g.tick.input, g.tick.output
     if log.prev_tick is None:
         if log.first_tick is not None and i.tick != log.first_tick:
@@ -568,7 +581,10 @@ def check_tick_numbering(log: Log, g: TickGroup) -> Optional[str]:
     elif i.tick != log.prev_tick + 1:
         return f"tick {i.tick} after {log.prev_tick}"
     if not o.status.tick == o.joint_command.tick == o.extruder.tick == i.tick:
-        return f"tick {i.tick}: output status.tick {o.status.tick}, joint_command.tick {o.joint_command.tick}, extruder.tick {o.extruder.tick}"
+        return (
+            f"tick {i.tick}: output status.tick {o.status.tick}, joint_command.tick {o.joint_command.tick}, "
+            f"extruder.tick {o.extruder.tick}"
+        )
     return None
 
 
@@ -600,15 +616,15 @@ def check_tick_channels(log: Log, g: TickGroup) -> Optional[str]:
 
 
 def check_known_joint_command(log: Log, g: TickGroup) -> Optional[str]:
-    """The /joint_command of a tick equals the tick's output.joint_command position[:dof] and velocity[:dof], exactly."""
+    """A tick's /joint_command equals its output.joint_command position[:dof] and velocity[:dof] (float ==)."""
     if log.dof is None:
         return "no dof (metadata)"
     jc = g.tick.output.joint_command
     for msg in g.on(JOINT_COMMAND):
-        if list(msg.position) != list(jc.position[: log.dof]):
-            return f"tick {g.tick.input.tick}: /joint_command position {list(msg.position)}, tick {list(jc.position[: log.dof])}"
-        if list(msg.velocity) != list(jc.velocity[: log.dof]):
-            return f"tick {g.tick.input.tick}: /joint_command velocity {list(msg.velocity)}, tick {list(jc.velocity[: log.dof])}"
+        for field in ("position", "velocity"):
+            logged, known = list(getattr(msg, field)), list(getattr(jc, field)[: log.dof])
+            if logged != known:
+                return f"tick {g.tick.input.tick}: /joint_command {field} {logged}, tick output {known}"
     return None
 
 
@@ -628,38 +644,46 @@ def check_channels_agree_with_tick(log: Log, g: TickGroup) -> Optional[str]:
         if list(msg.name) != log.joint_names:
             return f"tick {i.tick}: /joint_states names {list(msg.name)}"
         for field in ("position", "velocity", "effort"):
-            if list(getattr(msg, field)) != list(getattr(js, field)[:n]):
-                return f"tick {i.tick}: /joint_states {field} {list(getattr(msg, field))}, tick {list(getattr(js, field)[:n])}"
-        if stamp_ns(msg.header) != max(0, js.stamp_ns + log.clock_offset_ns):
-            return f"tick {i.tick}: /joint_states stamp {stamp_ns(msg.header)}, joint state stamp_ns + offset {js.stamp_ns + log.clock_offset_ns}"
+            # Bit for bit: a measurement is logged as received, even a non-finite one the controller rejected.
+            d = difference(getattr(msg, field), getattr(js, field)[:n], field)
+            if d:
+                return f"tick {i.tick}: /joint_states vs tick input at {d}"
+        stamp = max(0, js.stamp_ns + log.clock_offset_ns)
+        if stamp_ns(msg.header) != stamp:
+            return f"tick {i.tick}: /joint_states stamp {stamp_ns(msg.header)}, expected {stamp} (stamp_ns + offset)"
     return None
 
 
 def check_poses_agree_with_tick(log: Log, g: TickGroup) -> Optional[str]:
-    """Pose channels: frame "world", stamp == log time (measured base: its own stamp), unit quaternions, and
-    /tcp/target, /base/estimated, /base/measured equal the tick's values, quaternion (w,x,y,z) reordered exactly."""
+    """Pose channels: frame "world", stamp == log time (measured base: its own stamp); /tcp/target, /base/estimated,
+    /base/measured equal the tick's values bit for bit, quaternion (w,x,y,z) reordered; the poses strand computes
+    (all but the measured base, logged as received) are finite with unit quaternions."""
     d, i = g.tick.output.diagnostics, g.tick.input
-    expected: list[tuple[str, Any, Optional[tuple[list[float], list[float]]], int]] = []
-    expected += [(TCP_TARGET, m, (list(d.tcp_target_world), list(d.tcp_target_orientation)), g.log_time) for m in g.on(TCP_TARGET)]
-    expected += [(BASE_ESTIMATED, m, (list(d.base.position), list(d.base.orientation)), g.log_time) for m in g.on(BASE_ESTIMATED)]
-    expected += [(TCP_ACTUAL, m, None, g.log_time) for m in g.on(TCP_ACTUAL)]
     offset = log.clock_offset_ns or 0
-    expected += [
-        (BASE_MEASURED, m, (list(p.position), list(p.orientation)), max(0, p.stamp_ns + offset)) for m, p in zip(g.on(BASE_MEASURED), i.base_poses)
-    ]
+    target = (list(d.tcp_target_world), list(d.tcp_target_orientation))
+    base = (list(d.base.position), list(d.base.orientation))
+    # (topic, message, (position, orientation w,x,y,z) it must hold or None, stamp it must carry)
+    expected: list[tuple[str, Any, Optional[tuple[list[float], list[float]]], int]] = []
+    expected += [(TCP_TARGET, m, target, g.log_time) for m in g.on(TCP_TARGET)]
+    expected += [(BASE_ESTIMATED, m, base, g.log_time) for m in g.on(BASE_ESTIMATED)]
+    expected += [(TCP_ACTUAL, m, None, g.log_time) for m in g.on(TCP_ACTUAL)]
+    for m, p in zip(g.on(BASE_MEASURED), i.base_poses):
+        expected.append((BASE_MEASURED, m, (list(p.position), list(p.orientation)), max(0, p.stamp_ns + offset)))
     for topic, msg, values, stamp in expected:
         position, orientation = pose_tuple(msg.pose)
         if msg.header.frame_id != "world":
             return f"tick {i.tick}: {topic} frame_id {msg.header.frame_id!r}"
         if stamp_ns(msg.header) != stamp:
             return f"tick {i.tick}: {topic} stamp {stamp_ns(msg.header)}, expected {stamp}"
+        if values is not None and difference((position, orientation), values):
+            return f"tick {i.tick}: {topic} pose {position} {orientation} (w,x,y,z), tick {values[0]} {values[1]}"
+        if topic == BASE_MEASURED:
+            continue
         if not all_finite(position + orientation):
             return f"tick {i.tick}: {topic} not finite: {position} {orientation}"
         norm = math.sqrt(sum(v * v for v in orientation))
         if abs(norm - 1.0) > QUATERNION_NORM_TOLERANCE:
             return f"tick {i.tick}: {topic} quaternion norm {norm}"
-        if values is not None and (position, orientation) != values:
-            return f"tick {i.tick}: {topic} pose {position} {orientation} (w,x,y,z), tick {values[0]} {values[1]}"
     return None
 
 
@@ -684,13 +708,15 @@ def check_scan_matches_statistics(log: Log) -> Optional[str]:
         return "no statistics"
     problems = []
     for cid, ch in sorted(log.summary.channels.items()):
-        if s.channel_message_counts.get(cid, 0) != log.counts[ch.topic]:
-            problems.append(f"{ch.topic}: statistics {s.channel_message_counts.get(cid, 0)}, decoded {log.counts[ch.topic]}")
+        logged = s.channel_message_counts.get(cid, 0)
+        if logged != log.counts[ch.topic]:
+            problems.append(f"{ch.topic}: statistics {logged}, decoded {log.counts[ch.topic]}")
     total = sum(log.counts.values())
     if s.message_count != total:
         problems.append(f"message_count {s.message_count}, decoded {total}")
     if total and (s.message_start_time, s.message_end_time) != (log.first_log_time, log.last_log_time):
-        problems.append(f"time range {s.message_start_time}..{s.message_end_time}, decoded {log.first_log_time}..{log.last_log_time}")
+        stats_range, decoded_range = (s.message_start_time, s.message_end_time), (log.first_log_time, log.last_log_time)
+        problems.append(f"statistics time range {stats_range}, decoded {decoded_range}")
     return "; ".join(problems) or None
 
 
@@ -712,10 +738,14 @@ def check_tick_period(log: Log) -> Optional[str]:
     """The median step of the tick times is the metadata's period (1/rate_hz), within 5 %."""
     if log.rate_hz is None:
         return "no rate_hz (metadata)"
-    steps = sorted(log.tick_steps_ns.elements())
-    if not steps:
+    total = sum(log.tick_steps_ns.values())
+    if total == 0:
         return "fewer than two ticks"
-    median = steps[len(steps) // 2]
+    seen = 0
+    for median in sorted(log.tick_steps_ns):
+        seen += log.tick_steps_ns[median]
+        if 2 * seen > total:
+            break
     period = 1e9 / log.rate_hz
     if abs(median - period) > PERIOD_TOLERANCE * period:
         return f"median tick step {median} ns, period {period:.0f} ns at {log.rate_hz} Hz"
@@ -733,7 +763,8 @@ def check_segments_logged(log: Log) -> Optional[str]:
     if log.last_status is None:
         return "no /status message"
     if log.last_status.segments_accepted != n:
-        return f"final Status.segments_accepted {log.last_status.segments_accepted} (rejected {log.last_status.rejected}), /segments messages {n}"
+        s = log.last_status
+        return f"final Status.segments_accepted {s.segments_accepted} (rejected {s.rejected}), /segments messages {n}"
     return None
 
 
@@ -822,6 +853,7 @@ def read_structure(log: Log, f: Any) -> None:
     log.header = reader.get_header()
     log.summary = reader.get_summary()
     records = [m for m in reader.iter_metadata() if m.name == METADATA_NAME]
+    log.metadata_records = len(records)
     if len(records) == 1:
         log.metadata = dict(records[0].metadata)
     for a in reader.iter_attachments():
@@ -851,10 +883,11 @@ def keep_sample(log: Log, topic: str, index: int, decoded: Any) -> None:
     """Keeps a message for the comparison with rosbags if it is planned, or is a tick with variable-length
     content or a segment (the parts most likely to be misaligned), up to MAX_EXTRA_SAMPLES of those."""
     planned = index in log.sample_plan.get(topic, ())
-    interesting = topic == SEGMENTS or (
-        topic == TICK
-        and any(len(x) for x in (decoded.input.segments, decoded.input.controls, decoded.input.base_poses, decoded.output.events))
-    )
+    if topic == TICK:
+        i, o = decoded.input, decoded.output
+        interesting = any(len(x) for x in (i.segments, i.controls, i.base_poses, o.events))
+    else:
+        interesting = topic == SEGMENTS
     if not planned and interesting and log.extra_samples[topic] < MAX_EXTRA_SAMPLES:
         log.extra_samples[topic] += 1
         planned = True
@@ -868,7 +901,7 @@ def finish_tick(log: Log, results: Results) -> None:
     if g is None:
         return
     for check in TICK_CHECKS:
-        results.record(check, check(log, g))
+        results.run(check, log, g)
     log.prev_tick = g.tick.input.tick
 
 
@@ -891,7 +924,7 @@ def scan_mcap_ros2(log: Log, f: Any, results: Results) -> None:
                 log.job_end_outcomes += [e.a for e in decoded.output.events if e.kind == EVENT_JOB_ENDED]
             for only, check in MESSAGE_CHECKS:
                 if only is None or only == topic:
-                    results.record(check, check(log, topic, t, decoded))
+                    results.run(check, log, topic, t, decoded)
             if topic != TICK and log.group is not None:
                 log.group.messages.setdefault(topic, []).append(decoded)
             if topic == STATUS:
@@ -915,7 +948,7 @@ def scan_mcap_ros2(log: Log, f: Any, results: Results) -> None:
 def scan_rosbags(log: Log, f: Any, results: Results) -> None:
     """Decodes the raw bytes of every message with rosbags (plain mcap reader, file order), re-encodes them, and
     compares the sampled ones with mcap_ros2's values."""
-    results.record(check_rosbags_schemas, check_rosbags_schemas(log))
+    results.run(check_rosbags_schemas, log)
     f.seek(0)
     reader = make_reader(f)
     index: Counter = Counter()
@@ -931,12 +964,9 @@ def scan_rosbags(log: Log, f: Any, results: Results) -> None:
             results.record(check_rosbags_decodes, f"{topic} #{i} as {typename}: {type(e).__name__}: {e}")
             continue
         results.record(check_rosbags_decodes, None)
-        try:
-            results.record(check_rosbags_reencodes, check_rosbags_reencodes(log, topic, typename, data, decoded))
-        except Exception as e:  # noqa: BLE001
-            results.record(check_rosbags_reencodes, f"{topic} #{i} as {typename}: {type(e).__name__}: {e}")
+        results.run(check_rosbags_reencodes, log, topic, typename, data, decoded)
         if (topic, i) in log.samples:
-            results.record(check_readers_agree, check_readers_agree(log, topic, i, decoded))
+            results.run(check_readers_agree, log, topic, i, decoded)
             log.compared[topic] += 1
 
 
@@ -948,8 +978,8 @@ def print_summary(log: Log) -> None:
     m = log.metadata or {}
     print(f"check_log: {log.path}")
     print(
-        f"  {m.get('version', '?')}, robot {m.get('robot', '?')}, {log.dof} joints, {m.get('rate_hz', '?')} Hz, "
-        f"contract {m.get('contract_version', '?')}, part {m.get('part', '?')}"
+        f"  strand {m.get('version', '?')}, robot {m.get('robot', '?')}, {m.get('dof', '?')} joints, "
+        f"{m.get('rate_hz', '?')} Hz, contract {m.get('contract_version', '?')}, part {m.get('part', '?')}"
     )
     ticks = log.counts[TICK]
     if log.first_tick_msg is not None and log.last_tick_msg is not None:
@@ -958,6 +988,13 @@ def print_summary(log: Log) -> None:
     else:
         span = "no ticks"
     print(f"  {ticks} ticks ({span}), {sum(log.counts.values())} messages")
+    s = log.last_status
+    if s is not None:
+        print(
+            f"  final status: tick {s.tick}, run_state {enum_name(RunState, s.run_state)}, "
+            f"job_outcome {enum_name(JobOutcome, s.job_outcome)}, "
+            f"segments accepted {s.segments_accepted}, rejected {s.rejected}, log_drops {s.log_drops}"
+        )
     if log.summary is not None:
         topics = [ch.topic for _, ch in sorted(log.summary.channels.items())]
         print("  channels: " + ", ".join(f"{t} {log.counts[t]}" for t in topics))
@@ -978,9 +1015,11 @@ def print_results(results: Results) -> None:
 
 
 def main(argv: Optional[list[str]] = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("log", help="the .mcap file")
-    parser.add_argument("--expect-job", action="store_true", help="the log holds a job that finished: require segments, extrusion, outcome FINISHED")
+    parser.add_argument(
+        "--expect-job", action="store_true", help="the log holds a finished job: require segments, extrusion, FINISHED"
+    )
     args = parser.parse_args(argv)
 
     log = Log(args.log, args.expect_job)
@@ -988,18 +1027,22 @@ def main(argv: Optional[list[str]] = None) -> int:
     checks = STRUCTURE_CHECKS + [c for _, c in MESSAGE_CHECKS] + TICK_CHECKS + FINAL_CHECKS
     checks += (JOB_CHECKS if args.expect_job else []) + ROSBAGS_CHECKS
     results.declare(checks)
+    fatal = None
     try:
         with open(args.log, "rb") as f:
             read_structure(log, f)
             for check in STRUCTURE_CHECKS:
-                results.record(check, check(log))
+                results.run(check, log)
             scan_mcap_ros2(log, f, results)
             for check in FINAL_CHECKS + (JOB_CHECKS if args.expect_job else []):
-                results.record(check, check(log))
+                results.run(check, log)
             scan_rosbags(log, f, results)
     except Exception as e:  # noqa: BLE001 (an unreadable file fails every check not yet run)
-        results.not_run(checks, f"{type(e).__name__}: {e}")
+        fatal = f"{type(e).__name__}: {e}"
+        results.not_run(checks, "the file could not be read")
     print_summary(log)
+    if fatal:
+        print(f"  cannot read the file: {fatal}")
     print_results(results)
     passed, failed = results.passed(), results.failed()
     print(f"check_log: {passed} passed, {failed} failed")
