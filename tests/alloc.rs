@@ -137,7 +137,8 @@ fn controller_steps_allocate_nothing() {
     std::fs::create_dir_all(&dir).unwrap();
     let model = cfg.robot.build_model().unwrap();
     let log_cfg = strand::log::LogConfig { queue_ticks: 65536, ..Default::default() };
-    let logger = strand::log::writer::Logger::start_at(&log_cfg, strand::log::writer::LogContext::new(&cfg, &model), &dir.join("a.mcap")).unwrap();
+    let logger =
+        strand::log::writer::Logger::start_at(&log_cfg, strand::log::writer::LogContext::new(&cfg, &model), &dir.join("a.mcap")).unwrap();
     let timing = strand::log::messages::TickTiming::default();
     let mut total = 0;
     let mut states = std::collections::BTreeSet::new();

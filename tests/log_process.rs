@@ -83,12 +83,7 @@ fn a_log_that_hits_the_file_size_limit_stops_and_control_goes_on() {
     let args: Vec<String> = cmd.get_args().map(|a| format!("'{}'", a.to_string_lossy())).collect();
     // 256 KiB (bash counts ulimit -f in KiB): the header and a few chunks fit, the rest does not.
     let script = format!("ulimit -f 256; exec '{}' {}", env!("CARGO_BIN_EXE_strand"), args.join(" "));
-    let out = Command::new("bash")
-        .args(["-c", &script])
-        .current_dir(env!("CARGO_MANIFEST_DIR"))
-        .env("RUST_LOG", "warn")
-        .output()
-        .unwrap();
+    let out = Command::new("bash").args(["-c", &script]).current_dir(env!("CARGO_MANIFEST_DIR")).env("RUST_LOG", "warn").output().unwrap();
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(out.status.success(), "control went on to the end: {stderr}");
     assert!(stderr.contains("ticks 20000 "), "{stderr}");

@@ -10,7 +10,8 @@
 # exits with the client's status. First checks strand_ipc.py against ipc/src/lib.rs
 # (test_strand_ipc.py, no service needed). Needs `pip install iceoryx2==0.10.0`.
 # Environment: STRAND_BIN (service binary, default target/debug/strand), PYTHON (interpreter,
-# default python3), CLIENT_ARGS (extra client arguments, e.g. -v).
+# default python3), CLIENT_ARGS (extra client arguments, e.g. -v), STRAND_LOG (keep the service's
+# MCAP log in this file).
 set -u
 
 here=$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)
@@ -38,7 +39,9 @@ if ! "$python" "$here/test_strand_ipc.py" >/dev/null; then
 fi
 
 log=$(mktemp "${TMPDIR:-/tmp}/strand-pytest-$$.XXXXXX.log")
-"$bin" run --config config/default.toml --prefix "$prefix" --clock timer --echo --exit-when-done >"$log" 2>&1 &
+# STRAND_LOG=FILE keeps the service's MCAP log there (CI reads it back); otherwise no log.
+if [ -n "${STRAND_LOG:-}" ]; then log_args=(--log "$STRAND_LOG"); else log_args=(--no-log); fi
+"$bin" run --config config/default.toml --prefix "$prefix" --clock timer --echo --exit-when-done "${log_args[@]}" >"$log" 2>&1 &
 svc=$!
 t_start=$(date +%s.%N)
 

@@ -88,9 +88,18 @@ fn log_mode(rate: f64, seconds: f64, config: PathBuf, out: Option<PathBuf>, json
     for tick in 0..ticks {
         let wake = clock.wait();
         input.reset(tick, wake.deadline_ns);
-        input.joint_state = Some(ipc::JointState { seq: tick + 1, stamp_ns: wake.deadline_ns, dof: model.dof() as u32, position: q, ..Default::default() });
+        input.cycle.log_drops = logger.dropped();
+        input.cycle.log_state = logger.state();
+        input.joint_state =
+            Some(ipc::JointState { seq: tick + 1, stamp_ns: wake.deadline_ns, dof: model.dof() as u32, position: q, ..Default::default() });
         if tick == 0 {
-            input.push_control(&ipc::Control { seq: 1, stamp_ns: wake.deadline_ns, command: ipc::Command::Start as u32, value: 0.0, _reserved: 0 });
+            input.push_control(&ipc::Control {
+                seq: 1,
+                stamp_ns: wake.deadline_ns,
+                command: ipc::Command::Start as u32,
+                value: 0.0,
+                _reserved: 0,
+            });
             free = 256;
         }
         // Keep the queue fed (credit from the last Status), a batch at a time.
@@ -151,8 +160,18 @@ fn log_mode(rate: f64, seconds: f64, config: PathBuf, out: Option<PathBuf>, json
         }
         println!("drops                  {}", report.drops);
         println!("ticks written          {}", report.ticks_written);
-        println!("bytes                  {} ({:.1} kB/s, {:.0} B/tick)", report.bytes, report.bytes as f64 / wall / 1e3, report.bytes as f64 / ticks.max(1) as f64);
-        println!("writer CPU             {:.2} s of {:.2} s ({:.1} % of one core)", report.writer_cpu_s, wall, 100.0 * report.writer_cpu_s / wall);
+        println!(
+            "bytes                  {} ({:.1} kB/s, {:.0} B/tick)",
+            report.bytes,
+            report.bytes as f64 / wall / 1e3,
+            report.bytes as f64 / ticks.max(1) as f64
+        );
+        println!(
+            "writer CPU             {:.2} s of {:.2} s ({:.1} % of one core)",
+            report.writer_cpu_s,
+            wall,
+            100.0 * report.writer_cpu_s / wall
+        );
         println!("tick thread CPU        {:.1} % of one core", 100.0 * tick_cpu_s / tick_wall_s);
         if let Some(e) = &report.error {
             println!("write error            {e}");
