@@ -174,6 +174,7 @@ mod tests {
     fn utc_stamps() {
         assert_eq!(utc_stamp(0), "19700101T000000Z");
         assert_eq!(utc_stamp(951_782_400 * 1_000_000_000), "20000229T000000Z");
-        assert_eq!(utc_stamp(1_795_000_000 * 1_000_000_000 + 5), "20261018T084640Z");
+        // Checked against Python: datetime.fromtimestamp(1795000000, UTC).
+        assert_eq!(utc_stamp(1_795_000_000 * 1_000_000_000 + 5), "20261118T110640Z");
     }
 }
