@@ -24,7 +24,8 @@ pub enum ClockMode {
     Timer,
     /// `robot`: one tick per `JointState` arrival; the robot driver's cycle is the clock.
     Robot,
-    /// `free-run`: no waiting, the next tick starts when the last one ends (replay, benchmarks).
+    /// `free-run`: no waiting, the next tick starts when the last one ends (simulation, CI). The log
+    /// is complete here: a tick waits for a free log slot instead of dropping its record.
     FreeRun,
 }
 

@@ -93,6 +93,9 @@ pub trait TickSink {
     fn log_state(&self) -> u32 {
         ipc::LogState::Off as u32
     }
+    /// Waits until the next record would be taken. Only the free-run clock calls this: there the
+    /// ticks are not paced by time, so a complete log matters more than a tick's wall-clock time.
+    fn wait_for_room(&self) {}
 }
 
 /// A sink that keeps nothing.
@@ -262,6 +265,9 @@ impl Runner {
                 summary.cycle.record_work_end(published, timer.next_deadline_ns());
             }
             let timing = TickTiming { wake_lateness_ns, step_ns: after - before, tick_ns: published - woke };
+            if self.service.clock == ClockMode::FreeRun {
+                sink.wait_for_room();
+            }
             sink.record(&input, &out, &timing);
             // 5. Off the tick: tell humans what happened; every 0.25 s, let iceoryx2 forget dead
             //    peers (a crashed feeder or driver counts as a publisher until then).

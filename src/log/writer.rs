@@ -202,6 +202,11 @@ impl TickSink for Logger {
     fn log_state(&self) -> u32 {
         self.state()
     }
+    fn wait_for_room(&self) {
+        while self.free.is_empty() && self.state() == LogState::Recording as u32 {
+            std::thread::sleep(std::time::Duration::from_micros(200));
+        }
+    }
 }
 
 /// Copies what a tick used (not the empty tails of its fixed arrays).

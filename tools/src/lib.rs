@@ -1,5 +1,6 @@
 //! Shared pieces of the strand command-line tools.
 
+pub mod feed;
 pub mod replay;
 pub mod replay_plot;
 pub mod robot_arg;

@@ -1,0 +1,163 @@
+//! What `strand-feed` sends: a G-code program read with `strand::gcode`, put on the bed with the
+//! config's `[bed]` transform, numbered, flagged (the last segment LAST) and converted to the wire
+//! `Segment`; and how a run ends, as an exit code. The streaming itself (credit from Status, never
+//! a dropped segment) is in the binary.
+
+use std::path::Path;
+
+use strand::config::Config;
+use strand::core::path::{BedTransform, Segment, SegmentFlags, SegmentKind};
+use strand::gcode::{GcodeOptions, parse_file};
+use strand_ipc as ipc;
+
+/// A job ready to stream.
+#[derive(Clone, Debug)]
+pub struct Job {
+    /// Wire segments, consecutive sequence numbers.
+    pub segments: Vec<ipc::Segment>,
+    /// Slicer layer of each segment (None where the program has no layer comments).
+    pub layers: Vec<Option<i32>>,
+    /// Path length of each segment (m), for progress and ETA.
+    pub lengths: Vec<f64>,
+    /// Segments of the program left out by `--resume-from`.
+    pub skipped: usize,
+    /// Parser warnings, one line each.
+    pub warnings: Vec<String>,
+}
+
+/// Core segment (W) → wire segment.
+pub fn to_wire(s: &Segment) -> ipc::Segment {
+    let q = s.orientation;
+    ipc::Segment {
+        seq: s.seq,
+        stamp_ns: 0,
+        kind: match s.kind {
+            SegmentKind::Line => ipc::SegmentKind::Line,
+            SegmentKind::Arc => ipc::SegmentKind::Arc,
+            SegmentKind::Dwell => ipc::SegmentKind::Dwell,
+        } as u32,
+        flags: s.flags.0,
+        end: s.end.into(),
+        centre: s.centre.into(),
+        normal: s.normal.into(),
+        sweep: s.sweep,
+        orientation: [q.w, q.i, q.j, q.k],
+        feed: s.feed,
+        filament: s.filament,
+        duration: s.duration,
+        source_line: s.source_line,
+        _reserved: 0,
+    }
+}
+
+/// Reads a G-code program for the cell described by `cfg`. Segment numbers start at 1 (the
+/// program's first segment); `resume_from = Some(n)` drops segments before `n` and starts with a
+/// travel (numbered `n − 1`) to where segment `n` starts, so a job interrupted at `n` can go on.
+pub fn load_gcode(path: &Path, cfg: &Config, resume_from: Option<u64>) -> Result<Job, String> {
+    let bed = BedTransform::new(&cfg.bed).map_err(|e| format!("{}: [bed] {e}", cfg.file.display()))?;
+    let options = GcodeOptions { first_seq: 1, ..GcodeOptions::default() };
+    let mut parser = parse_file(path, options).map_err(|e| e.to_string())?;
+    let mut all = Vec::new();
+    for item in parser.by_ref() {
+        let g = item.map_err(|e| e.to_string())?;
+        all.push((bed.segment(&g.segment), g.tags.layer));
+    }
+    let warnings = parser.warnings().iter().map(|w| format!("{}: {w}", path.display())).collect();
+    if all.is_empty() {
+        return Err(format!("{}: no motion in the program", path.display()));
+    }
+    let mut start = bed.point(&GcodeOptions::default().start);
+    let mut skipped = 0;
+    if let Some(n) = resume_from {
+        let Some(k) = all.iter().position(|(s, _)| s.seq >= n) else {
+            return Err(format!("--resume-from {n}: the program has only {} segments", all.len()));
+        };
+        if k > 0 {
+            let (prev, layer) = all[k - 1];
+            let travel = Segment {
+                seq: all[k].0.seq - 1,
+                kind: SegmentKind::Line,
+                end: prev.end,
+                orientation: prev.orientation,
+                feed: GcodeOptions::default().rapid_feed,
+                flags: SegmentFlags::TRAVEL,
+                source_line: prev.source_line,
+                ..Segment::default()
+            };
+            start = if k >= 2 { all[k - 2].0.end } else { start };
+            skipped = k;
+            all.drain(..k);
+            all.insert(0, (travel, layer));
+        }
+    }
+    let last = all.len() - 1;
+    all[last].0.flags = all[last].0.flags.with(SegmentFlags::LAST);
+    let mut lengths = Vec::with_capacity(all.len());
+    for (s, _) in &all {
+        lengths.push(strand::gcode::segment_length(&start, s));
+        start = s.end;
+    }
+    Ok(Job {
+        segments: all.iter().map(|(s, _)| to_wire(s)).collect(),
+        layers: all.iter().map(|(_, l)| *l).collect(),
+        lengths,
+        skipped,
+        warnings,
+    })
+}
+
+/// How a streamed job ended.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Ending {
+    /// Every segment executed.
+    Finished,
+    /// A controlled stop (Ctrl-C, or a stop from elsewhere).
+    Stopped,
+    /// The controller faulted (`ipc::FaultCode` as u32).
+    Faulted(u32),
+    /// The controller refused one of our segments.
+    Rejected {
+        /// Its sequence number.
+        seq: u64,
+        /// `ipc::RejectReason` as u32.
+        reason: u32,
+    },
+}
+
+impl Ending {
+    /// The process exit code: 0 finished, 3 stopped, 4 faulted, 5 a segment rejected. (1 is a
+    /// service or transport error, 2 a bad program or config.)
+    pub fn exit_code(self) -> u8 {
+        match self {
+            Ending::Finished => 0,
+            Ending::Stopped => 3,
+            Ending::Faulted(_) => 4,
+            Ending::Rejected { .. } => 5,
+        }
+    }
+}
+
+/// How many of a job's segments the controller can hold now: its credit. Before it has taken any
+/// of ours (`last_received_seq` outside our range), the free queue space; after, what it took plus
+/// the free space (the Status contract: a feeder may send up to `last_received_seq + queue_free`).
+pub fn credit(status: &ipc::Status, first_seq: u64, last_seq: u64, started: bool) -> u64 {
+    let ours = started && status.last_received_seq >= first_seq && status.last_received_seq <= last_seq;
+    let taken = if ours { status.last_received_seq - first_seq + 1 } else { 0 };
+    taken + status.queue_free as u64
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn credit_follows_the_status_contract() {
+        let st = |last, free| ipc::Status { last_received_seq: last, queue_free: free, ..Default::default() };
+        // A previous job's numbers do not count.
+        assert_eq!(credit(&st(900, 1024), 1, 500, false), 1024);
+        assert_eq!(credit(&st(900, 1024), 1, 500, true), 1024);
+        // Ours: taken plus free.
+        assert_eq!(credit(&st(40, 1000), 1, 500, true), 1040);
+        assert_eq!(credit(&st(40, 1000), 11, 500, true), 1030);
+    }
+}
