@@ -7,8 +7,8 @@ mod common;
 
 use std::path::{Path, PathBuf};
 
-use common::Rng;
 use common::cell::{Cell, IIWA_START, config, line, square_job};
+use common::{Rng, temp_dir};
 use strand::config::Config;
 use strand::core::controller::{TickInput, TickOutput};
 use strand::log::cdr::{CdrType, CdrWriter, Scalar, decode, encode};
@@ -20,13 +20,6 @@ use strand::log::writer::{LogContext, Logger};
 use strand::log::{LogConfig, topics};
 use strand_ipc as ipc;
 use strand_ipc::{Command, RunState};
-
-fn temp_dir(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("strand-log-test-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
-}
 
 fn log_cfg(f: impl FnOnce(&mut LogConfig)) -> LogConfig {
     let mut c = LogConfig { queue_ticks: 65536, ..LogConfig::default() };

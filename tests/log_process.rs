@@ -3,22 +3,18 @@
 //! file-size limit (the stand-in for a full disk) stops logging while control goes on, and Status
 //! says so.
 
-use std::path::{Path, PathBuf};
+mod common;
+
+use std::path::Path;
 use std::process::{Command, Stdio};
 use std::time::Duration;
 
+use common::temp_dir;
 use mcap::read::{LinearReader, Options};
 use mcap::records::Record;
 use strand::log::reader::LogFile;
 use strand::log::replay::{Verdict, verify};
 use strand::log::{topics, unix_now_ns};
-
-fn temp_dir(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("strand-logproc-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
-}
 
 fn strand(prefix: &str, log: &Path, extra: &[&str]) -> Command {
     let mut c = Command::new(env!("CARGO_BIN_EXE_strand"));

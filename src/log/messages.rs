@@ -151,16 +151,7 @@ impl CdrType for Event {
         add_dependency(out, Self::ros_type(), || EVENT_DEFINITION.to_string());
     }
     fn write(&self, w: &mut CdrWriter) {
-        let (kind, seq, a, b, field) = match *self {
-            Event::SegmentRejected { seq, reason, field } => (1, seq, reason as u32, 0, field),
-            Event::ControlRejected { command, reason } => (2, 0, command, reason as u32, ""),
-            Event::JointStateRejected { seq, reason } => (3, seq, reason as u32, 0, ""),
-            Event::BasePoseRejected { seq } => (4, seq, 0, 0, ""),
-            Event::StateChanged { from, to } => (5, 0, from as u32, to as u32, ""),
-            Event::Fault { code } => (6, 0, code as u32, 0, ""),
-            Event::JobEnded { outcome, last_seq } => (7, last_seq, outcome as u32, 0, ""),
-            Event::Clamped { joint } => (8, 0, joint as u32, 0, ""),
-        };
+        let (kind, seq, a, b, field) = self.parts();
         w.u8(kind);
         w.u64(seq);
         w.u32(a);
@@ -184,17 +175,27 @@ impl CdrType for Event {
         })
     }
     fn flatten(&self, path: &str, out: &mut Vec<(String, Scalar)>) {
-        let mut w = CdrWriter::new();
-        w.begin();
-        self.write(&mut w);
-        let mut r = CdrReader::new(w.bytes()).expect("own encoding");
-        let (kind, seq, a, b) = (r.u8().unwrap(), r.u64().unwrap(), r.u32().unwrap(), r.u32().unwrap());
+        let (kind, seq, a, b, field) = self.parts();
         out.push((format!("{path}.kind"), Scalar::U(kind as u64)));
         out.push((format!("{path}.seq"), Scalar::U(seq)));
         out.push((format!("{path}.a"), Scalar::U(a as u64)));
         out.push((format!("{path}.b"), Scalar::U(b as u64)));
-        if let Event::SegmentRejected { field, .. } = self {
-            out.push((format!("{path}.field"), Scalar::S(field)));
+        out.push((format!("{path}.field"), Scalar::S(field)));
+    }
+}
+
+impl Event {
+    /// The wire fields (kind, seq, a, b, field) of `EVENT_DEFINITION`.
+    fn parts(&self) -> (u8, u64, u32, u32, &'static str) {
+        match *self {
+            Event::SegmentRejected { seq, reason, field } => (1, seq, reason as u32, 0, field),
+            Event::ControlRejected { command, reason } => (2, 0, command, reason as u32, ""),
+            Event::JointStateRejected { seq, reason } => (3, seq, reason as u32, 0, ""),
+            Event::BasePoseRejected { seq } => (4, seq, 0, 0, ""),
+            Event::StateChanged { from, to } => (5, 0, from as u32, to as u32, ""),
+            Event::Fault { code } => (6, 0, code as u32, 0, ""),
+            Event::JobEnded { outcome, last_seq } => (7, last_seq, outcome as u32, 0, ""),
+            Event::Clamped { joint } => (8, 0, joint as u32, 0, ""),
         }
     }
 }

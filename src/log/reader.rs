@@ -125,19 +125,10 @@ impl LogFile {
         Ok(Config::from_effective(&self.path, &text, &urdf)?)
     }
 
-    /// Every message in file order; stops quietly where a cut-short file ends (call
-    /// [`LogFile::messages_complete`] to learn whether it did).
+    /// Every message in file order; stops quietly where a cut-short file ends.
     pub fn messages(&self) -> impl Iterator<Item = mcap::Message<'static>> + '_ {
         let stream = mcap::MessageStream::new_with_options(&self.bytes, Options::IgnoreEndMagic.into()).ok();
         stream.into_iter().flatten().map_while(Result::ok)
-    }
-
-    /// Whether every message could be read (false for a file cut inside a record).
-    pub fn messages_complete(&self) -> bool {
-        match mcap::MessageStream::new_with_options(&self.bytes, Options::IgnoreEndMagic.into()) {
-            Ok(s) => s.into_iter().all(|m| m.is_ok()),
-            Err(_) => false,
-        }
     }
 
     /// The messages of one channel.

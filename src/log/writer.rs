@@ -83,8 +83,6 @@ struct Shared {
     drops: AtomicU64,
     state: AtomicU32,
     stop: AtomicBool,
-    written: AtomicU64,
-    bytes: AtomicU64,
 }
 
 /// What the writer did, at the end.
@@ -169,11 +167,6 @@ impl Logger {
     /// [`LogState`] as u32.
     pub fn state(&self) -> u32 {
         self.shared.state.load(Ordering::Relaxed)
-    }
-
-    /// Ticks written so far.
-    pub fn written(&self) -> u64 {
-        self.shared.written.load(Ordering::Relaxed)
     }
 
     /// Writes what is queued, closes the file and reports.
@@ -410,10 +403,6 @@ impl WriterThread {
         Ok(())
     }
 
-    fn bytes(&self) -> u64 {
-        self.bytes_closed + self.file.as_ref().map_or(0, |f| f.mcap_bytes())
-    }
-
     fn run(mut self, free: &ArrayQueue<Box<Tick>>, full: &ArrayQueue<Box<Tick>>) -> LogReport {
         let started = Instant::now();
         let cpu0 = thread_cpu_s();
@@ -430,7 +419,6 @@ impl WriterThread {
                         Ok(()) => {
                             dirty = true;
                             self.report.ticks_written += 1;
-                            self.shared.written.fetch_add(1, Ordering::Relaxed);
                         }
                         Err(e) => self.fail(e),
                     }
@@ -449,7 +437,6 @@ impl WriterThread {
                 dirty = false;
                 last_close = Instant::now();
             }
-            self.shared.bytes.store(self.bytes(), Ordering::Relaxed);
             if stopping && full.is_empty() {
                 break;
             }

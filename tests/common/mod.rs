@@ -10,6 +10,14 @@ use strand::core::kin::{ClikStep, JointVector, RobotModel};
 
 pub const ROBOTS: [&str; 5] = ["iiwa7", "iiwa14", "vp6242", "meca500", "irb140"];
 
+/// A fresh, empty folder for one test's files (named after the process and the test).
+pub fn temp_dir(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("strand-test-{}-{name}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
 pub fn root() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
 }
