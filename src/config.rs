@@ -42,6 +42,31 @@ fn read_toml<T: for<'de> Deserialize<'de>>(path: &Path) -> Result<T, ConfigError
     toml::from_str(&text).map_err(|e| ConfigError::new(path, e.to_string().trim_end().to_string()))
 }
 
+/// Sets `section.key` (or a top-level `key`) in a parsed config to `value`, parsed as TOML.
+fn apply_override(table: &mut toml::Table, assignment: &str) -> Result<(), String> {
+    let (key, value) = assignment.split_once('=').ok_or("expected KEY=VALUE, e.g. base.estimator=moving-average")?;
+    let value = value.trim();
+    let value = match toml::from_str::<toml::Table>(&format!("v = {value}")) {
+        Ok(mut t) => t.remove("v").expect("parsed above"),
+        Err(_) => toml::Value::String(value.to_string()),
+    };
+    let parts: Vec<&str> = key.trim().split('.').collect();
+    if parts.iter().any(|p| p.is_empty()) || parts.len() > 2 {
+        return Err(format!("key {key:?}: expected `key` or `section.key`"));
+    }
+    let slot = match parts.as_slice() {
+        [_] => table,
+        [section, _] => table
+            .entry(section.to_string())
+            .or_insert_with(|| toml::Value::Table(toml::Table::new()))
+            .as_table_mut()
+            .ok_or_else(|| format!("{section} is not a section"))?,
+        _ => unreachable!("checked above"),
+    };
+    slot.insert(parts[parts.len() - 1].to_string(), value);
+    Ok(())
+}
+
 /// The tool: tip link (flange) → TCP at the nozzle tip. The TCP's z axis points along the nozzle, out
 /// of the tool towards the substrate.
 #[derive(Clone, Debug, Default, Deserialize, Serialize, PartialEq)]
@@ -224,7 +249,22 @@ impl<R> ConfigFile<R> {
 impl Config {
     /// Reads and validates a config file and the robot file it names.
     pub fn load(path: &Path) -> Result<Self, ConfigError> {
-        let raw: ConfigFile<PathBuf> = read_toml(path)?;
+        Self::load_with(path, &[])
+    }
+
+    /// Reads a config file with `section.key=value` overrides applied before validation (the
+    /// value is TOML — `0.5`, `true`, `[1, 2]`, `"text"` — or else taken as a string), as `strand
+    /// run --set` and the demo use them. Errors name the override.
+    pub fn load_with(path: &Path, overrides: &[String]) -> Result<Self, ConfigError> {
+        let raw: ConfigFile<PathBuf> = if overrides.is_empty() {
+            read_toml(path)?
+        } else {
+            let mut table: toml::Table = read_toml(path)?;
+            for o in overrides {
+                apply_override(&mut table, o).map_err(|m| ConfigError::new(path, format!("--set {o:?}: {m}")))?;
+            }
+            toml::Value::Table(table).try_into().map_err(|e: toml::de::Error| ConfigError::new(path, format!("with --set: {}", e.to_string().trim_end())))?
+        };
         raw.validate(path)?;
         let robot_path = path.parent().unwrap_or(Path::new(".")).join(&raw.robot);
         if !robot_path.is_file() {

@@ -48,6 +48,10 @@ enum Command {
         /// Do not write a log (overrides `[log] enabled`).
         #[arg(long)]
         no_log: bool,
+        /// Override one config key, e.g. `--set base.estimator=moving-average` (repeatable; the
+        /// value is TOML, or else a string). The log's effective config records the result.
+        #[arg(long = "set", value_name = "SECTION.KEY=VALUE")]
+        set: Vec<String>,
     },
     /// Load and validate a configuration and the robot it names; print what it describes.
     CheckConfig {
@@ -74,12 +78,12 @@ extern "C" fn on_signal(_: libc::c_int) {
 
 fn main() -> ExitCode {
     match Cli::parse().command {
-        Command::Run { config, prefix, clock, echo, ticks, exit_when_done, log, no_log } => {
+        Command::Run { config, prefix, clock, echo, ticks, exit_when_done, log, no_log, set } => {
             tracing_subscriber::fmt()
                 .with_env_filter(tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info".into()))
                 .with_writer(std::io::stderr)
                 .init();
-            let mut cfg = match Config::load(&config) {
+            let mut cfg = match Config::load_with(&config, &set) {
                 Ok(c) => c,
                 Err(e) => {
                     eprintln!("strand: {e}");
@@ -178,6 +182,7 @@ fn run(cfg: &Config, log_path: Option<&Path>, when: StopWhen) -> ExitCode {
             return ExitCode::from(1);
         }
     };
+    runner.set_log_waits(cfg.log.wait_when_full);
     tracing::info!(
         "strand {}: {} ({} joints) at {} Hz, clock {:?}, services under {}",
         env!("CARGO_PKG_VERSION"),

@@ -150,6 +150,8 @@ pub struct Runner {
     /// Segments of a batch that did not fit in the last tick.
     carry: Option<(ipc::SegmentBatch, usize)>,
     echo_state: ipc::JointState,
+    /// Robot clock: wait for a log slot rather than drop (`[log] wait_when_full`).
+    log_waits: bool,
 }
 
 impl Runner {
@@ -171,7 +173,14 @@ impl Runner {
             joint_state_timeout_ns: (joint_state_timeout * 1e9) as u64,
             carry: None,
             echo_state,
+            log_waits: false,
         })
+    }
+
+    /// With the robot clock, wait for a free log slot instead of dropping a record
+    /// (`[log] wait_when_full`: for simulators running faster than real time).
+    pub fn set_log_waits(&mut self, wait: bool) {
+        self.log_waits = wait;
     }
 
     /// The controller (for its model and counters).
@@ -210,6 +219,7 @@ impl Runner {
         let mut job_seen = false;
         let cleanup_every = (250_000_000 / self.dt_ns).max(1);
         let mut tick: u64 = 0;
+        let mut robot_time = RobotTime::default();
         while !stop.load(Ordering::Relaxed) {
             // 1. Wait for the tick.
             let mut wake_lateness_ns = 0;
@@ -223,7 +233,7 @@ impl Runner {
                 }
                 ClockMode::Robot => {
                     // One tick per joint state; past the timeout, tick anyway so the controller
-                    // can notice the silence.
+                    // can notice the silence. The tick's time is set from the state after draining.
                     let timeout = self.joint_state_timeout_ns.max(2 * self.dt_ns);
                     self.ports.wait_joint_state(timeout)?;
                     summary.cycle.ticks += 1;
@@ -238,6 +248,9 @@ impl Runner {
             // 2. Drain the subscribers.
             input.reset(tick, now);
             self.drain(&mut input)?;
+            if self.service.clock == ClockMode::Robot {
+                input.time_ns = robot_time.advance(input.joint_state.as_ref(), woke);
+            }
             input.feeder_lost = job_seen_open(&summary.status) && self.ports.segment_publishers() == 0;
             input.cycle.overruns = summary.cycle.overruns;
             input.cycle.late_wakeups = summary.cycle.late_wakeups;
@@ -265,7 +278,7 @@ impl Runner {
                 summary.cycle.record_work_end(published, timer.next_deadline_ns());
             }
             let timing = TickTiming { wake_lateness_ns, step_ns: after - before, tick_ns: published - woke };
-            if self.service.clock == ClockMode::FreeRun {
+            if self.service.clock == ClockMode::FreeRun || (self.service.clock == ClockMode::Robot && self.log_waits) {
                 sink.wait_for_room();
             }
             sink.record(&input, &out, &timing);
@@ -329,6 +342,33 @@ impl Runner {
             input.push_base_pose(&p);
         }
         Ok(())
+    }
+}
+
+/// The robot clock's time line: a tick's time is the stamp of the JointState that started it (the
+/// robot's, or a simulator's, time: a simulation may run faster than real time and the controller
+/// follows it). A tick without a state (the driver went silent) extrapolates the last stamp by the
+/// wall time since it arrived, so the joint-state timeout still fires. Never goes backwards.
+#[derive(Default)]
+struct RobotTime {
+    /// (stamp of the last state, monotonic time it arrived), ns.
+    last: Option<(u64, u64)>,
+    /// The last tick's time, ns.
+    time_ns: u64,
+}
+
+impl RobotTime {
+    fn advance(&mut self, state: Option<&ipc::JointState>, wall_ns: u64) -> u64 {
+        let t = match (state, self.last) {
+            (Some(js), _) => {
+                self.last = Some((js.stamp_ns, wall_ns));
+                js.stamp_ns
+            }
+            (None, Some((stamp, at))) => stamp + wall_ns.saturating_sub(at),
+            (None, None) => wall_ns,
+        };
+        self.time_ns = t.max(self.time_ns);
+        self.time_ns
     }
 }
 

@@ -92,6 +92,11 @@ pub struct LogConfig {
     pub rotate_seconds: f64,
     /// `fdatasync` after each chunk (survives a power loss, costs writer time).
     pub fsync: bool,
+    /// With the robot clock, a tick whose record finds the queue full waits for a slot instead of
+    /// dropping the record: for a simulator that clocks the service faster than real time (the
+    /// demo), so the log stays complete. Leave it off on a real robot, where a late command is
+    /// worse than a lost record. The free-run clock always waits; the timer clock never does.
+    pub wait_when_full: bool,
 }
 
 impl Default for LogConfig {
@@ -107,6 +112,7 @@ impl Default for LogConfig {
             rotate_bytes: 0,
             rotate_seconds: 0.0,
             fsync: false,
+            wait_when_full: false,
         }
     }
 }

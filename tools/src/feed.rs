@@ -106,6 +106,57 @@ pub fn load_gcode(path: &Path, cfg: &Config, resume_from: Option<u64>) -> Result
     })
 }
 
+impl Job {
+    /// Keeps the segments up to the end of the program's first `n` layers (by the slicer's layer
+    /// comments; moves before the first layer stay) and flags the new last one LAST. A program
+    /// without layer comments, or with at most `n` layers, is kept whole.
+    pub fn first_layers(mut self, n: usize) -> Job {
+        if self.layers.iter().all(|l| l.is_none()) {
+            self.layers = layers_from_heights(&self.segments);
+        }
+        let mut seen: Vec<i32> = Vec::new();
+        let mut keep = self.segments.len();
+        for (k, layer) in self.layers.iter().enumerate() {
+            if let Some(l) = layer {
+                if !seen.contains(l) {
+                    if seen.len() == n {
+                        keep = k;
+                        break;
+                    }
+                    seen.push(*l);
+                }
+            }
+        }
+        if keep == 0 || keep == self.segments.len() {
+            return self;
+        }
+        self.segments.truncate(keep);
+        self.layers.truncate(keep);
+        self.lengths.truncate(keep);
+        let last = self.segments.last_mut().expect("kept at least one");
+        last.flags |= ipc::segment_flags::LAST;
+        self
+    }
+}
+
+/// Layers of a program without layer comments (Slic3r 1.3): a layer starts with the first
+/// extruding segment above every earlier one (by more than 1 µm); moves before any extrusion have
+/// none.
+fn layers_from_heights(segments: &[ipc::Segment]) -> Vec<Option<i32>> {
+    let mut top = f64::NEG_INFINITY;
+    let mut layer: Option<i32> = None;
+    segments
+        .iter()
+        .map(|s| {
+            if s.flags & ipc::segment_flags::EXTRUDE != 0 && s.end[2] > top + 1e-6 {
+                top = s.end[2];
+                layer = Some(layer.map_or(0, |l| l + 1));
+            }
+            layer
+        })
+        .collect()
+}
+
 /// How a streamed job ended.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Ending {
@@ -149,6 +200,24 @@ pub fn credit(status: &ipc::Status, first_seq: u64, last_seq: u64, started: bool
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn first_layers_cut_at_a_layer_change() {
+        let cfg = Config::load(Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../config/default.toml"))).unwrap();
+        let path = Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../tests/data/gcode/slic3r/box35.gcode"));
+        let whole = load_gcode(path, &cfg, None).unwrap();
+        let two = whole.clone().first_layers(2);
+        let whole = Job { layers: layers_from_heights(&whole.segments), ..whole };
+        assert!(two.segments.len() < whole.segments.len());
+        let layers: Vec<i32> = two.layers.iter().flatten().copied().collect();
+        let mut distinct = layers.clone();
+        distinct.dedup();
+        assert_eq!(distinct.len(), 2, "{distinct:?}");
+        assert_eq!(whole.layers[two.segments.len()].map(|l| distinct.contains(&l)), Some(false));
+        assert_eq!(two.segments.iter().filter(|s| s.flags & ipc::segment_flags::LAST != 0).count(), 1);
+        assert!(two.segments.last().unwrap().flags & ipc::segment_flags::LAST != 0);
+        assert_eq!(whole.clone().first_layers(10_000).segments.len(), whole.segments.len());
+    }
 
     #[test]
     fn credit_follows_the_status_contract() {

@@ -1,6 +1,8 @@
 //! Shared pieces of the strand command-line tools.
 
+pub mod demo;
 pub mod feed;
 pub mod replay;
 pub mod replay_plot;
 pub mod robot_arg;
+pub mod sim;

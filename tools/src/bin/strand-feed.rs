@@ -36,6 +36,9 @@ struct Cli {
     /// Seconds to wait for the service's Status.
     #[arg(long, default_value_t = 10.0)]
     wait_service: f64,
+    /// Stream only the program's first N layers (by its layer comments).
+    #[arg(long)]
+    layers: Option<usize>,
     /// No progress bar (one line per 10 % instead).
     #[arg(long)]
     quiet: bool,
@@ -57,7 +60,10 @@ fn main() -> ExitCode {
         }
     };
     let job = match load_gcode(&cli.file, &cfg, cli.resume_from) {
-        Ok(j) => j,
+        Ok(j) => match cli.layers {
+            Some(n) => j.first_layers(n),
+            None => j,
+        },
         Err(e) => {
             eprintln!("strand-feed: {e}");
             return ExitCode::from(2);

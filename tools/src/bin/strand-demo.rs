@@ -1,0 +1,296 @@
+//! strand-demo: the whole cell in one command. It starts the service on the robot clock, strand-sim
+//! as the robot (and, for a tracked base, the free flyer, its tracker and the extruder), and
+//! strand-feed with a bundled job; waits for the job to end; then joins the service's MCAP log with
+//! the sim's truth and prints a summary: job time, segments, TCP error (mean, p99, max), flow
+//! error, tick cost, round trip, overruns, faults, the log's path — and whether
+//! `strand-replay verify` reproduces the log to the bit. Exit 0 only if the job finished and the
+//! replay is identical.
+
+use std::fs::File;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, ExitCode, Stdio};
+use std::time::{Duration, Instant};
+
+use clap::Parser;
+use strand::config::Config;
+use strand::core::base::BaseMode;
+use strand_tools::demo::{Report, Spread, read_truth, report};
+
+#[derive(Parser)]
+#[command(name = "strand-demo", version, about = "Service + simulated robot + feeder on a bundled job, with a summary and a replay check")]
+struct Cli {
+    /// Service configuration (default: config/default.toml, or config/<robot>.toml with --robot).
+    #[arg(long)]
+    config: Option<PathBuf>,
+    /// A robot by name: iiwa7, iiwa14, vp6242, meca500, irb140 (uses config/<robot>.toml).
+    #[arg(long, conflicts_with = "config")]
+    robot: Option<String>,
+    /// The job (default: the first layers of the 35 mm box; the 200 mm 1D truss for a tracked base).
+    #[arg(long)]
+    gcode: Option<PathBuf>,
+    /// Stream only the first N layers (default: 3 of the box; all of any other job).
+    #[arg(long)]
+    layers: Option<usize>,
+    /// Plant configuration for strand-sim (default: config/sim/default.toml, or
+    /// config/sim/free-flyer.toml for a tracked base).
+    #[arg(long)]
+    sim: Option<PathBuf>,
+    /// Seed of the plant's noise.
+    #[arg(long)]
+    seed: Option<u64>,
+    /// Override a service config key (repeatable), e.g. `--set base.estimator=moving-average`.
+    #[arg(long = "set", value_name = "SECTION.KEY=VALUE")]
+    set: Vec<String>,
+    /// Folder for this run's files (log, truth, process output); default logs/demo-<UTC time>.
+    #[arg(long)]
+    out: Option<PathBuf>,
+    /// Print the summary as one JSON object instead of a table.
+    #[arg(long)]
+    json: bool,
+    /// Give up after this many seconds (wall).
+    #[arg(long, default_value_t = 600.0)]
+    timeout: f64,
+}
+
+/// The repository root: the working directory if it holds config/, else where this was built.
+fn root() -> PathBuf {
+    if Path::new("config/default.toml").is_file() {
+        PathBuf::from(".")
+    } else {
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("..")
+    }
+}
+
+fn sibling(name: &str) -> Result<PathBuf, String> {
+    let exe = std::env::current_exe().map_err(|e| e.to_string())?;
+    let p = exe.with_file_name(name);
+    if p.is_file() {
+        Ok(p)
+    } else {
+        Err(format!("{} not found next to strand-demo: build everything first (cargo build --release --workspace)", p.display()))
+    }
+}
+
+struct Proc {
+    name: &'static str,
+    child: Child,
+}
+
+impl Proc {
+    fn spawn(name: &'static str, mut cmd: Command, out: &Path) -> Result<Proc, String> {
+        let log = File::create(out.join(format!("{name}.log"))).map_err(|e| e.to_string())?;
+        let child = cmd
+            .stdin(Stdio::null())
+            .stdout(log.try_clone().map_err(|e| e.to_string())?)
+            .stderr(log)
+            .spawn()
+            .map_err(|e| format!("cannot start {name}: {e}"))?;
+        Ok(Proc { name, child })
+    }
+
+    fn wait_until(&mut self, deadline: Instant) -> Option<i32> {
+        loop {
+            if let Ok(Some(s)) = self.child.try_wait() {
+                return Some(s.code().unwrap_or(-1));
+            }
+            if Instant::now() >= deadline {
+                return None;
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        }
+    }
+
+    /// SIGTERM, then SIGKILL after `grace`.
+    fn stop(&mut self, grace: Duration) -> i32 {
+        // SAFETY: kill(2) on our own child's pid.
+        unsafe {
+            libc::kill(self.child.id() as libc::pid_t, libc::SIGTERM);
+        }
+        match self.wait_until(Instant::now() + grace) {
+            Some(c) => c,
+            None => {
+                let _ = self.child.kill();
+                let _ = self.child.wait();
+                -9
+            }
+        }
+    }
+}
+
+impl Drop for Proc {
+    fn drop(&mut self) {
+        if let Ok(None) = self.child.try_wait() {
+            let _ = self.child.kill();
+            let _ = self.child.wait();
+        }
+    }
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    match run(&cli) {
+        Ok(ok) => {
+            if ok {
+                ExitCode::SUCCESS
+            } else {
+                ExitCode::from(1)
+            }
+        }
+        Err(e) => {
+            eprintln!("strand-demo: {e}");
+            ExitCode::from(2)
+        }
+    }
+}
+
+fn run(cli: &Cli) -> Result<bool, String> {
+    let root = root();
+    let config = match (&cli.config, &cli.robot) {
+        (Some(c), _) => c.clone(),
+        (None, Some(r)) => root.join("config").join(format!("{r}.toml")),
+        (None, None) => root.join("config/default.toml"),
+    };
+    let cfg = Config::load_with(&config, &cli.set).map_err(|e| e.to_string())?;
+    let tracked = cfg.base.mode == BaseMode::Tracked;
+    let (gcode, layers) = match &cli.gcode {
+        Some(g) => (g.clone(), cli.layers),
+        None if tracked => (root.join("tests/data/gcode/truss/truss_200mm.gcode"), cli.layers),
+        None => (root.join("tests/data/gcode/slic3r/box35.gcode"), Some(cli.layers.unwrap_or(3))),
+    };
+    let sim_cfg = cli.sim.clone().unwrap_or_else(|| root.join("config/sim").join(if tracked { "free-flyer.toml" } else { "default.toml" }));
+    let out = match &cli.out {
+        Some(o) => o.clone(),
+        None => root.join("logs").join(format!("demo-{}", strand::log::utc_stamp(strand::log::unix_now_ns()))),
+    };
+    std::fs::create_dir_all(&out).map_err(|e| format!("{}: {e}", out.display()))?;
+    let (strand_bin, sim_bin, feed_bin) = (sibling("strand")?, sibling("strand-sim")?, sibling("strand-feed")?);
+    let prefix = format!("strand/demo-{}", std::process::id());
+    let log = out.join("run.mcap");
+    let truth = out.join("truth.csv");
+    let stats = out.join("sim-stats.json");
+    let job_name = gcode.file_name().map_or("?".into(), |n| n.to_string_lossy().to_string());
+    if !cli.json {
+        println!(
+            "strand-demo: {} on the robot clock, strand-sim in lockstep ({}), job {job_name}{}; files in {}",
+            config.display(),
+            sim_cfg.display(),
+            layers.map_or(String::new(), |n| format!(" (first {n} layers)")),
+            out.display()
+        );
+    }
+    let started = Instant::now();
+    let deadline = started + Duration::from_secs_f64(cli.timeout);
+
+    let mut svc = Command::new(&strand_bin);
+    svc.args(["run", "--clock", "robot", "--exit-when-done", "--set", "log.wait_when_full=true", "--prefix", &prefix])
+        .arg("--config")
+        .arg(&config)
+        .arg("--log")
+        .arg(&log)
+        .env("RUST_LOG", "warn");
+    for s in &cli.set {
+        svc.args(["--set", s]);
+    }
+    let mut service = Proc::spawn("service", svc, &out)?;
+    let mut sim = Command::new(&sim_bin);
+    sim.arg("--config").arg(&config).arg("--sim").arg(&sim_cfg).args(["--prefix", &prefix]).arg("--truth").arg(&truth).arg("--stats").arg(&stats);
+    if let Some(s) = cli.seed {
+        sim.args(["--seed", &s.to_string()]);
+    }
+    let mut sim = Proc::spawn("sim", sim, &out)?;
+    let mut feed = Command::new(&feed_bin);
+    feed.arg(&gcode).arg("--config").arg(&config).args(["--prefix", &prefix, "--quiet", "--wait-service", "20"]);
+    if let Some(n) = layers {
+        feed.args(["--layers", &n.to_string()]);
+    }
+    let mut feeder = Proc::spawn("feed", feed, &out)?;
+
+    let feed_code = feeder.wait_until(deadline);
+    if feed_code.is_none() {
+        eprintln!("strand-demo: the job did not end within {} s; stopping", cli.timeout);
+        feeder.stop(Duration::from_secs(5));
+    }
+    // The service exits by itself once the job has ended; give it time to close the log.
+    let service_code = match service.wait_until(Instant::now() + Duration::from_secs(30)) {
+        Some(c) => c,
+        None => service.stop(Duration::from_secs(10)),
+    };
+    let sim_code = sim.stop(Duration::from_secs(10));
+    let wall = started.elapsed().as_secs_f64();
+    for (p, code) in [(&feeder, feed_code), (&service, Some(service_code)), (&sim, Some(sim_code))] {
+        if code.is_some_and(|c| c != 0 && !(p.name == "sim" && c == 0)) && !(p.name == "feed" && code == Some(0)) {
+            eprintln!("strand-demo: {} exited with {:?}; see {}", p.name, code, out.join(format!("{}.log", p.name)).display());
+        }
+    }
+    let truth_rows = read_truth(&truth)?;
+    let mut rep = report(&log, &truth_rows, tracked)?;
+    let round_trip = std::fs::read_to_string(&stats).ok().and_then(|t| serde_json::from_str::<serde_json::Value>(&t).ok());
+    let log_bytes = std::fs::metadata(&log).map(|m| m.len()).unwrap_or(0);
+    let ok = rep.job_outcome == "Finished" && rep.identical;
+    let mut json = serde_json::to_value(&rep).map_err(|e| e.to_string())?;
+    json["wall_s"] = wall.into();
+    json["log"] = log.display().to_string().into();
+    json["log_bytes"] = log_bytes.into();
+    json["truth"] = truth.display().to_string().into();
+    json["job"] = gcode.display().to_string().into();
+    json["sim"] = round_trip.clone().unwrap_or(serde_json::Value::Null);
+    json["ok"] = ok.into();
+    std::fs::write(out.join("summary.json"), format!("{json:#}\n")).map_err(|e| e.to_string())?;
+    if cli.json {
+        println!("{json}");
+    } else {
+        rep.verify = rep.verify.clone();
+        print_table(&rep, wall, &log, log_bytes, round_trip.as_ref());
+    }
+    Ok(ok)
+}
+
+fn mm(s: &Spread) -> String {
+    format!("mean {:.3} mm, p99 {:.3} mm, max {:.3} mm", s.mean * 1e3, s.p99 * 1e3, s.max * 1e3)
+}
+
+fn us(s: &Spread) -> String {
+    format!("p50 {:.1} µs, p99 {:.1} µs, max {:.1} µs", s.p50 * 1e6, s.p99 * 1e6, s.max * 1e6)
+}
+
+fn print_table(r: &Report, wall: f64, log: &Path, log_bytes: u64, sim: Option<&serde_json::Value>) {
+    let mut rows: Vec<(String, String)> = vec![
+        ("robot".into(), format!("{} at {} Hz", r.robot, r.rate_hz)),
+        ("job".into(), format!("{}, {:.1} s of robot time in {wall:.1} s wall ({:.1}× real time)", r.job_outcome, r.job_time_s, r.job_time_s / wall.max(1e-9))),
+        ("segments".into(), format!("{} accepted, {} rejected, {} underruns", r.segments_accepted, r.segments_rejected, r.underruns)),
+        ("TCP error (sim truth)".into(), format!("{} over {} ticks", mm(&r.tcp_error_m), r.tcp_error_m.samples)),
+        ("TCP error (controller's view)".into(), mm(&r.tcp_error_estimated_m)),
+    ];
+    if let Some(b) = &r.base_error_m {
+        rows.push(("base vs its plan".into(), mm(b)));
+    }
+    rows.push((
+        "flow error".into(),
+        format!(
+            "mean {:.1} %, p99 {:.1} % of the mean flow {:.2} mm³/s; deposited {:.1} % of commanded",
+            100.0 * r.flow_error_m3s.mean / r.flow_mean_m3s.max(1e-30),
+            100.0 * r.flow_error_m3s.p99 / r.flow_mean_m3s.max(1e-30),
+            r.flow_mean_m3s * 1e9,
+            100.0 * r.volume_ratio
+        ),
+    ));
+    rows.push(("controller step".into(), us(&r.step_s)));
+    rows.push(("tick (wake → publish)".into(), us(&r.tick_s)));
+    if let Some(rt) = sim.and_then(|s| s.get("round_trip")) {
+        let f = |k: &str| rt.get(k).and_then(|v| v.as_f64()).unwrap_or(0.0) * 1e-3;
+        rows.push(("state → command (sim)".into(), format!("p50 {:.1} µs, p99 {:.1} µs, max {:.1} µs", f("p50_ns"), f("p99_ns"), f("max_ns"))));
+    }
+    rows.push(("lateness".into(), format!("{} (robot clock: the tick waits for the robot)", us(&r.lateness_s))));
+    rows.push(("overruns / late / clamps".into(), format!("{} / {} / {}", r.overruns, r.late_wakeups, r.clamps)));
+    rows.push((
+        "faults".into(),
+        if r.faults.is_empty() { "none".into() } else { r.faults.iter().map(|(t, c)| format!("{c} at tick {t}")).collect::<Vec<_>>().join(", ") },
+    ));
+    rows.push(("log".into(), format!("{} ({} ticks, {:.1} MB, {} dropped)", log.display(), r.ticks, log_bytes as f64 / 1e6, r.log_drops)));
+    rows.push(("strand-replay verify".into(), r.verify.clone()));
+    let w = rows.iter().map(|(k, _)| k.chars().count()).max().unwrap_or(0);
+    println!();
+    for (k, v) in rows {
+        println!("  {k:<w$}  {v}");
+    }
+}

@@ -1,0 +1,304 @@
+//! strand-sim's plant, with no I/O: the robot arm's joints, the extruder, the base (fixed, or 000's
+//! free flyer) and the tracker, advanced one robot cycle at a time by [`Sim::step`]. The binary
+//! (`strand-sim`) wires it to the service over iceoryx2; tests drive it directly.
+//!
+//! The sim also knows the truth the controller cannot see: where the nozzle really is (the actual
+//! joints through the actual base) and how much melt really leaves it. [`Truth`] rows carry that,
+//! stamped with the sim's time, so the demo can compare them with the targets in the service's log.
+
+pub mod config;
+pub mod flyer;
+pub mod plant;
+pub mod tracker;
+
+use nalgebra::{UnitQuaternion, Vector3};
+use rand::rngs::StdRng;
+use rand::{RngExt, SeedableRng};
+use strand::config::Config;
+use strand::core::base::BaseMode;
+use strand::core::kin::{JointVector, RobotModel};
+use strand_ipc as ipc;
+
+use config::SimConfig;
+use flyer::{BaseTrajectory, Flyer};
+use plant::{ExtruderPlant, JointPlant};
+use tracker::{Sample, Tracker};
+
+/// Seeded noise: standard normal and uniform draws.
+pub struct Gaussian {
+    rng: StdRng,
+    spare: Option<f64>,
+}
+
+impl Gaussian {
+    /// A source seeded with `seed` (the same seed, the same draws).
+    pub fn new(seed: u64) -> Self {
+        Gaussian { rng: StdRng::seed_from_u64(seed), spare: None }
+    }
+
+    /// A draw from N(0, 1) (Box-Muller).
+    pub fn sample(&mut self) -> f64 {
+        if let Some(s) = self.spare.take() {
+            return s;
+        }
+        let u1: f64 = 1.0 - self.rng.random::<f64>();
+        let u2: f64 = self.rng.random::<f64>();
+        let r = (-2.0 * u1.ln()).sqrt();
+        let (s, c) = (2.0 * std::f64::consts::PI * u2).sin_cos();
+        self.spare = Some(r * s);
+        r * c
+    }
+
+    /// A draw from U[0, 1).
+    pub fn uniform(&mut self) -> f64 {
+        self.rng.random::<f64>()
+    }
+}
+
+/// What really happened in one cycle, at the sim's time.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Truth {
+    /// Sim time (ns), the stamp of the JointState measured at the end of this cycle.
+    pub time_ns: u64,
+    /// The nozzle tip (m, W): actual joints through the actual base.
+    pub tcp: [f64; 3],
+    /// The robot base (m, W).
+    pub base: [f64; 3],
+    /// The base's heading (rad).
+    pub base_theta: f64,
+    /// Where the base should be (m, W; the flyer's plan, else the mount).
+    pub base_planned: [f64; 3],
+    /// Melt flow the controller asked for (m³/s).
+    pub flow_commanded: f64,
+    /// Melt flow leaving the nozzle (m³/s).
+    pub flow_actual: f64,
+    /// Largest thruster command over its limit (1 = at the limit; 0 without a flyer).
+    pub thrust_saturation: f64,
+}
+
+impl Truth {
+    /// The CSV header of [`Truth::csv_row`].
+    pub const CSV_HEADER: &'static str =
+        "time_ns,tcp_x,tcp_y,tcp_z,base_x,base_y,base_z,base_theta,base_plan_x,base_plan_y,flow_cmd_m3s,flow_actual_m3s,thrust_saturation";
+
+    /// One CSV row (SI units; f64 printed exactly so the reader gets the same bits).
+    pub fn csv_row(&self) -> String {
+        let t = self;
+        format!(
+            "{},{:?},{:?},{:?},{:?},{:?},{:?},{:?},{:?},{:?},{:?},{:?},{:?}",
+            t.time_ns,
+            t.tcp[0],
+            t.tcp[1],
+            t.tcp[2],
+            t.base[0],
+            t.base[1],
+            t.base[2],
+            t.base_theta,
+            t.base_planned[0],
+            t.base_planned[1],
+            t.flow_commanded,
+            t.flow_actual,
+            t.thrust_saturation
+        )
+    }
+}
+
+/// The plant. See the module documentation.
+pub struct Sim {
+    model: RobotModel,
+    /// Mount pose of a fixed base (and the flyer's z, roll and pitch).
+    mount_position: Vector3<f64>,
+    mount_orientation: UnitQuaternion<f64>,
+    mount_yaw: f64,
+    joints: JointPlant,
+    extruder: ExtruderPlant,
+    tracker: Option<Tracker>,
+    flyer: Option<Flyer>,
+    noise: Gaussian,
+    dt_ns: u64,
+    start_ns: u64,
+    time_ns: u64,
+    /// Commanded filament speed (m/s) and melt flow (m³/s), latest.
+    extruder_command: (f64, f64),
+    /// The nozzle's last two positions (m, W) for its acceleration.
+    tcp_history: [Vector3<f64>; 2],
+    truth: Truth,
+}
+
+impl Sim {
+    /// A plant for the service config `cfg` (robot, rate, base mode and mount), at rest at `start`
+    /// joint positions, its clock starting at `start_ns`.
+    pub fn new(cfg: &Config, sim: &SimConfig, start: &[f64], start_ns: u64) -> Result<Self, String> {
+        let model = cfg.robot.build_model().map_err(|e| e.to_string())?;
+        let n = model.dof();
+        if start.len() != n {
+            return Err(format!("start posture has {} values; the robot has {n} joints", start.len()));
+        }
+        let dt = 1.0 / cfg.controller.rate_hz;
+        let dt_ns = (1e9 / cfg.controller.rate_hz).round() as u64;
+        let mount = cfg.base.mount();
+        let mount_position = mount.translation.vector;
+        let mount_orientation = UnitQuaternion::from_rotation_matrix(&mount.rotation);
+        let mount_yaw = cfg.base.mount_rpy[2];
+        let tracked = cfg.base.mode == BaseMode::Tracked;
+        let flyer = match (&sim.flyer, tracked) {
+            (Some(f), true) => {
+                let start_pose = [mount_position.x, mount_position.y, mount_yaw];
+                let trajectory = if f.trajectory.as_os_str().is_empty() {
+                    BaseTrajectory::stationary(start_pose)
+                } else {
+                    BaseTrajectory::load(&f.trajectory, mount_yaw)?
+                };
+                Some(Flyer::new(f, trajectory, mount_position.z))
+            }
+            _ => None,
+        };
+        let mut sim = Sim {
+            joints: JointPlant::new(&model, &sim.joints, dt, start),
+            extruder: ExtruderPlant::new(&sim.extruder, cfg.extruder.filament_diameter, dt),
+            tracker: tracked.then(|| Tracker::new(&sim.tracker, start_ns)),
+            flyer,
+            model,
+            mount_position,
+            mount_orientation,
+            mount_yaw,
+            noise: Gaussian::new(sim.seed),
+            dt_ns,
+            start_ns,
+            time_ns: start_ns,
+            extruder_command: (0.0, 0.0),
+            tcp_history: [Vector3::zeros(); 2],
+            truth: Truth::default(),
+        };
+        let tcp = sim.actual_tcp();
+        sim.tcp_history = [tcp, tcp];
+        sim.truth = sim.observe();
+        Ok(sim)
+    }
+
+    /// The robot model.
+    pub fn model(&self) -> &RobotModel {
+        &self.model
+    }
+
+    /// Sim time (ns).
+    pub fn time_ns(&self) -> u64 {
+        self.time_ns
+    }
+
+    /// The robot cycle (ns).
+    pub fn dt_ns(&self) -> u64 {
+        self.dt_ns
+    }
+
+    /// The latest truth.
+    pub fn truth(&self) -> &Truth {
+        &self.truth
+    }
+
+    /// The tracker's counters (measured, dropped), if the base is tracked.
+    pub fn tracker_counts(&self) -> Option<(u64, u64)> {
+        self.tracker.as_ref().map(|t| (t.measured, t.dropped))
+    }
+
+    /// The actual robot-base pose: position (m, W) and orientation.
+    pub fn base_pose(&self) -> (Vector3<f64>, UnitQuaternion<f64>) {
+        match &self.flyer {
+            Some(f) => {
+                let (p, theta) = f.base_pose();
+                let yaw = UnitQuaternion::from_axis_angle(&Vector3::z_axis(), theta - self.mount_yaw);
+                (Vector3::from(p), yaw * self.mount_orientation)
+            }
+            None => (self.mount_position, self.mount_orientation),
+        }
+    }
+
+    fn actual_tcp(&self) -> Vector3<f64> {
+        let q = JointVector::from_fn(|i, _| if i < self.joints.dof() { self.joints.position[i] } else { 0.0 });
+        let f = self.model.forward_kinematics(&q);
+        let (p, r) = self.base_pose();
+        p + r * f.translation.vector
+    }
+
+    fn heading(&self) -> f64 {
+        self.flyer.as_ref().map_or(self.mount_yaw, |f| f.theta)
+    }
+
+    fn observe(&self) -> Truth {
+        let (p, _) = self.base_pose();
+        let tcp = self.tcp_history[1];
+        let t = (self.time_ns - self.start_ns) as f64 * 1e-9;
+        let planned = self.flyer.as_ref().map_or([p.x, p.y, self.mount_yaw], |f| f.planned(t));
+        Truth {
+            time_ns: self.time_ns,
+            tcp: [tcp.x, tcp.y, tcp.z],
+            base: [p.x, p.y, p.z],
+            base_theta: self.heading(),
+            base_planned: [planned[0], planned[1], p.z],
+            flow_commanded: self.extruder_command.1,
+            flow_actual: self.extruder.nozzle_flow,
+            thrust_saturation: self.flyer.as_ref().map_or(0.0, |f| f.saturation),
+        }
+    }
+
+    /// The JointState the encoders report now (stamped with the sim's time).
+    pub fn joint_state(&mut self, seq: u64) -> ipc::JointState {
+        let mut js = ipc::JointState { seq, stamp_ns: self.time_ns, dof: self.joints.dof() as u32, ..Default::default() };
+        js.position = self.joints.measured(&mut self.noise);
+        js.velocity = self.joints.velocity;
+        js
+    }
+
+    /// Tracking samples that arrive by now, as BasePose messages (stamped with their measurement
+    /// time), appended to `out`.
+    pub fn base_poses(&mut self, seq: &mut u64, out: &mut Vec<ipc::BasePose>) {
+        let truth_pose = {
+            let (p, _) = self.base_pose();
+            ([p.x, p.y, p.z], self.heading())
+        };
+        let Some(tracker) = self.tracker.as_mut() else { return };
+        let mut samples: Vec<Sample> = Vec::new();
+        tracker.poll(self.time_ns, truth_pose, &mut self.noise, &mut samples);
+        for s in samples {
+            *seq += 1;
+            let yaw = UnitQuaternion::from_axis_angle(&Vector3::z_axis(), s.theta - self.mount_yaw);
+            let q = yaw * self.mount_orientation;
+            out.push(ipc::BasePose { seq: *seq, stamp_ns: s.stamp_ns, position: s.position, orientation: [q.w, q.i, q.j, q.k] });
+        }
+    }
+
+    /// A joint command arrived (invalid ones are ignored, as a robot would).
+    pub fn command_joints(&mut self, cmd: &ipc::JointCommand) {
+        if cmd.valid == 1 && cmd.position[..self.joints.dof()].iter().all(|v| v.is_finite()) {
+            self.joints.command(&cmd.position);
+        }
+    }
+
+    /// An extruder command arrived.
+    pub fn command_extruder(&mut self, cmd: &ipc::ExtruderCommand) {
+        if cmd.filament_rate.is_finite() && cmd.volumetric_rate.is_finite() {
+            self.extruder_command = (cmd.filament_rate, cmd.volumetric_rate);
+        }
+    }
+
+    /// Advances one robot cycle and returns the truth at its end.
+    pub fn step(&mut self) -> Truth {
+        let dt = self.dt_ns as f64 * 1e-9;
+        self.joints.step(dt);
+        self.extruder.step(self.extruder_command.0, dt);
+        let tcp = self.actual_tcp();
+        let accel = (tcp - 2.0 * self.tcp_history[1] + self.tcp_history[0]) / (dt * dt);
+        self.tcp_history = [self.tcp_history[1], tcp];
+        let t = (self.time_ns - self.start_ns) as f64 * 1e-9;
+        let measured = self.tracker.as_ref().and_then(|tr| tr.latest).map(|s| [s.position[0], s.position[1], s.theta]);
+        if let Some(f) = self.flyer.as_mut() {
+            f.step(t, dt, measured, &tcp, &accel, &mut self.noise);
+        }
+        self.time_ns += self.dt_ns;
+        // The flyer moved the base: the nozzle moved with it.
+        let tcp = self.actual_tcp();
+        self.tcp_history[1] = tcp;
+        self.truth = self.observe();
+        self.truth
+    }
+}
