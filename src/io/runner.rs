@@ -349,6 +349,7 @@ impl Runner {
 /// robot's, or a simulator's, time: a simulation may run faster than real time and the controller
 /// follows it). A tick without a state (the driver went silent) extrapolates the last stamp by the
 /// wall time since it arrived, so the joint-state timeout still fires. Never goes backwards.
+/// Before the first state the time is 0.
 #[derive(Default)]
 struct RobotTime {
     /// (stamp of the last state, monotonic time it arrived), ns.
@@ -365,7 +366,9 @@ impl RobotTime {
                 js.stamp_ns
             }
             (None, Some((stamp, at))) => stamp + wall_ns.saturating_sub(at),
-            (None, None) => wall_ns,
+            // Before the robot's first state there is no robot time: stay at 0 rather than mix in
+            // the wall clock (a simulator's clock may be far behind or ahead of it).
+            (None, None) => 0,
         };
         self.time_ns = t.max(self.time_ns);
         self.time_ns

@@ -6,3 +6,4 @@ pub mod replay;
 pub mod replay_plot;
 pub mod robot_arg;
 pub mod sim;
+pub mod truss;

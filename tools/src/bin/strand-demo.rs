@@ -14,6 +14,8 @@ use std::time::{Duration, Instant};
 use clap::Parser;
 use strand::config::Config;
 use strand::core::base::BaseMode;
+use strand::io::ports::{ClientPorts, ClientRoles};
+use strand_ipc::ServiceNames;
 use strand_tools::demo::{Report, Spread, read_truth, report};
 
 #[derive(Parser)]
@@ -198,6 +200,8 @@ fn run(cli: &Cli) -> Result<bool, String> {
         sim.args(["--seed", &s.to_string()]);
     }
     let mut sim = Proc::spawn("sim", sim, &out)?;
+    // Start the job once the sim clocks the service (and tracking has arrived): 200 ticks.
+    wait_for_ticks(&prefix, 200, deadline.min(Instant::now() + Duration::from_secs(60)))?;
     let mut feed = Command::new(&feed_bin);
     feed.arg(&gcode).arg("--config").arg(&config).args(["--prefix", &prefix, "--quiet", "--wait-service", "20"]);
     if let Some(n) = layers {
@@ -243,6 +247,21 @@ fn run(cli: &Cli) -> Result<bool, String> {
         print_table(&rep, wall, &log, log_bytes, round_trip.as_ref());
     }
     Ok(ok)
+}
+
+/// Waits until the service's Status reports `ticks` ticks.
+fn wait_for_ticks(prefix: &str, ticks: u64, deadline: Instant) -> Result<(), String> {
+    let ports = ClientPorts::open(&ServiceNames::new(prefix), "strand-demo", ClientRoles { monitor: true, ..Default::default() })
+        .map_err(|e| e.to_string())?;
+    loop {
+        if ports.latest_status().is_some_and(|s| s.tick >= ticks) {
+            return Ok(());
+        }
+        if Instant::now() >= deadline {
+            return Err(format!("the service under {prefix} was not clocked by the sim ({ticks} ticks) in time; see the service and sim logs"));
+        }
+        let _ = ports.wait_status(20_000_000);
+    }
 }
 
 fn mm(s: &Spread) -> String {

@@ -42,10 +42,64 @@ enum Command {
         #[arg(long)]
         json: bool,
     },
+    /// Write 000's free-form 1D truss (base layer, cross beams, top layer; one continuous
+    /// extrusion) as G-code.
+    Truss {
+        /// Length along x (m).
+        #[arg(long, default_value_t = 1.0)]
+        length: f64,
+        /// Distance between the chords (m).
+        #[arg(long, default_value_t = 0.04)]
+        width: f64,
+        /// Post spacing (m).
+        #[arg(long, default_value_t = 0.04)]
+        pitch: f64,
+        /// Layer height (m).
+        #[arg(long, default_value_t = 1.0e-3)]
+        layer_height: f64,
+        /// Strand (nozzle) diameter (m).
+        #[arg(long, default_value_t = 1.2e-3)]
+        strand: f64,
+        /// Filament diameter (m).
+        #[arg(long, default_value_t = 2.85e-3)]
+        filament: f64,
+        /// Print speed (m/s).
+        #[arg(long, default_value_t = 3.33e-3)]
+        speed: f64,
+        /// Write here instead of standard output.
+        #[arg(long, short)]
+        output: Option<PathBuf>,
+    },
 }
 
 fn main() -> ExitCode {
-    let Command::Time { file, mode, config, json } = Cli::parse().command;
+    let (file, mode, config, json) = match Cli::parse().command {
+        Command::Time { file, mode, config, json } => (file, mode, config, json),
+        Command::Truss { length, width, pitch, layer_height, strand, filament, speed, output } => {
+            let t = strand_tools::truss::Truss { length, width, pitch, layer_height, strand, filament, speed };
+            if let Err(e) = t.validate() {
+                eprintln!("strand-plan truss: {e}");
+                return ExitCode::from(2);
+            }
+            let text = t.gcode();
+            return match output {
+                Some(p) => match std::fs::write(&p, text) {
+                    Ok(()) => {
+                        eprintln!("strand-plan truss: {} ({} panels, {:.3} m of strand)", p.display(), t.panels(), t.path_length());
+                        ExitCode::SUCCESS
+                    }
+                    Err(e) => {
+                        eprintln!("strand-plan truss: {}: {e}", p.display());
+                        ExitCode::from(1)
+                    }
+                },
+                None => {
+                    print!("{text}");
+                    ExitCode::SUCCESS
+                }
+            };
+        }
+    };
     let config = match Config::load(&config) {
         Ok(c) => c,
         Err(e) => {

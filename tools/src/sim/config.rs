@@ -135,6 +135,11 @@ pub struct FlyerConfig {
     pub residual: [f64; 2],
     /// Places where the residual acceleration changes (000 saw the error peak at fixed spots).
     pub bumps: Vec<Bump>,
+    /// Standard deviation of the residual acceleration's slow drift in time (m/s²): the air
+    /// film and the table are not steady.
+    pub residual_variation: f64,
+    /// Correlation time of that drift (s).
+    pub residual_time: f64,
     /// Arm mass that reacts on the base when the nozzle accelerates (kg; 000: arm 4.5 kg,
     /// extruder 0.26 kg; about half the arm moves with the nozzle).
     pub arm_reaction_mass: f64,
@@ -161,6 +166,8 @@ impl Default for FlyerConfig {
             trajectory: PathBuf::new(),
             residual: [0.0, 0.0],
             bumps: Vec::new(),
+            residual_variation: 0.0,
+            residual_time: 20.0,
             arm_reaction_mass: 2.5,
             tension: 1.0,
             tension_variation: 0.3,
@@ -224,6 +231,8 @@ impl SimConfig {
             range("flyer.tension", f.tension, 0.0, 100.0)?;
             range("flyer.tension_variation", f.tension_variation, 0.0, 100.0)?;
             range("flyer.tension_time", f.tension_time, 0.001, 1e4)?;
+            range("flyer.residual_variation", f.residual_variation, 0.0, 1.0)?;
+            range("flyer.residual_time", f.residual_time, 0.001, 1e4)?;
             for (key, v) in [("flyer.pid_xy", f.pid_xy), ("flyer.pid_theta", f.pid_theta)] {
                 if v.iter().any(|g| !(g.is_finite() && *g >= 0.0)) {
                     return Err(format!("{key} = {v:?}: gains must be finite and ≥ 0"));

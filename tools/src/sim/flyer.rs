@@ -119,6 +119,7 @@ pub struct Flyer {
     thrust: Vector3<f64>,
     next_pid_s: f64,
     tension_dev: f64,
+    residual_dev: Vector2<f64>,
     /// Largest thruster command as a fraction of its limit, last update.
     pub saturation: f64,
 }
@@ -158,6 +159,7 @@ impl Flyer {
             thrust: Vector3::zeros(),
             next_pid_s: 0.0,
             tension_dev: 0.0,
+            residual_dev: Vector2::zeros(),
             saturation: 0.0,
         };
         flyer.com = Vector2::new(start[0], start[1]) - flyer.rotate(&Vector2::from(cfg.base_offset));
@@ -222,13 +224,16 @@ impl Flyer {
         let k = dt / cfg.tension_time;
         self.tension_dev += -k * self.tension_dev + cfg.tension_variation * (2.0 * k).sqrt() * noise.sample();
         let tension = (cfg.tension + self.tension_dev).max(0.0);
+        let k = dt / cfg.residual_time;
+        let kick = cfg.residual_variation * (2.0 * k).sqrt();
+        self.residual_dev += -k * self.residual_dev + Vector2::new(kick * noise.sample(), kick * noise.sample());
         // 000 Eq. 6: τ = ‖r_robot + d_base‖ · F_tension, about the centre of mass.
         let lever = Vector2::new(tcp.x, tcp.y) - self.com;
         let tension_torque = lever.norm() * tension;
         // The arm pushes back on the base as it accelerates the nozzle.
         let reaction = -cfg.arm_reaction_mass * Vector2::new(tcp_accel.x, tcp_accel.y);
         let reaction_torque = lever.x * reaction.y - lever.y * reaction.x;
-        let force = Vector2::new(self.thrust.x, self.thrust.y) + reaction + cfg.mass * self.residual_acceleration(&self.com);
+        let force = Vector2::new(self.thrust.x, self.thrust.y) + reaction + cfg.mass * (self.residual_acceleration(&self.com) + self.residual_dev);
         let torque = self.thrust.z + tension_torque + reaction_torque;
         // Semi-implicit Euler.
         self.velocity += force / cfg.mass * dt;

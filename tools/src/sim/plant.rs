@@ -14,8 +14,10 @@ pub struct JointPlant {
     dof: usize,
     lower: [f64; MAX_JOINTS],
     upper: [f64; MAX_JOINTS],
-    /// Commands waiting out the dead time (oldest first).
-    pending: VecDeque<[f64; MAX_JOINTS]>,
+    /// Commands waiting out the dead time: (cycle they arrived in, positions), oldest first.
+    pending: VecDeque<(u64, [f64; MAX_JOINTS])>,
+    /// Cycles stepped.
+    cycle: u64,
     latency: usize,
     /// Fraction of the remaining error removed per cycle: 1 − exp(−dt/lag).
     gain: f64,
@@ -47,6 +49,7 @@ impl JointPlant {
             lower,
             upper,
             pending: VecDeque::with_capacity(cfg.latency_ticks + 2),
+            cycle: 0,
             latency: cfg.latency_ticks,
             gain,
             noise: cfg.noise,
@@ -63,15 +66,17 @@ impl JointPlant {
 
     /// A command arrived this cycle.
     pub fn command(&mut self, position: &[f64; MAX_JOINTS]) {
-        self.pending.push_back(*position);
+        self.pending.push_back((self.cycle, *position));
     }
 
-    /// Advances one cycle of `dt` seconds: commands older than the dead time take effect, then each
-    /// joint moves its lag's fraction of the way, never past a limit.
+    /// Advances one cycle of `dt` seconds: commands that have waited out the dead time take effect,
+    /// then each joint moves its lag's fraction of the way, never past a limit.
     pub fn step(&mut self, dt: f64) {
-        while self.pending.len() > self.latency {
-            self.target = self.pending.pop_front().expect("non-empty");
+        // A command that arrived in cycle c acts from the step of cycle c + latency on.
+        while self.pending.front().is_some_and(|(c, _)| c + self.latency as u64 <= self.cycle) {
+            self.target = self.pending.pop_front().expect("non-empty").1;
         }
+        self.cycle += 1;
         for i in 0..self.dof {
             let before = self.position[i];
             let next = before + self.gain * (self.target[i] - before);
