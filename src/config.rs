@@ -263,7 +263,9 @@ impl Config {
             for o in overrides {
                 apply_override(&mut table, o).map_err(|m| ConfigError::new(path, format!("--set {o:?}: {m}")))?;
             }
-            toml::Value::Table(table).try_into().map_err(|e: toml::de::Error| ConfigError::new(path, format!("with --set: {}", e.to_string().trim_end())))?
+            toml::Value::Table(table)
+                .try_into()
+                .map_err(|e: toml::de::Error| ConfigError::new(path, format!("with --set: {}", e.to_string().trim_end())))?
         };
         raw.validate(path)?;
         let robot_path = path.parent().unwrap_or(Path::new(".")).join(&raw.robot);

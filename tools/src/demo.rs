@@ -116,7 +116,10 @@ pub fn read_truth(path: &Path) -> Result<Vec<Truth>, String> {
     for (i, rec) in rd.records().enumerate() {
         let rec = rec.map_err(|e| format!("{}: line {}: {e}", path.display(), i + 2))?;
         let f = |k: usize| -> Result<f64, String> {
-            rec.get(k).unwrap_or("").parse::<f64>().map_err(|_| format!("{}: line {}: column {} is not a number", path.display(), i + 2, k + 1))
+            rec.get(k)
+                .unwrap_or("")
+                .parse::<f64>()
+                .map_err(|_| format!("{}: line {}: column {} is not a number", path.display(), i + 2, k + 1))
         };
         rows.push(Truth {
             time_ns: rec.get(0).unwrap_or("").parse().map_err(|_| format!("{}: line {}: time_ns", path.display(), i + 2))?,
@@ -139,7 +142,8 @@ pub fn report(log: &Path, truth: &[Truth], flyer: bool) -> Result<Report, String
     let dt_ns = (1e9 / cfg.controller.rate_hz).round() as u64;
     let model = cfg.robot.build_model().map_err(|e| e.to_string())?;
     let by_time: HashMap<u64, &Truth> = truth.iter().map(|t| (t.time_ns, t)).collect();
-    let mut r = Report { robot: model.name().to_string(), rate_hz: cfg.controller.rate_hz, job_outcome: "none".into(), ..Default::default() };
+    let mut r =
+        Report { robot: model.name().to_string(), rate_hz: cfg.controller.rate_hz, job_outcome: "none".into(), ..Default::default() };
     let (mut errors, mut estimated) = (Vec::new(), Vec::new());
     let (mut step, mut tick_cost, mut lateness) = (Histogram::new(), Histogram::new(), Histogram::new());
     let mut was_on_path = false;
@@ -171,7 +175,9 @@ pub fn report(log: &Path, truth: &[Truth], flyer: bool) -> Result<Report, String
         if running {
             let target = o.diagnostics.tcp_target_world;
             match by_time.get(&(i.time_ns + dt_ns)) {
-                Some(t) => errors.push(((t.tcp[0] - target.x).powi(2) + (t.tcp[1] - target.y).powi(2) + (t.tcp[2] - target.z).powi(2)).sqrt()),
+                Some(t) => {
+                    errors.push(((t.tcp[0] - target.x).powi(2) + (t.tcp[1] - target.y).powi(2) + (t.tcp[2] - target.z).powi(2)).sqrt())
+                }
                 None => r.unmatched += 1,
             }
             if let Some(q) = measured {
@@ -212,7 +218,8 @@ pub fn report(log: &Path, truth: &[Truth], flyer: bool) -> Result<Report, String
     let dt = dt_ns as f64 * 1e-9;
     let extruding: Vec<&Truth> = truth.iter().filter(|t| t.flow_commanded > 0.0).collect();
     r.flow_error_m3s = Spread::of(extruding.iter().map(|t| (t.flow_actual - t.flow_commanded).abs()).collect());
-    r.flow_mean_m3s = if extruding.is_empty() { 0.0 } else { extruding.iter().map(|t| t.flow_commanded).sum::<f64>() / extruding.len() as f64 };
+    r.flow_mean_m3s =
+        if extruding.is_empty() { 0.0 } else { extruding.iter().map(|t| t.flow_commanded).sum::<f64>() / extruding.len() as f64 };
     let commanded: f64 = truth.iter().map(|t| t.flow_commanded.max(0.0) * dt).sum();
     let deposited: f64 = truth.iter().map(|t| t.flow_actual * dt).sum();
     r.volume_ratio = if commanded > 0.0 { deposited / commanded } else { 0.0 };

@@ -56,11 +56,7 @@ struct Cli {
 
 /// The repository root: the working directory if it holds config/, else where this was built.
 fn root() -> PathBuf {
-    if Path::new("config/default.toml").is_file() {
-        PathBuf::from(".")
-    } else {
-        Path::new(env!("CARGO_MANIFEST_DIR")).join("..")
-    }
+    if Path::new("config/default.toml").is_file() { PathBuf::from(".") } else { Path::new(env!("CARGO_MANIFEST_DIR")).join("..") }
 }
 
 fn sibling(name: &str) -> Result<PathBuf, String> {
@@ -195,7 +191,15 @@ fn run(cli: &Cli) -> Result<bool, String> {
     }
     let mut service = Proc::spawn("service", svc, &out)?;
     let mut sim = Command::new(&sim_bin);
-    sim.arg("--config").arg(&config).arg("--sim").arg(&sim_cfg).args(["--prefix", &prefix]).arg("--truth").arg(&truth).arg("--stats").arg(&stats);
+    sim.arg("--config")
+        .arg(&config)
+        .arg("--sim")
+        .arg(&sim_cfg)
+        .args(["--prefix", &prefix])
+        .arg("--truth")
+        .arg(&truth)
+        .arg("--stats")
+        .arg(&stats);
     if let Some(s) = cli.seed {
         sim.args(["--seed", &s.to_string()]);
     }
@@ -258,7 +262,9 @@ fn wait_for_ticks(prefix: &str, ticks: u64, deadline: Instant) -> Result<(), Str
             return Ok(());
         }
         if Instant::now() >= deadline {
-            return Err(format!("the service under {prefix} was not clocked by the sim ({ticks} ticks) in time; see the service and sim logs"));
+            return Err(format!(
+                "the service under {prefix} was not clocked by the sim ({ticks} ticks) in time; see the service and sim logs"
+            ));
         }
         let _ = ports.wait_status(20_000_000);
     }
@@ -275,7 +281,15 @@ fn us(s: &Spread) -> String {
 fn print_table(r: &Report, wall: f64, log: &Path, log_bytes: u64, sim: Option<&serde_json::Value>) {
     let mut rows: Vec<(String, String)> = vec![
         ("robot".into(), format!("{} at {} Hz", r.robot, r.rate_hz)),
-        ("job".into(), format!("{}, {:.1} s of robot time in {wall:.1} s wall ({:.1}× real time)", r.job_outcome, r.job_time_s, r.job_time_s / wall.max(1e-9))),
+        (
+            "job".into(),
+            format!(
+                "{}, {:.1} s of robot time in {wall:.1} s wall ({:.1}× real time)",
+                r.job_outcome,
+                r.job_time_s,
+                r.job_time_s / wall.max(1e-9)
+            ),
+        ),
         ("segments".into(), format!("{} accepted, {} rejected, {} underruns", r.segments_accepted, r.segments_rejected, r.underruns)),
         ("TCP error (sim truth)".into(), format!("{} over {} ticks", mm(&r.tcp_error_m), r.tcp_error_m.samples)),
         ("TCP error (controller's view)".into(), mm(&r.tcp_error_estimated_m)),
@@ -297,13 +311,20 @@ fn print_table(r: &Report, wall: f64, log: &Path, log_bytes: u64, sim: Option<&s
     rows.push(("tick (wake → publish)".into(), us(&r.tick_s)));
     if let Some(rt) = sim.and_then(|s| s.get("round_trip")) {
         let f = |k: &str| rt.get(k).and_then(|v| v.as_f64()).unwrap_or(0.0) * 1e-3;
-        rows.push(("state → command (sim)".into(), format!("p50 {:.1} µs, p99 {:.1} µs, max {:.1} µs", f("p50_ns"), f("p99_ns"), f("max_ns"))));
+        rows.push((
+            "state → command (sim)".into(),
+            format!("p50 {:.1} µs, p99 {:.1} µs, max {:.1} µs", f("p50_ns"), f("p99_ns"), f("max_ns")),
+        ));
     }
     rows.push(("lateness".into(), format!("{} (robot clock: the tick waits for the robot)", us(&r.lateness_s))));
     rows.push(("overruns / late / clamps".into(), format!("{} / {} / {}", r.overruns, r.late_wakeups, r.clamps)));
     rows.push((
         "faults".into(),
-        if r.faults.is_empty() { "none".into() } else { r.faults.iter().map(|(t, c)| format!("{c} at tick {t}")).collect::<Vec<_>>().join(", ") },
+        if r.faults.is_empty() {
+            "none".into()
+        } else {
+            r.faults.iter().map(|(t, c)| format!("{c} at tick {t}")).collect::<Vec<_>>().join(", ")
+        },
     ));
     rows.push(("log".into(), format!("{} ({} ticks, {:.1} MB, {} dropped)", log.display(), r.ticks, log_bytes as f64 / 1e6, r.log_drops)));
     rows.push(("strand-replay verify".into(), r.verify.clone()));

@@ -105,9 +105,8 @@ pub fn default_sim_config(cfg: &Config) -> PathBuf {
 
 fn run(cli: &Cli, cfg: &Config, sim_cfg: &SimConfig) -> Result<(), String> {
     let model = cfg.robot.build_model().map_err(|e| e.to_string())?;
-    let start: Vec<f64> = (0..model.dof())
-        .map(|i| cfg.service.initial_joints.get(i).copied().unwrap_or_else(|| model.limits(i).middle()))
-        .collect();
+    let start: Vec<f64> =
+        (0..model.dof()).map(|i| cfg.service.initial_joints.get(i).copied().unwrap_or_else(|| model.limits(i).middle())).collect();
     let start_ns = monotonic_ns();
     let mut sim = Sim::new(cfg, sim_cfg, &start, start_ns)?;
     let prefix = cli.prefix.clone().unwrap_or_else(|| cfg.service.prefix.clone());

@@ -43,10 +43,15 @@ impl BaseTrajectory {
                 let v: f64 = rec.get(c).unwrap_or("").trim().parse().map_err(|_| format!("{file}: line {line}: {name} is not a number"))?;
                 if v.is_finite() { Ok(v) } else { Err(format!("{file}: line {line}: {name} is not finite")) }
             };
-            let s = [num(ct, "t")?, num(cx, "base_x")?, num(cy, "base_y")?, match cth {
-                Some(c) => num(c, "base_theta")?,
-                None => theta,
-            }];
+            let s = [
+                num(ct, "t")?,
+                num(cx, "base_x")?,
+                num(cy, "base_y")?,
+                match cth {
+                    Some(c) => num(c, "base_theta")?,
+                    None => theta,
+                },
+            ];
             if samples.last().is_some_and(|p| s[0] <= p[0]) {
                 return Err(format!("{file}: line {line}: t = {} does not increase", s[0]));
             }
@@ -195,7 +200,15 @@ impl Flyer {
     /// Advances `dt` seconds to time `t`. `measured` is the latest tracked robot-base pose (x, y, θ)
     /// the PID loops see; `tcp` and `tcp_accel` are the nozzle's position (m, W) and acceleration
     /// (m/s², W), whose reaction and filament tension push the flyer.
-    pub fn step(&mut self, t: f64, dt: f64, measured: Option<[f64; 3]>, tcp: &Vector3<f64>, tcp_accel: &Vector3<f64>, noise: &mut Gaussian) {
+    pub fn step(
+        &mut self,
+        t: f64,
+        dt: f64,
+        measured: Option<[f64; 3]>,
+        tcp: &Vector3<f64>,
+        tcp_accel: &Vector3<f64>,
+        noise: &mut Gaussian,
+    ) {
         let cfg = &self.cfg;
         // The PID loops run every pid_period on the tracked pose, in W; the thrust is held between.
         if t >= self.next_pid_s {
@@ -233,7 +246,8 @@ impl Flyer {
         // The arm pushes back on the base as it accelerates the nozzle.
         let reaction = -cfg.arm_reaction_mass * Vector2::new(tcp_accel.x, tcp_accel.y);
         let reaction_torque = lever.x * reaction.y - lever.y * reaction.x;
-        let force = Vector2::new(self.thrust.x, self.thrust.y) + reaction + cfg.mass * (self.residual_acceleration(&self.com) + self.residual_dev);
+        let force =
+            Vector2::new(self.thrust.x, self.thrust.y) + reaction + cfg.mass * (self.residual_acceleration(&self.com) + self.residual_dev);
         let torque = self.thrust.z + tension_torque + reaction_torque;
         // Semi-implicit Euler.
         self.velocity += force / cfg.mass * dt;

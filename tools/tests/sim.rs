@@ -1,0 +1,174 @@
+//! The cell end to end, as separate processes over iceoryx2: the service on the robot clock,
+//! strand-sim as the robot (and the free flyer), strand-feed streaming G-code, and strand-demo
+//! running all three.
+//!
+//! - the demo runs a short job to the end; the sim's truth puts the nozzle within a stated bound of
+//!   the path; the MCAP log replays identically; nothing was dropped or rejected;
+//! - the feeder killed mid-job → a controlled stop on the path, no fault;
+//! - the sim killed mid-job → the service faults (JointStateLost).
+
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+use strand::io::ports::{ClientPorts, ClientRoles};
+use strand_ipc::{FaultCode, JobOutcome, RunState, ServiceNames, Status};
+
+/// The approach at full joint speed: seconds of robot time saved in every test (debug builds are slow).
+const FAST_APPROACH: &str = "controller.approach_speed_fraction=1.0";
+
+fn root() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("..")
+}
+
+fn bin(name: &str) -> PathBuf {
+    let p = Path::new(env!("CARGO_BIN_EXE_strand-demo")).with_file_name(name);
+    assert!(p.exists(), "{} missing: build the workspace (cargo test --workspace builds it)", p.display());
+    p
+}
+
+fn temp_dir(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("strand-sim-test-{}-{name}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+/// `layers` layers of `loops` 10 mm squares at 40 mm/s, 0.2 mm layers, near the iiwa7's start.
+fn square_program(dir: &Path, layers: usize, loops: usize) -> PathBuf {
+    let mut g = String::from("G21\nG90\nM83\nG1 F2400\n");
+    for l in 0..layers {
+        let z = 0.2 * (l + 1) as f64;
+        g += &format!(";LAYER_CHANGE\n;Z:{z:.1}\nG0 X0 Y-20 Z{z:.1} F6000\nG1 F2400\n");
+        for _ in 0..loops {
+            g += "G1 X10 Y-20 E0.4\nG1 X10 Y-10 E0.4\nG1 X0 Y-10 E0.4\nG1 X0 Y-20 E0.4\n";
+        }
+    }
+    let p = dir.join("square.gcode");
+    std::fs::write(&p, g).unwrap();
+    p
+}
+
+fn demo(dir: &Path, args: &[&str]) -> serde_json::Value {
+    let out = Command::new(env!("CARGO_BIN_EXE_strand-demo"))
+        .args(args)
+        .arg("--json")
+        .arg("--out")
+        .arg(dir.join("demo"))
+        .current_dir(root())
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(0), "stdout: {stdout}\nstderr: {stderr}");
+    serde_json::from_str(stdout.trim()).unwrap_or_else(|e| panic!("{e}: {stdout}"))
+}
+
+fn num(v: &serde_json::Value, path: &[&str]) -> f64 {
+    let mut x = v;
+    for k in path {
+        x = &x[*k];
+    }
+    x.as_f64().unwrap_or_else(|| panic!("{path:?} missing in {v}"))
+}
+
+#[test]
+fn the_demo_prints_a_short_job_within_bounds_and_its_log_replays_identically() {
+    let dir = temp_dir("demo");
+    let program = square_program(&dir, 2, 3);
+    let r = demo(&dir, &["--gcode", program.to_str().unwrap(), "--set", FAST_APPROACH]);
+    assert_eq!(r["job_outcome"], "Finished", "{r}");
+    assert_eq!(r["identical"], true, "{r}");
+    assert!(r["verify"].as_str().unwrap().starts_with("identical"));
+    // 2 × (travel + 12 lines) = 26 segments, every one accepted.
+    assert_eq!(num(&r, &["segments_accepted"]), 26.0);
+    assert_eq!(num(&r, &["segments_rejected"]), 0.0);
+    assert_eq!(num(&r, &["log_drops"]), 0.0);
+    assert_eq!(num(&r, &["unmatched"]), 0.0, "every target has its truth row (lockstep)");
+    assert!(r["faults"].as_array().unwrap().is_empty());
+    // The bound: the sim's 1-cycle dead time and 2 ms lag at 40 mm/s are about 0.12 mm of path;
+    // corners add the CLIK's transient. Mean under 0.2 mm, worst under 0.5 mm.
+    let ticks = num(&r, &["tcp_error_m", "samples"]);
+    assert!(ticks > 1500.0, "{ticks} ticks on the path");
+    assert!(num(&r, &["tcp_error_m", "mean"]) < 0.2e-3, "{r}");
+    assert!(num(&r, &["tcp_error_m", "max"]) < 0.5e-3, "{r}");
+    // Extrusion reached the nozzle: deposited within 5 % of commanded (the melt lag's tail is cut).
+    let v = num(&r, &["volume_ratio"]);
+    assert!((0.95..=1.0).contains(&v), "volume ratio {v}");
+    assert!(Path::new(r["log"].as_str().unwrap()).is_file());
+}
+
+struct Proc(Child);
+
+impl Drop for Proc {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+fn spawn(mut c: Command) -> Proc {
+    Proc(c.current_dir(root()).env("RUST_LOG", "warn").stdout(Stdio::null()).stderr(Stdio::null()).spawn().unwrap())
+}
+
+/// Service on the robot clock + sim + feeder with a long job, running on the path.
+fn cell(prefix: &str, dir: &Path) -> (Proc, Proc, Proc, ClientPorts) {
+    let program = square_program(dir, 1, 400);
+    let svc = spawn({
+        let mut c = Command::new(bin("strand"));
+        c.args(["run", "--config", "config/default.toml", "--clock", "robot", "--no-log", "--prefix", prefix, "--set", FAST_APPROACH]);
+        c
+    });
+    let sim = spawn({
+        let mut c = Command::new(bin("strand-sim"));
+        c.args(["--config", "config/default.toml", "--prefix", prefix]);
+        c
+    });
+    let monitor =
+        ClientPorts::open(&ServiceNames::new(prefix), "test-monitor", ClientRoles { monitor: true, ..Default::default() }).unwrap();
+    wait_for(&monitor, 30, "the sim clocking the service", |s| s.tick > 100);
+    let feeder = spawn({
+        let mut c = Command::new(bin("strand-feed"));
+        c.arg(&program).args(["--config", "config/default.toml", "--prefix", prefix, "--quiet"]);
+        c
+    });
+    wait_for(&monitor, 120, "the job on the path", |s| s.run_state == RunState::Running as u32 && s.path_speed > 0.0);
+    (svc, sim, feeder, monitor)
+}
+
+fn wait_for(m: &ClientPorts, seconds: u64, what: &str, until: impl Fn(&Status) -> bool) -> Status {
+    let deadline = Instant::now() + Duration::from_secs(seconds);
+    loop {
+        if let Some(s) = m.latest_status()
+            && until(&s)
+        {
+            return s;
+        }
+        assert!(Instant::now() < deadline, "timed out waiting for {what}: {:?}", m.latest_status());
+        let _ = m.wait_status(20_000_000);
+    }
+}
+
+#[test]
+fn a_killed_feeder_stops_the_job_under_the_sim() {
+    let dir = temp_dir("feeder");
+    let prefix = format!("strand/simtest-feeder-{}", std::process::id());
+    let (_svc, _sim, mut feeder, m) = cell(&prefix, &dir);
+    feeder.0.kill().unwrap();
+    feeder.0.wait().unwrap();
+    let s = wait_for(&m, 30, "a controlled stop", |s| s.job_outcome == JobOutcome::Stopped as u32 && s.run_state == RunState::Idle as u32);
+    assert_eq!(s.fault, FaultCode::None as u32, "{s:?}");
+    assert_eq!(s.clamps, 0);
+}
+
+#[test]
+fn a_killed_sim_faults_the_service() {
+    let dir = temp_dir("driver");
+    let prefix = format!("strand/simtest-driver-{}", std::process::id());
+    let (_svc, mut sim, _feeder, m) = cell(&prefix, &dir);
+    sim.0.kill().unwrap();
+    sim.0.wait().unwrap();
+    let s = wait_for(&m, 10, "a fault", |s| s.run_state == RunState::Fault as u32);
+    assert_eq!(s.fault, FaultCode::JointStateLost as u32, "{s:?}");
+    assert_eq!(s.job_outcome, JobOutcome::Faulted as u32);
+}
