@@ -3,6 +3,9 @@
 //! identically; Ctrl-C is a controlled stop (exit 3); a bad program is refused naming file and line
 //! (exit 2); `--resume-from` starts with a travel to where the segment starts.
 
+mod common;
+
+use common::{root, square_program, temp_dir};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
@@ -13,35 +16,9 @@ use strand::log::replay::{Verdict, verify};
 use strand_ipc as ipc;
 use strand_tools::feed::load_gcode;
 
-fn root() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("..")
-}
-
 fn strand_bin() -> PathBuf {
     let p = Path::new(env!("CARGO_BIN_EXE_strand-feed")).with_file_name("strand");
     assert!(p.exists(), "{} missing: build the workspace (cargo test --workspace builds it)", p.display());
-    p
-}
-
-fn temp_dir(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("strand-feed-test-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
-}
-
-/// Two layers of a 10 mm square, PrusaSlicer-style layer comments, bed coordinates in mm.
-fn square_program(dir: &Path, layers: usize, loops: usize) -> PathBuf {
-    let mut g = String::from("G21\nG90\nM83\nG1 F1800\n");
-    for l in 0..layers {
-        let z = 0.2 * (l + 1) as f64;
-        g += &format!(";LAYER_CHANGE\n;Z:{z:.1}\nG0 X0 Y-20 Z{z:.1} F6000\n");
-        for _ in 0..loops {
-            g += "G1 X10 Y-20 E0.4 F3000\nG1 X10 Y-10 E0.4\nG1 X0 Y-10 E0.4\nG1 X0 Y-20 E0.4\n";
-        }
-    }
-    let p = dir.join("square.gcode");
-    std::fs::write(&p, g).unwrap();
     p
 }
 
@@ -75,9 +52,9 @@ fn feed(prefix: &str, program: &Path, extra: &[&str]) -> Command {
 
 #[test]
 fn a_job_streams_with_back_pressure_finishes_and_replays_identically() {
-    let dir = temp_dir("finish");
+    let dir = temp_dir("feed", "finish");
     // 2 layers × (a travel + 20 loops × 4 lines) = 162 segments: six batches.
-    let program = square_program(&dir, 2, 20);
+    let program = square_program(&dir, 2, 20, 3000.0);
     let prefix = format!("strand/feedtest-{}", std::process::id());
     let log = dir.join("run.mcap");
     let mut svc = service(&prefix, "free-run", &log);
@@ -105,8 +82,8 @@ fn a_job_streams_with_back_pressure_finishes_and_replays_identically() {
 
 #[test]
 fn ctrl_c_is_a_controlled_stop() {
-    let dir = temp_dir("stop");
-    let program = square_program(&dir, 2, 40);
+    let dir = temp_dir("feed", "stop");
+    let program = square_program(&dir, 2, 40, 3000.0);
     let prefix = format!("strand/feedstop-{}", std::process::id());
     let _svc = service(&prefix, "timer", &dir.join("stop.mcap"));
     let child = feed(&prefix, &program, &[]).stderr(Stdio::piped()).spawn().unwrap();
@@ -122,7 +99,7 @@ fn ctrl_c_is_a_controlled_stop() {
 
 #[test]
 fn a_bad_program_is_refused_naming_file_and_line() {
-    let dir = temp_dir("bad");
+    let dir = temp_dir("feed", "bad");
     let p = dir.join("bad.gcode");
     std::fs::write(&p, "G21\nG90\nG1 X10 Y10 F1800\nG1 X1e999 Y0\n").unwrap();
     let out = feed("strand/nobody", &p, &[]).output().unwrap();
@@ -133,16 +110,16 @@ fn a_bad_program_is_refused_naming_file_and_line() {
 
 #[test]
 fn no_service_is_exit_1() {
-    let dir = temp_dir("none");
-    let program = square_program(&dir, 1, 1);
+    let dir = temp_dir("feed", "none");
+    let program = square_program(&dir, 1, 1, 3000.0);
     let out = feed("strand/nobody-here", &program, &["--wait-service", "0.5"]).output().unwrap();
     assert_eq!(out.status.code(), Some(1), "{}", String::from_utf8_lossy(&out.stderr));
 }
 
 #[test]
 fn resume_starts_with_a_travel_to_where_the_segment_starts() {
-    let dir = temp_dir("resume");
-    let program = square_program(&dir, 2, 2);
+    let dir = temp_dir("feed", "resume");
+    let program = square_program(&dir, 2, 2, 3000.0);
     let cfg = Config::load(&root().join("config/default.toml")).unwrap();
     let full = load_gcode(&program, &cfg, None).unwrap();
     let resumed = load_gcode(&program, &cfg, Some(7)).unwrap();

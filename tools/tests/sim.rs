@@ -7,6 +7,9 @@
 //! - the feeder killed mid-job → a controlled stop on the path, no fault;
 //! - the sim killed mid-job → the service faults (JointStateLost).
 
+mod common;
+
+use common::{root, square_program, temp_dir};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
@@ -17,35 +20,9 @@ use strand_ipc::{FaultCode, JobOutcome, RunState, ServiceNames, Status};
 /// The approach at full joint speed: seconds of robot time saved in every test (debug builds are slow).
 const FAST_APPROACH: &str = "controller.approach_speed_fraction=1.0";
 
-fn root() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("..")
-}
-
 fn bin(name: &str) -> PathBuf {
     let p = Path::new(env!("CARGO_BIN_EXE_strand-demo")).with_file_name(name);
     assert!(p.exists(), "{} missing: build the workspace (cargo test --workspace builds it)", p.display());
-    p
-}
-
-fn temp_dir(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("strand-sim-test-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
-}
-
-/// `layers` layers of `loops` 10 mm squares at 40 mm/s, 0.2 mm layers, near the iiwa7's start.
-fn square_program(dir: &Path, layers: usize, loops: usize) -> PathBuf {
-    let mut g = String::from("G21\nG90\nM83\nG1 F2400\n");
-    for l in 0..layers {
-        let z = 0.2 * (l + 1) as f64;
-        g += &format!(";LAYER_CHANGE\n;Z:{z:.1}\nG0 X0 Y-20 Z{z:.1} F6000\nG1 F2400\n");
-        for _ in 0..loops {
-            g += "G1 X10 Y-20 E0.4\nG1 X10 Y-10 E0.4\nG1 X0 Y-10 E0.4\nG1 X0 Y-20 E0.4\n";
-        }
-    }
-    let p = dir.join("square.gcode");
-    std::fs::write(&p, g).unwrap();
     p
 }
 
@@ -74,8 +51,8 @@ fn num(v: &serde_json::Value, path: &[&str]) -> f64 {
 
 #[test]
 fn the_demo_prints_a_short_job_within_bounds_and_its_log_replays_identically() {
-    let dir = temp_dir("demo");
-    let program = square_program(&dir, 2, 3);
+    let dir = temp_dir("sim", "demo");
+    let program = square_program(&dir, 2, 3, 2400.0);
     let r = demo(&dir, &["--gcode", program.to_str().unwrap(), "--set", FAST_APPROACH]);
     assert_eq!(r["job_outcome"], "Finished", "{r}");
     assert_eq!(r["identical"], true, "{r}");
@@ -113,7 +90,7 @@ fn spawn(mut c: Command) -> Proc {
 
 /// Service on the robot clock + sim + feeder with a long job, running on the path.
 fn cell(prefix: &str, dir: &Path) -> (Proc, Proc, Proc, ClientPorts) {
-    let program = square_program(dir, 1, 400);
+    let program = square_program(dir, 1, 400, 2400.0);
     let svc = spawn({
         let mut c = Command::new(bin("strand"));
         c.args(["run", "--config", "config/default.toml", "--clock", "robot", "--no-log", "--prefix", prefix, "--set", FAST_APPROACH]);
@@ -151,7 +128,7 @@ fn wait_for(m: &ClientPorts, seconds: u64, what: &str, until: impl Fn(&Status) -
 
 #[test]
 fn a_killed_feeder_stops_the_job_under_the_sim() {
-    let dir = temp_dir("feeder");
+    let dir = temp_dir("sim", "feeder");
     let prefix = format!("strand/simtest-feeder-{}", std::process::id());
     let (_svc, _sim, mut feeder, m) = cell(&prefix, &dir);
     feeder.0.kill().unwrap();
@@ -163,7 +140,7 @@ fn a_killed_feeder_stops_the_job_under_the_sim() {
 
 #[test]
 fn a_killed_sim_faults_the_service() {
-    let dir = temp_dir("driver");
+    let dir = temp_dir("sim", "driver");
     let prefix = format!("strand/simtest-driver-{}", std::process::id());
     let (_svc, mut sim, _feeder, m) = cell(&prefix, &dir);
     sim.0.kill().unwrap();

@@ -17,6 +17,7 @@ use strand::core::base::BaseMode;
 use strand::io::ports::{ClientPorts, ClientRoles};
 use strand_ipc::ServiceNames;
 use strand_tools::demo::{Report, Spread, read_truth, report};
+use strand_tools::sim::config::SimConfig;
 
 #[derive(Parser)]
 #[command(name = "strand-demo", version, about = "Service + simulated robot + feeder on a bundled job, with a summary and a replay check")]
@@ -155,7 +156,7 @@ fn run(cli: &Cli) -> Result<bool, String> {
         None if tracked => (root.join("tests/data/gcode/truss/truss_200mm.gcode"), cli.layers),
         None => (root.join("tests/data/gcode/slic3r/box35.gcode"), Some(cli.layers.unwrap_or(3))),
     };
-    let sim_cfg = cli.sim.clone().unwrap_or_else(|| root.join("config/sim").join(if tracked { "free-flyer.toml" } else { "default.toml" }));
+    let sim_cfg = cli.sim.clone().unwrap_or_else(|| SimConfig::default_path(&cfg));
     let out = match &cli.out {
         Some(o) => o.clone(),
         None => root.join("logs").join(format!("demo-{}", strand::log::utc_stamp(strand::log::unix_now_ns()))),
@@ -226,12 +227,14 @@ fn run(cli: &Cli) -> Result<bool, String> {
     let sim_code = sim.stop(Duration::from_secs(10));
     let wall = started.elapsed().as_secs_f64();
     for (p, code) in [(&feeder, feed_code), (&service, Some(service_code)), (&sim, Some(sim_code))] {
-        if code.is_some_and(|c| c != 0 && !(p.name == "sim" && c == 0)) && !(p.name == "feed" && code == Some(0)) {
-            eprintln!("strand-demo: {} exited with {:?}; see {}", p.name, code, out.join(format!("{}.log", p.name)).display());
+        if let Some(c) = code
+            && c != 0
+        {
+            eprintln!("strand-demo: {} exited with {c}; see {}", p.name, out.join(format!("{}.log", p.name)).display());
         }
     }
     let truth_rows = read_truth(&truth)?;
-    let mut rep = report(&log, &truth_rows, tracked)?;
+    let rep = report(&log, &truth_rows, tracked)?;
     let round_trip = std::fs::read_to_string(&stats).ok().and_then(|t| serde_json::from_str::<serde_json::Value>(&t).ok());
     let log_bytes = std::fs::metadata(&log).map(|m| m.len()).unwrap_or(0);
     let ok = rep.job_outcome == "Finished" && rep.identical;
@@ -247,7 +250,6 @@ fn run(cli: &Cli) -> Result<bool, String> {
     if cli.json {
         println!("{json}");
     } else {
-        rep.verify = rep.verify.clone();
         print_table(&rep, wall, &log, log_bytes, round_trip.as_ref());
     }
     Ok(ok)

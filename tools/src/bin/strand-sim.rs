@@ -70,7 +70,7 @@ fn main() -> ExitCode {
             return ExitCode::from(2);
         }
     };
-    let sim_path = cli.sim.clone().unwrap_or_else(|| default_sim_config(&cfg));
+    let sim_path = cli.sim.clone().unwrap_or_else(|| SimConfig::default_path(&cfg));
     let mut sim_cfg = match SimConfig::load(&sim_path) {
         Ok(c) => c,
         Err(e) => {
@@ -93,14 +93,6 @@ fn main() -> ExitCode {
             ExitCode::from(1)
         }
     }
-}
-
-/// config/sim/free-flyer.toml for a tracked base, else config/sim/default.toml, beside the service
-/// config.
-pub fn default_sim_config(cfg: &Config) -> PathBuf {
-    let dir = cfg.file.parent().unwrap_or(std::path::Path::new("."));
-    let name = if cfg.base.mode == strand::core::base::BaseMode::Tracked { "free-flyer.toml" } else { "default.toml" };
-    dir.join("sim").join(name)
 }
 
 fn run(cli: &Cli, cfg: &Config, sim_cfg: &SimConfig) -> Result<(), String> {

@@ -187,6 +187,14 @@ pub struct SimConfigError {
 }
 
 impl SimConfig {
+    /// The plant that goes with a service config: `sim/free-flyer.toml` for a tracked base, else
+    /// `sim/default.toml`, in the service config's folder.
+    pub fn default_path(service: &strand::config::Config) -> PathBuf {
+        let dir = service.file.parent().unwrap_or(Path::new("."));
+        let tracked = service.base.mode == strand::core::base::BaseMode::Tracked;
+        dir.join("sim").join(if tracked { "free-flyer.toml" } else { "default.toml" })
+    }
+
     /// Reads and checks a sim config; the flyer's trajectory path is resolved against the file.
     pub fn load(path: &Path) -> Result<Self, SimConfigError> {
         let err = |message: String| SimConfigError { file: path.display().to_string(), message };

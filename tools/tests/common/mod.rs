@@ -1,0 +1,34 @@
+//! Shared by the tools' process tests: the repository root, scratch folders and a small G-code job.
+#![allow(dead_code)]
+
+use std::path::{Path, PathBuf};
+
+/// The repository root (configs and data are relative to it).
+pub fn root() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("..")
+}
+
+/// An empty scratch folder for one test of one suite.
+pub fn temp_dir(suite: &str, name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("strand-{suite}-test-{}-{name}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+/// `layers` layers (0.2 mm, PrusaSlicer-style layer comments) of `loops` 10 mm squares at `feed`
+/// mm/min, in bed coordinates (mm) near the iiwa7's start: per layer one travel and 4 × `loops`
+/// extruding lines.
+pub fn square_program(dir: &Path, layers: usize, loops: usize, feed: f64) -> PathBuf {
+    let mut g = String::from("G21\nG90\nM83\n");
+    for l in 0..layers {
+        let z = 0.2 * (l + 1) as f64;
+        g += &format!(";LAYER_CHANGE\n;Z:{z:.1}\nG0 X0 Y-20 Z{z:.1} F6000\nG1 F{feed}\n");
+        for _ in 0..loops {
+            g += "G1 X10 Y-20 E0.4\nG1 X10 Y-10 E0.4\nG1 X0 Y-10 E0.4\nG1 X0 Y-20 E0.4\n";
+        }
+    }
+    let p = dir.join("square.gcode");
+    std::fs::write(&p, g).unwrap();
+    p
+}
