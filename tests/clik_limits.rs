@@ -9,7 +9,7 @@ mod paths;
 use common::{jv, rail_arm, robot};
 use nalgebra::{UnitQuaternion, Vector3};
 use paths::{Shape, track};
-use strand::core::kin::{Clik, ClikConfig, ClikStep, JointVector, RobotModel, Task, TcpTarget};
+use strand::core::kin::{Clik, ClikConfig, ClikStep, JointVector, PathVelocity, RobotModel, Task, TcpTarget};
 
 fn clik(task: Task) -> Clik {
     Clik::new(ClikConfig { task, ..ClikConfig::default() }).unwrap()
@@ -237,4 +237,51 @@ fn a_bad_tick_length_while_moving_brakes_within_the_acceleration_limits() {
     spare[7] = f64::NAN;
     let s = clik(Task::Print5).step(&model, &spare, &TcpTarget::at_rest(pose.translation.vector, orient), 1e-3);
     assert!(s.q.iter().all(|x| x.is_finite()) && s.q[7] == 0.0);
+}
+
+#[test]
+fn only_the_paths_own_velocity_slows_the_path() {
+    // VP6242 (1 rad/s on every joint) asked for 0.6 m/s along x: more than its joints can give.
+    let model = robot("vp6242");
+    let q0 = common::start("vp6242");
+    let start = model.forward_kinematics(&q0);
+    let fast = Vector3::new(0.6, 0.0, 0.0);
+    let dt = 1e-3;
+    let target = |k: usize| TcpTarget {
+        position: start.translation.vector + fast * (k as f64 + 1.0) * dt,
+        orientation: UnitQuaternion::from_rotation_matrix(&start.rotation),
+        linear_velocity: fast,
+        angular_velocity: Vector3::zeros(),
+    };
+    let zero = PathVelocity { linear: Vector3::zeros(), angular: Vector3::zeros() };
+    let all_path = PathVelocity { linear: fast, angular: Vector3::zeros() };
+    // The velocity is the base's (the path stands still): the step is scaled, the path is not slowed.
+    let (mut base_driven, mut path_driven) = (clik(Task::Print5), clik(Task::Print5));
+    let (mut q_b, mut q_p) = (q0, q0);
+    let (mut scaled_b, mut scaled_p, mut path_slowed) = (0, 0, 0);
+    for k in 0..200 {
+        let b = base_driven.step_on_path(&model, &q_b, &target(k), &zero, dt);
+        let p = path_driven.step_on_path(&model, &q_p, &target(k), &all_path, dt);
+        q_b = b.q;
+        q_p = p.q;
+        if b.scale < 1.0 {
+            scaled_b += 1;
+            assert_eq!(b.path_scale, 1.0, "tick {k}: the base's motion slowed the path ({b:?})");
+        }
+        if p.scale < 1.0 {
+            scaled_p += 1;
+            assert!(p.path_scale >= 0.0 && p.path_scale <= 1.0);
+            if p.path_scale < 1.0 {
+                path_slowed += 1;
+            }
+        }
+        assert!(p.path_scale.is_finite() && b.path_scale.is_finite());
+    }
+    assert!(scaled_b > 100 && scaled_p > 100, "scaled ticks: base {scaled_b}, path {scaled_p}");
+    assert!(path_slowed * 10 >= scaled_p * 9, "the path's own speed slowed it on only {path_slowed} of {scaled_p} scaled ticks");
+    // Unscaled steps report 1 for both.
+    let mut calm = clik(Task::Print5);
+    let s =
+        calm.step(&model, &q0, &TcpTarget::at_rest(start.translation.vector, UnitQuaternion::from_rotation_matrix(&start.rotation)), dt);
+    assert_eq!((s.scale, s.path_scale), (1.0, 1.0));
 }

@@ -213,11 +213,11 @@ pub struct BaseEstimator {
     history_next: usize,
     samples: u64,
     rejected: u64,
-    /// The step the last sample made in the estimate (position m, rotation vector rad, W), taken
-    /// out again linearly over `smoothing` from `offset_ns`.
-    offset_position: Vector3<f64>,
-    offset_rotation: Vector3<f64>,
-    offset_ns: u64,
+    /// The last estimates, newest last, each with the time it arrived (ns): the output blends from
+    /// the one before into each over `smoothing` (see [`BaseEstimator::at`]).
+    blends: [Blend; MAX_BLENDS],
+    blends_len: usize,
+    blends_next: usize,
 }
 
 impl BaseEstimator {
@@ -235,9 +235,9 @@ impl BaseEstimator {
             history_next: 0,
             samples: 0,
             rejected: 0,
-            offset_position: Vector3::zeros(),
-            offset_rotation: Vector3::zeros(),
-            offset_ns: 0,
+            blends: [Blend { arrived_ns: 0, time_ns: 0, estimate: mount }; MAX_BLENDS],
+            blends_len: 0,
+            blends_next: 0,
         }
     }
 
@@ -278,17 +278,11 @@ impl BaseEstimator {
     /// (w, x, y, z) measured at `stamp_ns` (before `measurement_delay` is subtracted). Ignored for a
     /// fixed base.
     pub fn update(&mut self, now_ns: u64, stamp_ns: u64, position: [f64; 3], orientation: [f64; 4]) -> Result<(), PoseRejection> {
-        let before = self.at(now_ns);
-        let had_estimate = self.last_sample_ns.is_some();
         self.apply_sample(stamp_ns, position, orientation)?;
-        if had_estimate && self.config.smoothing > 0.0 {
-            // Whatever of the step is left from the last sample is folded into the new one.
-            self.offset_ns = now_ns;
-            self.offset_position = Vector3::zeros();
-            self.offset_rotation = Vector3::zeros();
-            let after = self.at(now_ns);
-            self.offset_position = before.position - after.position;
-            self.offset_rotation = geom::quaternion_log(&(before.orientation * after.orientation.inverse()));
+        if self.is_tracked() {
+            self.blends[self.blends_next] = Blend { arrived_ns: now_ns, time_ns: self.time_ns, estimate: self.estimate };
+            self.blends_next = (self.blends_next + 1) % MAX_BLENDS;
+            self.blends_len = (self.blends_len + 1).min(MAX_BLENDS);
         }
         Ok(())
     }
@@ -362,38 +356,95 @@ impl BaseEstimator {
 
     /// The estimate `dt` seconds after the last sample, at constant velocity.
     fn predicted(&self, dt: f64) -> BaseState {
-        let e = &self.estimate;
-        BaseState {
-            position: e.position + e.linear_velocity * dt,
-            orientation: geom::quaternion_exp(&(e.angular_velocity * dt)) * e.orientation,
-            linear_velocity: e.linear_velocity,
-            angular_velocity: e.angular_velocity,
+        straight_line(&self.estimate, dt)
+    }
+
+    /// What one estimate says about `time_ns`: predicted forward at its velocity (at most
+    /// `max_prediction`; never backward), or held as it is for `latest`.
+    fn estimate_at(&self, blend: &Blend, time_ns: u64) -> BaseState {
+        match self.config.estimator {
+            EstimatorKind::Latest => blend.estimate,
+            _ => {
+                let dt = (time_ns.saturating_sub(blend.time_ns) as f64 * 1e-9).min(self.config.max_prediction);
+                straight_line(&blend.estimate, dt)
+            }
         }
     }
 
     /// The base's pose and twist at `time_ns`: the mount for a fixed base (or before the first
     /// sample); otherwise the estimate predicted forward (at most `max_prediction`; never backward).
     pub fn at(&self, time_ns: u64) -> BaseState {
-        if !self.is_tracked() || self.last_sample_ns.is_none() {
+        if !self.is_tracked() || self.last_sample_ns.is_none() || self.blends_len == 0 {
             return self.mount;
         }
-        let dt = (time_ns.saturating_sub(self.time_ns) as f64 * 1e-9).min(self.config.max_prediction);
-        let mut state = match self.config.estimator {
-            EstimatorKind::Latest => self.estimate,
-            _ => self.predicted(dt),
-        };
-        let since = time_ns.saturating_sub(self.offset_ns) as f64 * 1e-9;
-        if self.config.smoothing > 0.0 && since < self.config.smoothing {
-            // Smoothstep: the step fades in with zero velocity at both ends.
-            let u = since / self.config.smoothing;
-            let w = 1.0 - u * u * (3.0 - 2.0 * u);
-            let dw = -6.0 * u * (1.0 - u) / self.config.smoothing;
-            state.position += self.offset_position * w;
-            state.orientation = geom::quaternion_exp(&(self.offset_rotation * w)) * state.orientation;
-            state.linear_velocity += self.offset_position * dw;
-            state.angular_velocity += self.offset_rotation * dw;
+        let newest = (self.blends_next + MAX_BLENDS - 1) % MAX_BLENDS;
+        let smoothing_ns = (self.config.smoothing * 1e9) as u64;
+        // Walk back to the newest estimate whose blend is over (or the oldest kept): the output is
+        // that estimate, blended forward into each later one in turn.
+        let mut depth = 0;
+        while depth + 1 < self.blends_len {
+            let b = &self.blends[(newest + MAX_BLENDS - depth) % MAX_BLENDS];
+            if time_ns.saturating_sub(b.arrived_ns) >= smoothing_ns {
+                break;
+            }
+            depth += 1;
+        }
+        let first = (newest + MAX_BLENDS - depth) % MAX_BLENDS;
+        let mut state = self.estimate_at(&self.blends[first], time_ns);
+        for k in (0..depth).rev() {
+            let b = &self.blends[(newest + MAX_BLENDS - k) % MAX_BLENDS];
+            let since = time_ns.saturating_sub(b.arrived_ns) as f64 * 1e-9;
+            state = blend_into(&state, &self.estimate_at(b, time_ns), since, self.config.smoothing);
         }
         state
+    }
+}
+
+/// How many recent estimates the blend keeps: a sample arriving while this many are still blending
+/// starts from the oldest kept one as it is (at 120 Hz that takes a `smoothing` over 130 ms).
+const MAX_BLENDS: usize = 16;
+
+/// One estimate and when it came.
+#[derive(Clone, Copy, Debug)]
+struct Blend {
+    /// When the sample arrived (ns): its blend starts here.
+    arrived_ns: u64,
+    /// The time the estimate is for (the sample's measurement time, ns).
+    time_ns: u64,
+    estimate: BaseState,
+}
+
+/// A state moved on `dt` seconds at constant velocity.
+fn straight_line(e: &BaseState, dt: f64) -> BaseState {
+    BaseState {
+        position: e.position + e.linear_velocity * dt,
+        orientation: geom::quaternion_exp(&(e.angular_velocity * dt)) * e.orientation,
+        linear_velocity: e.linear_velocity,
+        angular_velocity: e.angular_velocity,
+    }
+}
+
+/// `from` blended into `to`, `since` seconds into a blend `length` s long (u = since/length):
+/// x = x_to + w·(x_from −
+/// x_to) with the smoothstep weight w = 1 − 3u² + 2u³, whose rate is 0 at both ends. At u = 0 this is
+/// `from` in position and velocity, at u ≥ 1 it is `to`: a new sample never steps the pose or the
+/// twist the arm must follow (a step in either asks the joints for an unbounded acceleration). The
+/// rotation uses the rotation vector of the (small) difference.
+fn blend_into(from: &BaseState, to: &BaseState, since: f64, length: f64) -> BaseState {
+    let u = since / length;
+    if !(u < 1.0) {
+        return *to;
+    }
+    let u = u.max(0.0);
+    let w = 1.0 - u * u * (3.0 - 2.0 * u);
+    let dw = -6.0 * u * (1.0 - u) / length;
+    let gap_position = from.position - to.position;
+    let gap_rotation = geom::quaternion_log(&(from.orientation * to.orientation.inverse()));
+    BaseState {
+        position: to.position + gap_position * w,
+        orientation: geom::quaternion_exp(&(gap_rotation * w)) * to.orientation,
+        linear_velocity: to.linear_velocity + (from.linear_velocity - to.linear_velocity) * w + gap_position * dw,
+        angular_velocity: to.angular_velocity + (from.angular_velocity - to.angular_velocity) * w + gap_rotation * dw,
     }
 }
 
@@ -460,5 +511,39 @@ mod tests {
         assert!((fd - b.linear_velocity).norm() < 1e-5, "{fd:?} vs {:?}", b.linear_velocity);
         let (p, _) = base.base_to_world(&b.position, &b.orientation);
         assert!((p - target.position).norm() < 1e-12);
+    }
+
+    /// Noisy samples at 120 Hz: at each sample's arrival the output's position and velocity do not
+    /// step (read 1 µs before and after it, they agree to what 1 µs of bounded acceleration allows),
+    /// and once its blend is over the output is that estimate's own straight line.
+    #[test]
+    fn a_sample_steps_neither_position_nor_velocity() {
+        for kind in [EstimatorKind::AlphaBeta, EstimatorKind::MovingAverage, EstimatorKind::Latest] {
+            let mut e = tracked(kind);
+            let period_ns = 8_333_333u64;
+            let (mut worst_dp, mut worst_dv) = (0.0f64, 0.0f64);
+            for k in 1..200u64 {
+                let now = k * period_ns;
+                // ±0.2 mm and ±1 mrad of alternating noise on a base drifting at 5 mm/s.
+                let noise = if k % 2 == 0 { 2e-4 } else { -2e-4 };
+                let p = [0.005 * now as f64 * 1e-9 + noise, -noise, 0.0];
+                let q = UnitQuaternion::from_axis_angle(&Vector3::z_axis(), noise * 5.0);
+                let before = e.at(now - 1_000);
+                e.update(now, now, p, [q.w, q.i, q.j, q.k]).unwrap();
+                let after = e.at(now + 1_000);
+                if k > 1 {
+                    worst_dp = worst_dp.max((after.position - before.position - before.linear_velocity * 2e-6).norm());
+                    worst_dv = worst_dv.max((after.linear_velocity - before.linear_velocity).norm());
+                    let turn = (after.orientation * before.orientation.inverse()).angle();
+                    assert!(turn < 1e-6, "{kind:?}: orientation stepped by {turn} rad");
+                }
+            }
+            assert!(worst_dv < 1e-4, "{kind:?}: velocity stepped by {worst_dv} m/s at a sample");
+            assert!(worst_dp < 1e-9, "{kind:?}: position stepped by {worst_dp} m at a sample");
+            // 20 ms (the smoothing) after the last sample the output is that estimate's own.
+            let last = 199 * period_ns;
+            let own = e.estimate_at(&e.blends[(e.blends_next + MAX_BLENDS - 1) % MAX_BLENDS], last + 25_000_000);
+            assert!((e.at(last + 25_000_000).position - own.position).norm() < 1e-15);
+        }
     }
 }

@@ -28,7 +28,7 @@ use strand_ipc::{Command, FaultCode, JobOutcome, RejectReason, RunState};
 
 use super::base::{BaseConfig, BaseEstimator, BaseState};
 use super::extrude::{Extruder, ExtruderConfig};
-use super::kin::{Clik, ClikConfig, ClikStep, JointVector, MAX_JOINTS, RobotModel, TcpTarget};
+use super::kin::{Clik, ClikConfig, ClikStep, JointVector, MAX_JOINTS, PathVelocity, RobotModel, TcpTarget};
 use super::path::{Motion, PathConfig, PathEngine, PathSample, Segment, SegmentError, SegmentFlags, SegmentKind};
 
 /// Segments a [`TickInput`] carries at most (the shell keeps the rest for the next tick).
@@ -1008,8 +1008,12 @@ impl Controller {
                     linear_velocity: sample.velocity,
                     angular_velocity: sample.angular_velocity,
                 };
-                let step = self.clik.step(&self.model, &self.q, &base.world_to_base(&target_w), self.dt);
-                self.speed_scale = step.scale;
+                // Only the path's own velocity slows the path: what the base's motion or the feedback
+                // costs is not cured by a slower path (slowing for it would stall the job).
+                let r_bw = base.orientation.inverse();
+                let path_b = PathVelocity { linear: r_bw * sample.velocity, angular: r_bw * sample.angular_velocity };
+                let step = self.clik.step_on_path(&self.model, &self.q, &base.world_to_base(&target_w), &path_b, self.dt);
+                self.speed_scale = step.path_scale;
                 let d = &mut out.diagnostics;
                 d.tcp_target_world = sample.position;
                 d.tcp_target_orientation = sample.orientation;

@@ -45,6 +45,11 @@ pub struct RealtimeConfig {
     /// faults a stack page in; 0 skips it. At most [`MAX_PREFAULT_STACK_BYTES`], and never more than
     /// the thread's stack holds (the rest is reported as refused).
     pub prefault_stack_bytes: usize,
+    /// Hold the kernel's PM QoS CPU latency at this many µs for the life of the process (writes it to
+    /// `/dev/cpu_dma_latency` and keeps the file open): CPUs then skip idle states slower to leave,
+    /// which is most of an idle machine's wake-up latency (cyclictest does the same for itself).
+    /// `None` leaves power management alone. Costs power: a real robot PC sets it, a laptop may not.
+    pub cpu_dma_latency_us: Option<u32>,
 }
 
 impl RealtimeConfig {
@@ -99,7 +104,7 @@ pub struct RtStep {
 /// The outcome of [`apply`]: every step, in the order tried, configured or not.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct RealtimeReport {
-    /// The steps: cpu, lock_memory, prefault_stack_bytes, timer_slack_ns, fifo_priority.
+    /// The steps: cpu, lock_memory, prefault_stack_bytes, timer_slack_ns, fifo_priority, cpu_dma_latency_us.
     pub steps: Vec<RtStep>,
 }
 
@@ -151,8 +156,27 @@ pub fn apply(cfg: &RealtimeConfig) -> RealtimeReport {
             outcome: if cfg.timer_slack_ns > 0 { set_timer_slack(cfg.timer_slack_ns) } else { RtOutcome::Skipped },
         },
         RtStep { name: "fifo_priority", outcome: if cfg.fifo_priority > 0 { set_fifo(cfg.fifo_priority) } else { RtOutcome::Skipped } },
+        RtStep { name: "cpu_dma_latency_us", outcome: cfg.cpu_dma_latency_us.map_or(RtOutcome::Skipped, hold_cpu_latency) },
     ];
     RealtimeReport { steps }
+}
+
+/// The PM QoS request stays in force while this file is open: for the life of the process.
+static CPU_LATENCY_REQUEST: std::sync::Mutex<Option<std::fs::File>> = std::sync::Mutex::new(None);
+
+fn hold_cpu_latency(us: u32) -> RtOutcome {
+    use std::io::Write;
+    let path = "/dev/cpu_dma_latency";
+    let opened = std::fs::OpenOptions::new().write(true).open(path).and_then(|mut f| f.write_all(&(us as i32).to_ne_bytes()).map(|_| f));
+    match opened {
+        Ok(f) => {
+            if let Ok(mut held) = CPU_LATENCY_REQUEST.lock() {
+                *held = Some(f);
+            }
+            RtOutcome::Applied(format!("{us} µs held"))
+        }
+        Err(e) => RtOutcome::Refused(format!("{path}: {e}; CPUs may enter deep idle states (slower wake-ups)")),
+    }
 }
 
 /// The scheduling policy and priority of the calling thread, e.g. `"SCHED_FIFO 80"` or
@@ -333,7 +357,7 @@ mod tests {
         let cfg = RealtimeConfig::default();
         assert_eq!(cfg.validate(), Ok(()));
         let report = apply(&cfg);
-        assert_eq!(report.steps.len(), 5);
+        assert_eq!(report.steps.len(), 6);
         assert!(report.steps.iter().all(|s| s.outcome == RtOutcome::Skipped), "{report:?}");
         assert_eq!(report.warnings().count(), 0);
         assert!(report.to_string().starts_with("realtime: cpu off;"), "{report}");

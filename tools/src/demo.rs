@@ -13,6 +13,7 @@ use strand::log::reader::LogFile;
 use strand::log::replay::{Verdict, verify};
 use strand_ipc::RunState;
 
+use crate::replay::{PathTicks, tcp_world};
 use crate::sim::Truth;
 
 /// Distribution of a quantity (SI unit as named by the field that holds it).
@@ -146,7 +147,7 @@ pub fn report(log: &Path, truth: &[Truth], flyer: bool) -> Result<Report, String
         Report { robot: model.name().to_string(), rate_hz: cfg.controller.rate_hz, job_outcome: "none".into(), ..Default::default() };
     let (mut errors, mut estimated) = (Vec::new(), Vec::new());
     let (mut step, mut tick_cost, mut lateness) = (Histogram::new(), Histogram::new(), Histogram::new());
-    let mut was_on_path = false;
+    let mut path_ticks = PathTicks::default();
     let mut started: Option<u64> = None;
     let mut ended: Option<u64> = None;
     let mut measured: Option<strand::core::kin::JointVector> = None;
@@ -169,10 +170,7 @@ pub fn report(log: &Path, truth: &[Truth], flyer: bool) -> Result<Report, String
             q.as_mut_slice()[..dof].copy_from_slice(&js.position[..dof]);
             measured = Some(q);
         }
-        let on_path = matches!(state, Some(RunState::Running | RunState::Pausing | RunState::Stopping));
-        let running = on_path && was_on_path;
-        was_on_path = on_path;
-        if running {
+        if path_ticks.update(o) {
             let target = o.diagnostics.tcp_target_world;
             match by_time.get(&(i.time_ns + dt_ns)) {
                 Some(t) => {
@@ -181,10 +179,7 @@ pub fn report(log: &Path, truth: &[Truth], flyer: bool) -> Result<Report, String
                 None => r.unmatched += 1,
             }
             if let Some(q) = measured {
-                let f = model.forward_kinematics(&q);
-                let rot = nalgebra::UnitQuaternion::from_rotation_matrix(&f.rotation);
-                let (p, _) = o.diagnostics.base.base_to_world(&f.translation.vector, &rot);
-                estimated.push((p - target).norm());
+                estimated.push((tcp_world(&model, &q, &o.diagnostics.base) - target).norm());
             }
         }
         for e in o.events() {

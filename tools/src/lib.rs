@@ -1,5 +1,6 @@
 //! Shared pieces of the strand command-line tools.
 
+pub mod bench;
 pub mod demo;
 pub mod feed;
 pub mod replay;

@@ -6,13 +6,40 @@ use std::collections::BTreeMap;
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
-use nalgebra::UnitQuaternion;
-use strand::core::controller::Event;
+use nalgebra::{UnitQuaternion, Vector3};
+use strand::core::base::BaseState;
+use strand::core::controller::{Event, TickOutput};
 use strand::core::kin::{JointVector, RobotModel};
 use strand::io::histogram::Histogram;
-use strand::log::dynamic::{Schema, Value};
+use strand::log::dynamic::Schema;
 use strand::log::reader::LogFile;
 use strand_ipc::{FaultCode, JobOutcome, LogState, RunState};
+
+/// Which ticks count for the TCP error: on the path for the whole tick (running before it and after
+/// it: the tick that leaves the approach has no path target yet), once the path has begun (a segment
+/// is executing: the settling on the first point, where a moving base is caught up with before the
+/// extruder starts, is not printing).
+#[derive(Clone, Copy, Debug, Default)]
+pub struct PathTicks {
+    was_on_path: bool,
+}
+
+impl PathTicks {
+    /// Feeds the next tick's output; true if that tick counts.
+    pub fn update(&mut self, o: &TickOutput) -> bool {
+        let on_path = matches!(RunState::from_u32(o.status.run_state), Some(RunState::Running | RunState::Pausing | RunState::Stopping));
+        let counts = on_path && self.was_on_path && o.status.executing_seq != 0;
+        self.was_on_path = on_path;
+        counts
+    }
+}
+
+/// The TCP in W from joint positions `q` (rad or m) through the base pose the tick used.
+pub fn tcp_world(model: &RobotModel, q: &JointVector, base: &BaseState) -> Vector3<f64> {
+    let tcp = model.forward_kinematics(q);
+    let r = UnitQuaternion::from_rotation_matrix(&tcp.rotation);
+    base.base_to_world(&tcp.translation.vector, &r).0
+}
 
 /// Per-tick series of a log, in SI units.
 #[derive(Default)]
@@ -97,7 +124,7 @@ pub fn analyse(files: &[LogFile]) -> Result<(Series, Summary, RobotModel), Strin
         gaps: 0,
     };
     let mut t0 = None;
-    let mut was_on_path = false;
+    let mut path_ticks = PathTicks::default();
     let mut last_tick: Option<u64> = None;
     let mut measured: Option<JointVector> = None;
     let mut errors = Histogram::new();
@@ -117,12 +144,7 @@ pub fn analyse(files: &[LogFile]) -> Result<(Series, Summary, RobotModel), Strin
             let t0 = *t0.get_or_insert(i.time_ns);
             s.t.push((i.time_ns - t0) as f64 * 1e-9);
             s.run_state.push(o.status.run_state);
-            // On the path for the whole tick: running before it and after it (the tick that
-            // leaves the approach has no path target yet).
-            let on_path =
-                matches!(RunState::from_u32(o.status.run_state), Some(RunState::Running | RunState::Pausing | RunState::Stopping));
-            let running = on_path && was_on_path;
-            was_on_path = on_path;
+            let running = path_ticks.update(o);
             let d = &o.diagnostics;
             let target: [f64; 3] = d.tcp_target_world.into();
             s.target.push(if running { target } else { [f64::NAN; 3] });
@@ -133,12 +155,7 @@ pub fn analyse(files: &[LogFile]) -> Result<(Series, Summary, RobotModel), Strin
                 q.as_mut_slice()[..dof].copy_from_slice(&js.position[..dof]);
                 measured = Some(q);
             }
-            let actual = measured.map(|q| {
-                let tcp = model.forward_kinematics(&q);
-                let r = UnitQuaternion::from_rotation_matrix(&tcp.rotation);
-                let (p, _) = d.base.base_to_world(&tcp.translation.vector, &r);
-                [p.x, p.y, p.z]
-            });
+            let actual = measured.map(|q| tcp_world(&model, &q, &d.base).into());
             s.actual.push(actual.unwrap_or([f64::NAN; 3]));
             let err = match actual {
                 Some(a) if running => ((a[0] - target[0]).powi(2) + (a[1] - target[1]).powi(2) + (a[2] - target[2]).powi(2)).sqrt(),
@@ -249,51 +266,67 @@ pub fn info_text(sum: &Summary) -> String {
 /// Writes one CSV per channel into `dir`, decoding each with its own schema. Columns: `log_time_ns`
 /// and every field path (`position[0]`, `header.stamp.sec`...); a channel whose messages vary in
 /// shape (sequences of different lengths) gets the union of the columns, empty where absent.
+///
+/// Two passes over the log, streaming: the first finds each channel's columns, the second writes the
+/// rows, so memory does not grow with the log (an hour at 1 kHz is millions of records).
 pub fn export_csv(files: &[LogFile], dir: &Path) -> Result<Vec<(PathBuf, u64)>, String> {
     std::fs::create_dir_all(dir).map_err(|e| format!("{}: {e}", dir.display()))?;
-    let mut schemas: BTreeMap<String, Schema> = BTreeMap::new();
-    let mut rows: BTreeMap<String, Vec<(u64, Vec<(String, Value)>)>> = BTreeMap::new();
+    struct Channel {
+        schema: Schema,
+        columns: Vec<String>,
+        index: BTreeMap<String, usize>,
+        path: PathBuf,
+        writer: Option<csv::Writer<std::fs::File>>,
+        rows: u64,
+    }
+    let mut channels: BTreeMap<String, Channel> = BTreeMap::new();
     for f in files {
         for m in f.messages() {
-            let topic = m.channel.topic.clone();
-            if !schemas.contains_key(&topic) {
+            let topic = &m.channel.topic;
+            if !channels.contains_key(topic) {
                 let schema = m.channel.schema.as_ref().ok_or(format!("{topic}: no schema"))?;
                 let text = String::from_utf8_lossy(&schema.data);
-                schemas.insert(topic.clone(), Schema::parse(&schema.name, &text).map_err(|e| e.to_string())?);
+                let schema = Schema::parse(&schema.name, &text).map_err(|e| e.to_string())?;
+                let name = topic.trim_start_matches('/').replace('/', "_");
+                let path = dir.join(format!("{name}.csv"));
+                channels
+                    .insert(topic.clone(), Channel { schema, columns: Vec::new(), index: BTreeMap::new(), path, writer: None, rows: 0 });
             }
-            let values = schemas[&topic].decode(&m.data).map_err(|e| format!("{topic}: {e}"))?;
-            rows.entry(topic).or_default().push((m.log_time, values));
-        }
-    }
-    let mut written = Vec::new();
-    for (topic, rows) in rows {
-        let mut columns: Vec<String> = Vec::new();
-        let mut index: BTreeMap<String, usize> = BTreeMap::new();
-        for (_, values) in &rows {
-            for (k, _) in values {
-                if !index.contains_key(k) {
-                    index.insert(k.clone(), columns.len());
-                    columns.push(k.clone());
+            let c = channels.get_mut(topic).expect("inserted above");
+            for (k, _) in c.schema.decode(&m.data).map_err(|e| format!("{topic}: {e}"))? {
+                if !c.index.contains_key(&k) {
+                    c.index.insert(k.clone(), c.columns.len());
+                    c.columns.push(k);
                 }
             }
         }
-        let name = topic.trim_start_matches('/').replace('/', "_");
-        let path = dir.join(format!("{name}.csv"));
-        let mut w = csv::Writer::from_path(&path).map_err(|e| format!("{}: {e}", path.display()))?;
+    }
+    for c in channels.values_mut() {
+        let mut w = csv::Writer::from_path(&c.path).map_err(|e| format!("{}: {e}", c.path.display()))?;
         let mut header = vec!["log_time_ns".to_string()];
-        header.extend(columns.iter().cloned());
+        header.extend(c.columns.iter().cloned());
         w.write_record(&header).map_err(|e| e.to_string())?;
-        let mut record = vec![String::new(); columns.len() + 1];
-        for (t, values) in &rows {
+        c.writer = Some(w);
+    }
+    let mut record: Vec<String> = Vec::new();
+    for f in files {
+        for m in f.messages() {
+            let c = channels.get_mut(&m.channel.topic).expect("seen in the first pass");
+            record.resize(c.columns.len() + 1, String::new());
+            record.truncate(c.columns.len() + 1);
             record.iter_mut().for_each(String::clear);
-            record[0] = t.to_string();
-            for (k, v) in values {
-                record[index[k] + 1] = v.to_string();
+            record[0] = m.log_time.to_string();
+            for (k, v) in c.schema.decode(&m.data).map_err(|e| format!("{}: {e}", m.channel.topic))? {
+                record[c.index[&k] + 1] = v.to_string();
             }
-            w.write_record(&record).map_err(|e| e.to_string())?;
+            c.writer.as_mut().expect("opened above").write_record(&record).map_err(|e| e.to_string())?;
+            c.rows += 1;
         }
-        w.flush().map_err(|e| e.to_string())?;
-        written.push((path, rows.len() as u64));
+    }
+    let mut written = Vec::new();
+    for c in channels.into_values() {
+        c.writer.expect("opened above").flush().map_err(|e| e.to_string())?;
+        written.push((c.path, c.rows));
     }
     Ok(written)
 }

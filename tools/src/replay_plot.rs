@@ -19,7 +19,7 @@ const FONT_PATHS: &[&str] = &[
     "/usr/share/fonts/truetype/liberation/LiberationSans-Regular.ttf",
 ];
 
-fn register_font() -> Result<(), String> {
+pub fn register_font() -> Result<(), String> {
     let env = std::env::var("STRAND_PLOT_FONT").ok();
     for p in env.iter().map(String::as_str).chain(FONT_PATHS.iter().copied()) {
         if let Ok(bytes) = std::fs::read(p) {

@@ -94,6 +94,15 @@ pub struct ClikConfig {
     pub max_correction_speed: f64,
     /// Cap on the orientation feedback |K·e| (rad/s).
     pub max_correction_rate: f64,
+    /// Deceleration the position feedback plans with (m/s²; 0: none): the correction speed is at
+    /// most the speed from which the error can be closed without overshoot at this deceleration
+    /// (the discrete square-root law, [`braking_speed`]). Without it the feedback is deadbeat (K up to
+    /// 1/dt): harmless while errors are micrometres, but an error the joints cannot close in one tick
+    /// (a tracked base's unpredicted motion) makes an acceleration-limited arm overshoot, reverse and
+    /// limit-cycle at its acceleration limits. Set it to what the arm can do at the TCP.
+    pub max_correction_acceleration: f64,
+    /// The same for the orientation feedback (rad/s²; 0: none).
+    pub max_correction_angular_acceleration: f64,
 }
 
 impl Default for ClikConfig {
@@ -110,6 +119,8 @@ impl Default for ClikConfig {
             nullspace_speed_fraction: 0.2,
             max_correction_speed: 0.1,
             max_correction_rate: 0.5,
+            max_correction_acceleration: 2.0,
+            max_correction_angular_acceleration: 10.0,
         }
     }
 }
@@ -140,6 +151,14 @@ impl ClikConfig {
                 return Err(format!("{key} = {v} must be finite and > 0"));
             }
         }
+        for (key, v) in [
+            ("clik.max_correction_acceleration", self.max_correction_acceleration),
+            ("clik.max_correction_angular_acceleration", self.max_correction_angular_acceleration),
+        ] {
+            if !pos(v) {
+                return Err(format!("{key} = {v} must be finite and ≥ 0 (0: no limit)"));
+            }
+        }
         if !(self.nullspace_speed_fraction >= 0.0 && self.nullspace_speed_fraction <= 1.0) {
             return Err(format!("clik.nullspace_speed_fraction = {} must lie in [0, 1]", self.nullspace_speed_fraction));
         }
@@ -158,6 +177,17 @@ pub struct TcpTarget {
     pub linear_velocity: Vector3<f64>,
     /// TCP angular velocity (rad/s).
     pub angular_velocity: Vector3<f64>,
+}
+
+/// The share of a target's velocity that the path timing owns (base frame): the path's own velocity,
+/// without the base's motion. Slowing the path down scales this share and nothing else, so only the
+/// part of a limit that this share causes should slow the path (see [`ClikStep::path_scale`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PathVelocity {
+    /// Linear velocity (m/s).
+    pub linear: Vector3<f64>,
+    /// Angular velocity (rad/s).
+    pub angular: Vector3<f64>,
 }
 
 impl TcpTarget {
@@ -200,6 +230,11 @@ pub struct ClikStep {
     pub requested: JointVector,
     /// Common factor applied for velocity and acceleration limits (1 = none).
     pub scale: f64,
+    /// The factor by which the path's own velocity would have to shrink for the step to fit every joint's
+    /// box (1 = the path is not what the limits cut). Joints whose box the rest of the step (feedback,
+    /// base motion, null space) breaks on its own are left out: no path speed fixes them, and slowing
+    /// the path for them would stall it while the base moves. The path timing follows this, not `scale`.
+    pub path_scale: f64,
     /// Flags.
     pub status: ClikStatus,
     /// Smallest singular value of the task Jacobian (task units).
@@ -393,6 +428,14 @@ impl Clik {
     /// braking over the last good tick length (or holding, if there was none).
     /// The returned command is always finite, and within the position limits whenever `q` was.
     pub fn step(&mut self, model: &RobotModel, q_in: &JointVector, target: &TcpTarget, dt: f64) -> ClikStep {
+        let path = PathVelocity { linear: target.linear_velocity, angular: target.angular_velocity };
+        self.step_on_path(model, q_in, target, &path, dt)
+    }
+
+    /// [`step`](Self::step) for a target whose velocity is partly the path's (`path`, base frame) and
+    /// partly something the path timing does not own (the base's motion): `path_scale` then judges the
+    /// path's share alone. [`step`](Self::step) counts the whole target velocity as the path's.
+    pub fn step_on_path(&mut self, model: &RobotModel, q_in: &JointVector, target: &TcpTarget, path: &PathVelocity, dt: f64) -> ClikStep {
         let cfg = self.config;
         let n = model.dof();
         let (q, q_repaired) = self.sanitize(model, q_in);
@@ -449,6 +492,13 @@ impl Clik {
         //    Saturated joints are constraints: they stay at their box edge; the free joints are scaled.
         let (s_lo, s_hi) = common_scale_range(&qd, &boxes, n, saturated);
         let mut scale = s_hi.max(0.0);
+        let path_scale = if !target_ok {
+            0.0
+        } else if s_hi >= 1.0 {
+            1.0
+        } else {
+            path_share_scale(&tj, &s0, path, &qd, &boxes, &cfg, n, saturated)
+        };
         for i in 0..n {
             if saturated & (1 << i) == 0 {
                 qd[i] *= scale;
@@ -491,6 +541,7 @@ impl Clik {
             qd,
             requested,
             scale,
+            path_scale,
             status,
             sigma_min,
             manipulability,
@@ -560,6 +611,7 @@ impl ClikStep {
             qd: JointVector::zeros(),
             requested: JointVector::zeros(),
             scale: 0.0,
+            path_scale: 0.0,
             status: ClikStatus { invalid_input: true, scaled: true, ..ClikStatus::default() },
             sigma_min: 0.0,
             manipulability: 0.0,
@@ -621,8 +673,14 @@ fn task_velocity(cfg: &ClikConfig, state: &ChainState, tj: &TaskJacobian, target
             part.iter_mut().for_each(|x| *x *= cap / norm);
         }
     };
-    clamp_norm(&mut feedback[..3], cfg.max_correction_speed);
-    clamp_norm(&mut feedback[3..m], cfg.max_correction_rate);
+    // The speed from which the error closes without overshoot at the planned deceleration.
+    let closing_speed = |part: &[f64], acc: f64| {
+        if acc > 0.0 { braking_speed(part.iter().map(|x| x * x).sum::<f64>().sqrt(), acc, dt) } else { f64::INFINITY }
+    };
+    let cap_position = cfg.max_correction_speed.min(closing_speed(&e[..3], cfg.max_correction_acceleration));
+    let cap_rotation = cfg.max_correction_rate.min(closing_speed(&e[3..m], cfg.max_correction_angular_acceleration));
+    clamp_norm(&mut feedback[..3], cap_position);
+    clamp_norm(&mut feedback[3..m], cap_rotation);
     let mut rhs = [0.0; MAX_TASK];
     for r in 0..m {
         rhs[r] = xd[r] + feedback[r];
@@ -773,6 +831,40 @@ fn common_scale_range(qd: &JointVector, boxes: &Boxes, n: usize, saturated: u8) 
         }
     }
     (s_lo, s_hi)
+}
+
+/// The largest s ∈ [0, 1] for which rest + s·q̇_path fits the box of every free joint that some
+/// s ∈ [0, 1] can fit at all, with q̇_path = J#·ẋ_path (the full task's damped inverse; with saturated
+/// joints this is an estimate, which is all the path timing needs) and rest = q̇ − q̇_path.
+///
+/// A joint that no path speed fits (the base's motion or the feedback alone asks more of it than its
+/// box allows) does not bound s: slowing the path would not cure it, and would stall the path for as
+/// long as the base keeps moving. The common scale of the step still keeps that joint within limits.
+#[allow(clippy::too_many_arguments)]
+fn path_share_scale(
+    tj: &TaskJacobian,
+    s0: &Svd,
+    path: &PathVelocity,
+    qd: &JointVector,
+    boxes: &Boxes,
+    cfg: &ClikConfig,
+    n: usize,
+    saturated: u8,
+) -> f64 {
+    let rhs = tj.project(&path.linear, &path.angular);
+    let qd_path = damped_solve(s0, &rhs, &JointVector::zeros(), cfg.sigma_threshold, cfg.damping_max, n);
+    let mut s_hi = 1.0f64;
+    for i in 0..n {
+        if saturated & (1 << i) != 0 {
+            continue;
+        }
+        let rest = qd[i] - qd_path[i];
+        let (a, b) = scale_interval(qd_path[i], boxes.lo[i] - rest, boxes.hi[i] - rest);
+        if a <= 1.0 && b >= 0.0 && a <= b {
+            s_hi = s_hi.min(b);
+        }
+    }
+    if s_hi.is_finite() { s_hi.clamp(0.0, 1.0) } else { 0.0 }
 }
 
 /// The factors s for which s·v lies in [lo, hi], as an interval (empty: a > b; all s: (−∞, ∞)).

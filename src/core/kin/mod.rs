@@ -11,7 +11,7 @@ pub mod model;
 pub mod svd;
 pub mod task;
 
-pub use clik::{Clik, ClikConfig, ClikStatus, ClikStep, InvalidClikConfig, Priority, TcpTarget};
+pub use clik::{Clik, ClikConfig, ClikStatus, ClikStep, InvalidClikConfig, PathVelocity, Priority, TcpTarget};
 pub use fk::{ChainState, Jacobian};
 pub use model::{Frame, Joint, JointKind, JointLimits, JointVector, MAX_JOINTS, ModelError, RobotModel};
 pub use svd::Svd;

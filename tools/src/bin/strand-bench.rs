@@ -1,9 +1,17 @@
-//! strand-bench: measurements with distributions, not averages. This first mode, `log`, measures
-//! the MCAP logger at a control rate: a real controller prints an endless square job on a robot
+//! strand-bench: measurements with distributions, not averages, each next to a baseline from the
+//! same run where there is one: `jitter` (wake-up lateness of the cycle runner against an empty
+//! TimerClock loop and cyclictest), `latency` (state in → command out on the robot clock against an
+//! iceoryx2 ping-pong), `tick` (cost per stage, allocations counted) and `log`, below; the modes are
+//! in `strand_tools::bench`. `--json` prints one object per mode with `samples, p50_ns, p99_ns,
+//! p999_ns, p9999_ns, max_ns`; `--png FILE` draws the histograms.
+//!
+//! The `log` mode measures the MCAP logger at a control rate: a real controller prints an endless square job on a robot
 //! that follows its commands, paced by the service's own timer clock, and every tick goes through
 //! `Logger::push` to the writer thread. It reports the enqueue cost per record (p50 … max), drops
 //! (the aim is 0), the writer thread's CPU share and the bytes written per second.
 
+use std::alloc::{GlobalAlloc, Layout, System};
+use std::cell::Cell;
 use std::path::PathBuf;
 use std::process::ExitCode;
 
@@ -15,6 +23,36 @@ use strand::io::histogram::Histogram;
 use strand::log::messages::TickTiming;
 use strand::log::writer::{LogContext, Logger, thread_cpu_s};
 use strand_ipc as ipc;
+use strand_tools::bench::{self, Dist, jitter, latency, tick};
+
+/// Counts this thread's allocations, for `tick` (the tick path must not allocate).
+struct Counting;
+
+thread_local! {
+    static ALLOCATIONS: Cell<u64> = const { Cell::new(0) };
+}
+
+// SAFETY: forwards to the system allocator; the counter is a thread-local Cell (no allocation).
+unsafe impl GlobalAlloc for Counting {
+    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
+        ALLOCATIONS.with(|c| c.set(c.get() + 1));
+        unsafe { System.alloc(layout) }
+    }
+    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
+        unsafe { System.dealloc(ptr, layout) }
+    }
+    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
+        ALLOCATIONS.with(|c| c.set(c.get() + 1));
+        unsafe { System.realloc(ptr, layout, new_size) }
+    }
+}
+
+#[global_allocator]
+static GLOBAL: Counting = Counting;
+
+fn allocations() -> u64 {
+    ALLOCATIONS.with(|c| c.get())
+}
 
 #[derive(Parser)]
 #[command(name = "strand-bench", version, about = "Benchmarks: distributions of cost, jitter and throughput")]
@@ -25,6 +63,74 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Mode {
+    /// Wake-up lateness of the cycle runner (timer mode), idle or with a controller printing, next
+    /// to an empty TimerClock loop and (with --cyclictest) cyclictest at the same period.
+    Jitter {
+        /// Tick rate (Hz).
+        #[arg(long, default_value_t = 1000.0)]
+        rate: f64,
+        /// Duration of each run (s).
+        #[arg(long, default_value_t = 10.0)]
+        seconds: f64,
+        /// SCHED_FIFO (at --priority) and mlockall for the runner and the baselines.
+        #[arg(long)]
+        rt: bool,
+        /// SCHED_FIFO priority with --rt.
+        #[arg(long, default_value_t = 80)]
+        priority: u32,
+        /// Run the controller of this robot (a name under config/, or a config file), printing 004's box.
+        #[arg(long, value_name = "ROBOT")]
+        with_controller: Option<String>,
+        /// Also run cyclictest (rt-tests) with the same period, priority and memory locking.
+        #[arg(long)]
+        cyclictest: bool,
+        /// Print one JSON object instead of the table.
+        #[arg(long)]
+        json: bool,
+        /// Draw the histograms (log-scale counts) into this PNG.
+        #[arg(long)]
+        png: Option<PathBuf>,
+    },
+    /// State in → command out on the robot clock (a driver here, the service as its own process
+    /// printing the box), next to an iceoryx2 ping-pong between two processes.
+    Latency {
+        /// Robot rate (Hz).
+        #[arg(long, default_value_t = 1000.0)]
+        rate: f64,
+        /// Duration of each run (s).
+        #[arg(long, default_value_t = 10.0)]
+        seconds: f64,
+        /// The robot (a name under config/, or a config file).
+        #[arg(long, default_value = "iiwa7")]
+        robot: String,
+        /// Print one JSON object instead of the table.
+        #[arg(long)]
+        json: bool,
+        /// Draw the histograms (log-scale counts) into this PNG.
+        #[arg(long)]
+        png: Option<PathBuf>,
+    },
+    /// Cost per stage of a controller tick printing the box (path sample, base correction, FK +
+    /// Jacobian, CLIK, extrusion, log enqueue) and of the whole step; allocations counted (must be 0).
+    Tick {
+        /// The robot (a name under config/, or a config file).
+        #[arg(long, default_value = "iiwa7")]
+        robot: String,
+        /// Ticks to measure.
+        #[arg(long, default_value_t = 100_000)]
+        iterations: u64,
+        /// Print one JSON object instead of the table.
+        #[arg(long)]
+        json: bool,
+    },
+    /// The ping-pong end of `latency` (started by it).
+    #[command(hide = true)]
+    Pong {
+        #[arg(long)]
+        prefix: String,
+        #[arg(long, default_value_t = 60.0)]
+        seconds: f64,
+    },
     /// Logger throughput at a control rate: enqueue cost, drops, writer CPU share, bytes/s.
     Log {
         /// Tick rate (Hz).
@@ -42,7 +148,29 @@ enum Mode {
         /// Print one JSON object instead of the table.
         #[arg(long)]
         json: bool,
+        /// Draw the enqueue-cost histogram (log-scale counts) into this PNG.
+        #[arg(long)]
+        png: Option<PathBuf>,
     },
+}
+
+/// A robot name under config/ (`iiwa7` → config/iiwa7.toml), or a config file as it is.
+fn robot_config(root: &std::path::Path, robot: &str) -> PathBuf {
+    let p = PathBuf::from(robot);
+    if p.extension().is_some() || p.exists() { p } else { root.join("config").join(format!("{robot}.toml")) }
+}
+
+fn emit<T: serde::Serialize>(json: bool, report: &T, table: impl Fn(&T)) -> Result<(), String> {
+    if json {
+        println!("{}", serde_json::to_string(report).map_err(|e| e.to_string())?);
+    } else {
+        table(report);
+    }
+    Ok(())
+}
+
+fn check_sane(what: &str, d: &Dist) -> Result<(), String> {
+    if d.is_sane() { Ok(()) } else { Err(format!("{what}: implausible distribution {d:?}")) }
 }
 
 const DOWN: [f64; 4] = [0.0, 0.0, 1.0, 0.0];
@@ -59,7 +187,7 @@ fn square_segment(k: u64) -> ipc::Segment {
     ipc::Segment { seq: k + 1, kind: ipc::SegmentKind::Line as u32, flags, end, orientation: DOWN, feed, filament, ..Default::default() }
 }
 
-fn log_mode(rate: f64, seconds: f64, config: PathBuf, out: Option<PathBuf>, json: bool) -> Result<(), String> {
+fn log_mode(rate: f64, seconds: f64, config: PathBuf, out: Option<PathBuf>, json: bool, png: Option<PathBuf>) -> Result<(), String> {
     let mut cfg = Config::load(&config).map_err(|e| e.to_string())?;
     cfg.controller.rate_hz = rate;
     cfg.controller.validate().map_err(|e| e.to_string())?;
@@ -177,6 +305,9 @@ fn log_mode(rate: f64, seconds: f64, config: PathBuf, out: Option<PathBuf>, json
             println!("write error            {e}");
         }
     }
+    if let Some(png) = png {
+        bench::plot_histograms(&png, &format!("Logger::push at {rate} Hz"), &[("Logger::push", &enqueue), ("Controller::step", &step)])?;
+    }
     if temporary {
         for f in &report.files {
             let _ = std::fs::remove_file(f);
@@ -191,8 +322,53 @@ fn log_mode(rate: f64, seconds: f64, config: PathBuf, out: Option<PathBuf>, json
 }
 
 fn main() -> ExitCode {
+    let root = bench::repo_root();
     let result = match Cli::parse().command {
-        Mode::Log { rate, seconds, config, out, json } => log_mode(rate, seconds, config, out, json),
+        Mode::Log { rate, seconds, config, out, json, png } => log_mode(rate, seconds, config, out, json, png),
+        Mode::Jitter { rate, seconds, rt, priority, with_controller, cyclictest, json, png } => {
+            let opts = jitter::JitterOptions {
+                rate_hz: rate,
+                seconds,
+                rt,
+                priority,
+                with_controller: with_controller.map(|r| robot_config(&root, &r)),
+                cyclictest,
+                root: root.clone(),
+            };
+            jitter::run(&opts).and_then(|r| {
+                emit(json, &r, jitter::print)?;
+                if let Some(p) = png {
+                    jitter::plot(&r, &p)?;
+                }
+                check_sane("lateness", &r.lateness)?;
+                check_sane("baseline", &r.baseline)
+            })
+        }
+        Mode::Latency { rate, seconds, robot, json, png } => {
+            let bin_dir = std::env::current_exe().ok().and_then(|p| p.parent().map(PathBuf::from)).unwrap_or_default();
+            let opts = latency::LatencyOptions { rate_hz: rate, seconds, config: robot_config(&root, &robot), root: root.clone(), bin_dir };
+            latency::run(&opts).and_then(|r| {
+                emit(json, &r, latency::print)?;
+                if let Some(p) = png {
+                    latency::plot(&r, &p)?;
+                }
+                check_sane("latency", &r.latency)?;
+                check_sane("ping-pong", &r.baseline)
+            })
+        }
+        Mode::Tick { robot, iterations, json } => {
+            let opts = tick::TickOptions { config: robot_config(&root, &robot), iterations, root: root.clone(), allocations };
+            tick::run(&opts).and_then(|r| {
+                emit(json, &r, tick::print)?;
+                check_sane("Controller::step", &r.total)?;
+                let allocating: Vec<&str> = r.stages.iter().filter(|s| s.allocations > 0).map(|s| s.name.as_str()).collect();
+                if r.allocations > 0 || !allocating.is_empty() {
+                    return Err(format!("the tick allocated: Controller::step {} times; stages {allocating:?}", r.allocations));
+                }
+                Ok(())
+            })
+        }
+        Mode::Pong { prefix, seconds } => latency::pong(&prefix, seconds),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -206,7 +206,7 @@ fn run(cli: &Cli) -> Result<bool, String> {
     }
     let mut sim = Proc::spawn("sim", sim, &out)?;
     // Start the job once the sim clocks the service (and tracking has arrived): 200 ticks.
-    wait_for_ticks(&prefix, 200, deadline.min(Instant::now() + Duration::from_secs(60)))?;
+    wait_for_ticks(&prefix, 200, deadline.min(Instant::now() + Duration::from_secs(60)), &mut [&mut service, &mut sim], &out)?;
     let mut feed = Command::new(&feed_bin);
     feed.arg(&gcode).arg("--config").arg(&config).args(["--prefix", &prefix, "--quiet", "--wait-service", "20"]);
     if let Some(n) = layers {
@@ -255,13 +255,21 @@ fn run(cli: &Cli) -> Result<bool, String> {
     Ok(ok)
 }
 
-/// Waits until the service's Status reports `ticks` ticks.
-fn wait_for_ticks(prefix: &str, ticks: u64, deadline: Instant) -> Result<(), String> {
+/// Waits until the service's Status reports `ticks` ticks. A child that exits meanwhile ends the wait
+/// at once, with the last line of its log (a bad config, a missing binary...).
+fn wait_for_ticks(prefix: &str, ticks: u64, deadline: Instant, children: &mut [&mut Proc], out: &Path) -> Result<(), String> {
     let ports = ClientPorts::open(&ServiceNames::new(prefix), "strand-demo", ClientRoles { monitor: true, ..Default::default() })
         .map_err(|e| e.to_string())?;
     loop {
         if ports.latest_status().is_some_and(|s| s.tick >= ticks) {
             return Ok(());
+        }
+        for c in children.iter_mut() {
+            if let Ok(Some(status)) = c.child.try_wait() {
+                let log = out.join(format!("{}.log", c.name));
+                let last = std::fs::read_to_string(&log).unwrap_or_default().lines().last().unwrap_or("").to_string();
+                return Err(format!("the {} exited ({status}) before the job began: {last} (see {})", c.name, log.display()));
+            }
         }
         if Instant::now() >= deadline {
             return Err(format!(

@@ -1,0 +1,67 @@
+#!/usr/bin/env python3
+"""Checks strand-bench --json output (one object per line on stdin): the keys every mode promises
+(samples, p50_ns, p99_ns, p999_ns, p9999_ns, max_ns; overruns for jitter; baseline with the same
+keys where there is one; stages for tick) and that the numbers are sane: positive samples, ordered
+percentiles. Prints `check_bench: N passed, 0 failed` or exits 1 naming the first problem."""
+import json
+import sys
+
+KEYS = ["samples", "p50_ns", "p99_ns", "p999_ns", "p9999_ns", "max_ns"]
+
+
+def check_dist(where, d):
+    for k in KEYS:
+        if k not in d:
+            raise AssertionError(f"{where}: no {k} in {d}")
+        if not isinstance(d[k], int) or d[k] < 0:
+            raise AssertionError(f"{where}: {k} = {d[k]!r} is not a non-negative integer")
+    if d["samples"] <= 0:
+        raise AssertionError(f"{where}: no samples")
+    values = [d[k] for k in KEYS[1:]]
+    if values != sorted(values):
+        raise AssertionError(f"{where}: percentiles out of order: {values}")
+    if d["p50_ns"] <= 0:
+        raise AssertionError(f"{where}: p50 is 0")
+
+
+def main():
+    passed = 0
+    for line in sys.stdin:
+        line = line.strip()
+        if not line.startswith("{"):
+            continue
+        r = json.loads(line)
+        mode = r.get("mode")
+        check_dist(mode, r)
+        if mode == "jitter":
+            assert isinstance(r["overruns"], int), r
+            check_dist("jitter baseline", r["baseline"])
+            if r.get("cyclictest") is not None:
+                check_dist("jitter cyclictest", r["cyclictest"])
+        elif mode == "latency":
+            check_dist("latency baseline", r["baseline"])
+            check_dist("latency tick", r["tick"])
+            assert r["missed"] * 100 <= r["samples"], f"latency: {r['missed']} states unanswered"
+        elif mode == "tick":
+            assert r["allocations"] == 0, r
+            names = [s["name"] for s in r["stages"]]
+            assert len(names) == 6, names
+            for s in r["stages"]:
+                check_dist(f"tick stage {s['name']}", s)
+                assert s["allocations"] == 0, s
+        elif mode == "log":
+            assert r["drops"] == 0, r
+        else:
+            raise AssertionError(f"unknown mode {mode!r}")
+        passed += 1
+    if passed == 0:
+        raise AssertionError("no strand-bench JSON on stdin")
+    print(f"check_bench: {passed} passed, 0 failed")
+
+
+if __name__ == "__main__":
+    try:
+        main()
+    except AssertionError as e:
+        print(f"check_bench: {e}", file=sys.stderr)
+        sys.exit(1)

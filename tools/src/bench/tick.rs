@@ -1,0 +1,225 @@
+//! `strand-bench tick`: what one controller tick costs, stage by stage, while it prints 004's box:
+//! path sample (the path engine's step), base correction (the base estimate at the tick and the
+//! world → base map of the target), FK + task Jacobian, the CLIK solve (damped SVD inverse, null
+//! space, limits; it does its own FK and Jacobian, counted again here), extrusion, and the log
+//! enqueue; and `Controller::step` whole. The stages are the controller's own parts driven in the
+//! controller's order on the same job; the whole step runs a real `Controller` beside them.
+//! Allocations are counted per stage by the binary's counting allocator: the aim is 0.
+
+use std::path::PathBuf;
+
+use nalgebra::UnitQuaternion;
+use serde::Serialize;
+use strand::config::Config;
+use strand::core::base::BaseEstimator;
+use strand::core::controller::{Controller, MAX_SEGMENTS_PER_TICK, TickInput};
+use strand::core::extrude::Extruder;
+use strand::core::kin::{ChainState, Clik, PathVelocity, TaskJacobian, TcpTarget};
+use strand::core::path::{BedTransform, PathEngine, Segment};
+use strand::gcode::{GcodeOptions, parse_file};
+use strand::io::clock::monotonic_ns;
+use strand::io::histogram::Histogram;
+use strand::log::messages::TickTiming;
+use strand::log::writer::{LogContext, Logger};
+use strand_ipc as ipc;
+
+use super::{Dist, bench_job};
+
+/// What to run.
+#[derive(Clone, Debug)]
+pub struct TickOptions {
+    /// Service config (robot, controller, path, base, extruder, log).
+    pub config: PathBuf,
+    /// Ticks to measure.
+    pub iterations: u64,
+    /// Repository root (the job).
+    pub root: PathBuf,
+    /// Reads the calling thread's allocation count (the binary's counting allocator).
+    pub allocations: fn() -> u64,
+}
+
+/// One stage's cost and allocations.
+#[derive(Clone, Debug, Serialize)]
+pub struct Stage {
+    /// What the stage is.
+    pub name: String,
+    /// The cost per tick (ns).
+    #[serde(flatten)]
+    pub cost: Dist,
+    /// Allocations over all measured ticks (count; must be 0).
+    pub allocations: u64,
+}
+
+/// The report; `--json` prints it as one object.
+#[derive(Clone, Debug, Serialize)]
+pub struct TickReport {
+    /// "tick".
+    pub mode: &'static str,
+    /// The robot.
+    pub robot: String,
+    /// Joints.
+    pub dof: usize,
+    /// Ticks measured.
+    pub iterations: u64,
+    /// Ticks of them on the path (printing or travelling).
+    pub running_ticks: u64,
+    /// `Controller::step`, whole (ns).
+    #[serde(flatten)]
+    pub total: Dist,
+    /// Allocations in `Controller::step` over all ticks (count; must be 0).
+    pub allocations: u64,
+    /// Per stage, in the controller's order.
+    pub stages: Vec<Stage>,
+}
+
+fn core_segments(cfg: &Config, root: &std::path::Path) -> Result<Vec<Segment>, String> {
+    let bed = BedTransform::new(&cfg.bed).map_err(|e| format!("[bed] {e}"))?;
+    let path = root.join("tests/data/gcode/prusaslicer/box35.gcode");
+    let parser = parse_file(&path, GcodeOptions { first_seq: 1, ..GcodeOptions::default() }).map_err(|e| e.to_string())?;
+    parser.map(|g| g.map(|g| bed.segment(&g.segment)).map_err(|e| e.to_string())).collect()
+}
+
+/// Runs the stages and the whole step for `iterations` ticks.
+pub fn run(opts: &TickOptions) -> Result<TickReport, String> {
+    let cfg = Config::load(&opts.config).map_err(|e| e.to_string())?;
+    let model = cfg.robot.build_model().map_err(|e| e.to_string())?;
+    let n = model.dof();
+    let dt = 1.0 / cfg.controller.rate_hz;
+    let dt_ns = (dt * 1e9).round() as u64;
+    let alloc = opts.allocations;
+
+    // The stages, set up as the controller sets them up.
+    let mut q = model.middle_configuration();
+    for (i, v) in cfg.service.initial_joints.iter().enumerate().take(n) {
+        q[i] = *v;
+    }
+    let estimator = BaseEstimator::new(&cfg.base);
+    let start_b = model.forward_kinematics(&q);
+    let (start_w, start_q) =
+        estimator.at(0).base_to_world(&start_b.translation.vector, &UnitQuaternion::from_rotation_matrix(&start_b.rotation));
+    let mut engine = PathEngine::new(&cfg.path, dt, start_w, start_q).map_err(|e| e.to_string())?;
+    let mut clik = Clik::new(cfg.clik).map_err(|e| e.to_string())?;
+    let mut extruder = Extruder::new(&cfg.extruder, dt).map_err(|e| e.to_string())?;
+    let mut state = ChainState::new(n);
+    let segments = core_segments(&cfg, &opts.root)?;
+    let mut next_core = 0usize;
+
+    // The whole controller, on the same job over the wire types, with its log.
+    let mut ctl = Controller::new(&cfg.controller_settings(), model.clone()).map_err(|e| e.to_string())?;
+    let job = bench_job(&opts.root, &cfg)?;
+    let log_path = std::env::temp_dir().join(format!("strand-bench-tick-{}.mcap", std::process::id()));
+    let logger = Logger::start_at(&cfg.log, LogContext::new(&cfg, &model), &log_path).map_err(|e| e.to_string())?;
+    let mut input = TickInput::new(0, 0);
+    let mut q_ctl = [0.0; ipc::MAX_JOINTS];
+    q_ctl[..n].copy_from_slice(&q.as_slice()[..n]);
+    let (mut next_wire, mut free) = (0usize, 0u32);
+
+    const NAMES: [&str; 6] =
+        ["path sample", "base correction", "FK + Jacobian", "CLIK (own FK, SVD, null space, limits)", "extrusion", "log enqueue"];
+    let mut cost: [Histogram; 6] = Default::default();
+    let mut allocs = [0u64; 6];
+    let mut total = Histogram::new();
+    let mut total_allocs = 0u64;
+    let mut scale = 1.0;
+    let mut running_ticks = 0u64;
+    let mut time_ns = 0u64;
+    for tick in 0..opts.iterations {
+        time_ns += dt_ns;
+        // Keep the engine fed (outside the measurement), as the controller's intake does.
+        while next_core < segments.len() && engine.free_space() > 0 {
+            engine.push(&segments[next_core]).map_err(|e| format!("segment {}: {e:?}", segments[next_core].seq))?;
+            next_core += 1;
+        }
+        let mut stage = 0;
+        let mut t = monotonic_ns();
+        let mut a = alloc();
+        let mut lap = |stage: &mut usize, t: &mut u64, a: &mut u64| {
+            let (now, count) = (monotonic_ns(), alloc());
+            cost[*stage].record(now - *t);
+            allocs[*stage] += count - *a;
+            *stage += 1;
+            (*t, *a) = (monotonic_ns(), alloc());
+        };
+        let sample = engine.step(scale);
+        lap(&mut stage, &mut t, &mut a);
+        let base = estimator.at(time_ns + dt_ns);
+        let target_w = TcpTarget {
+            position: sample.position,
+            orientation: sample.orientation,
+            linear_velocity: sample.velocity,
+            angular_velocity: sample.angular_velocity,
+        };
+        let target_b = base.world_to_base(&target_w);
+        let r_bw = base.orientation.inverse();
+        let path_b = PathVelocity { linear: r_bw * sample.velocity, angular: r_bw * sample.angular_velocity };
+        lap(&mut stage, &mut t, &mut a);
+        model.kinematics(&q, &mut state);
+        std::hint::black_box(TaskJacobian::new(&state, cfg.clik.task));
+        lap(&mut stage, &mut t, &mut a);
+        let step = clik.step_on_path(&model, &q, &target_b, &path_b, dt);
+        lap(&mut stage, &mut t, &mut a);
+        std::hint::black_box(extruder.step(&sample));
+        lap(&mut stage, &mut t, &mut a);
+        scale = step.path_scale;
+        q = step.q;
+
+        // The whole step, then its log record.
+        input.reset(tick, time_ns);
+        input.joint_state =
+            Some(ipc::JointState { seq: tick + 1, stamp_ns: time_ns, dof: n as u32, position: q_ctl, ..Default::default() });
+        if tick == 0 {
+            input.push_control(&ipc::Control { seq: 1, stamp_ns: time_ns, command: ipc::Command::Start as u32, value: 0.0, _reserved: 0 });
+            free = 64;
+        }
+        while free > 0 && next_wire < job.segments.len() && (input.segment_count as usize) < MAX_SEGMENTS_PER_TICK {
+            input.push_segment(&job.segments[next_wire]);
+            next_wire += 1;
+            free -= 1;
+        }
+        let (t0, a0) = (monotonic_ns(), alloc());
+        let out = ctl.step(&input);
+        let (t1, a1) = (monotonic_ns(), alloc());
+        total.record(t1 - t0);
+        total_allocs += a1 - a0;
+        let (t, a) = (monotonic_ns(), alloc());
+        logger.push(&input, &out, &TickTiming { wake_lateness_ns: 0, step_ns: t1 - t0, tick_ns: t1 - t0 });
+        cost[5].record(monotonic_ns() - t);
+        allocs[5] += alloc() - a;
+        if out.joint_command.valid == 1 {
+            q_ctl = out.joint_command.position;
+        }
+        free = out.status.queue_free.saturating_sub(64);
+        running_ticks += (out.status.run_state == ipc::RunState::Running as u32) as u64;
+    }
+    let report = logger.finish();
+    for f in &report.files {
+        let _ = std::fs::remove_file(f);
+    }
+    Ok(TickReport {
+        mode: "tick",
+        robot: model.name().to_string(),
+        dof: n,
+        iterations: opts.iterations,
+        running_ticks,
+        total: Dist::of(&total),
+        allocations: total_allocs,
+        stages: NAMES
+            .iter()
+            .zip(cost.iter().zip(allocs))
+            .map(|(name, (h, a))| Stage { name: name.to_string(), cost: Dist::of(h), allocations: a })
+            .collect(),
+    })
+}
+
+/// Writes the report as a table.
+pub fn print(r: &TickReport) {
+    println!(
+        "strand-bench tick: {} ({} joints), {} ticks of 004's box, {} of them on the path",
+        r.robot, r.dof, r.iterations, r.running_ticks
+    );
+    println!("{} {:>7}", Dist::header("stage"), "allocs");
+    for s in &r.stages {
+        println!("{} {:>7}", s.cost.row(&s.name), s.allocations);
+    }
+    println!("{} {:>7}", r.total.row("Controller::step (whole)"), r.allocations);
+}
