@@ -2,7 +2,7 @@
 //! with a controller printing 004's box), next to two baselines from the same run: the same
 //! `TimerClock` in a loop that does nothing (what the OS gives this timing code at all), and, when it
 //! is installed, `cyclictest` (rt-tests) with the same period, priority and memory locking. The three
-//! run one after the other, never together (two cores).
+//! take turns in rounds of a second, never together (two cores), so each sees the machine alike.
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -111,9 +111,39 @@ pub fn run(opts: &JitterOptions) -> Result<JitterReport, String> {
         Some(_) => Some(bench_job(&opts.root, &cfg)?),
         None => None,
     };
-    let summary = std::thread::scope(|scope| {
+    // Interleaved rounds of one second (runner, empty loop, cyclictest), so a noisy phase of a shared
+    // machine falls on all three alike rather than on whichever ran then.
+    let period_ns = (1e9 / opts.rate_hz).round() as u64;
+    let rounds = opts.seconds.round().max(1.0) as u64;
+    let ticks_per_round = ticks.div_ceil(rounds);
+    let spin_ns = (cfg.service.spin * 1e9) as u64;
+    let (mut lateness_h, mut baseline, mut cyclictest) = (Histogram::new(), Histogram::new(), opts.cyclictest.then(Histogram::new));
+    let (mut overruns, mut late_wakeups, mut realtime, mut cyclictest_note) = (0, 0, String::new(), None);
+    std::thread::scope(|scope| {
         let feeder = job.as_ref().map(|job| scope.spawn(|| stream_job(&prefix, job, &stop_feed)));
-        let summary = runner.run(&rt_cfg, &stop_runner, StopWhen { max_ticks: Some(ticks), job_done: false }, &mut NullSink);
+        let mut result = Ok(());
+        for _ in 0..rounds {
+            let when = StopWhen { max_ticks: Some(ticks_per_round), job_done: false };
+            match runner.run(&rt_cfg, &stop_runner, when, &mut NullSink) {
+                Ok(summary) => {
+                    lateness_h.merge(&summary.lateness);
+                    overruns += summary.cycle.overruns;
+                    late_wakeups += summary.cycle.late_wakeups;
+                    realtime = summary.realtime.to_string();
+                }
+                Err(e) => {
+                    result = Err(e.to_string());
+                    break;
+                }
+            }
+            baseline.merge(&empty_loop(period_ns, spin_ns, ticks_per_round, &rt_cfg));
+            if let Some(h) = cyclictest.as_mut() {
+                match run_cyclictest(period_ns, 1.0, opts.rt.then_some(opts.priority)) {
+                    Ok(round) => h.merge(&round),
+                    Err(e) => cyclictest_note = Some(e),
+                }
+            }
+        }
         stop_feed.store(true, Ordering::Relaxed);
         if let Some(f) = feeder {
             match f.join() {
@@ -122,24 +152,15 @@ pub fn run(opts: &JitterOptions) -> Result<JitterReport, String> {
                 Ok(Ok(_)) => {}
             }
         }
-        summary.map_err(|e| e.to_string())
+        result
     })?;
-    let realtime = summary.realtime.to_string();
-
-    let period_ns = (1e9 / opts.rate_hz).round() as u64;
-    let baseline = empty_loop(period_ns, (cfg.service.spin * 1e9) as u64, ticks, &rt_cfg);
-    let (cyclictest, cyclictest_note) = if opts.cyclictest {
-        match run_cyclictest(period_ns, opts.seconds, opts.rt.then_some(opts.priority)) {
-            Ok(h) => (Some(h), None),
-            Err(e) => (None, Some(e)),
-        }
-    } else {
-        (None, None)
-    };
-    let lateness = Dist::of(&summary.lateness);
+    if cyclictest_note.is_some() {
+        cyclictest = None;
+    }
+    let lateness = Dist::of(&lateness_h);
     let base = Dist::of(&baseline);
     let ct = cyclictest.as_ref().map(Dist::of);
-    let mut histograms = vec![("strand runner".to_string(), summary.lateness.clone()), ("empty TimerClock loop".to_string(), baseline)];
+    let mut histograms = vec![("strand runner".to_string(), lateness_h), ("empty TimerClock loop".to_string(), baseline)];
     if let Some(h) = cyclictest {
         histograms.push(("cyclictest".to_string(), h));
     }
@@ -150,8 +171,8 @@ pub fn run(opts: &JitterOptions) -> Result<JitterReport, String> {
         controller: opts.with_controller.as_ref().map(|_| robot),
         realtime,
         lateness,
-        overruns: summary.cycle.overruns,
-        late_wakeups: summary.cycle.late_wakeups,
+        overruns,
+        late_wakeups,
         baseline: base,
         ratio_p999_baseline: ratio(lateness.p999_ns, base.p999_ns),
         ratio_p999_cyclictest: ct.map(|c| ratio(lateness.p999_ns, c.p999_ns)),

@@ -70,6 +70,9 @@ pub struct TickReport {
     pub allocations: u64,
     /// Per stage, in the controller's order.
     pub stages: Vec<Stage>,
+    /// The histograms (whole step, then the stages), for the plot (not printed).
+    #[serde(skip)]
+    pub histograms: Vec<(String, Histogram)>,
 }
 
 fn core_segments(cfg: &Config, root: &std::path::Path) -> Result<Vec<Segment>, String> {
@@ -195,7 +198,10 @@ pub fn run(opts: &TickOptions) -> Result<TickReport, String> {
     for f in &report.files {
         let _ = std::fs::remove_file(f);
     }
+    let mut histograms = vec![("Controller::step".to_string(), total.clone())];
+    histograms.extend(NAMES.iter().zip(cost.iter()).map(|(n, h)| (n.to_string(), h.clone())));
     Ok(TickReport {
+        histograms,
         mode: "tick",
         robot: model.name().to_string(),
         dof: n,
@@ -222,4 +228,10 @@ pub fn print(r: &TickReport) {
         println!("{} {:>7}", s.cost.row(&s.name), s.allocations);
     }
     println!("{} {:>7}", r.total.row("Controller::step (whole)"), r.allocations);
+}
+
+/// Draws the whole step's histogram with the stages'.
+pub fn plot(r: &TickReport, path: &std::path::Path) -> Result<(), String> {
+    let series: Vec<(&str, &Histogram)> = r.histograms.iter().map(|(n, h)| (n.as_str(), h)).collect();
+    super::plot_histograms(path, &format!("tick cost, {}", r.robot), &series)
 }

@@ -122,6 +122,9 @@ enum Mode {
         /// Print one JSON object instead of the table.
         #[arg(long)]
         json: bool,
+        /// Draw the histograms (log-scale counts) of the whole step and the stages into this PNG.
+        #[arg(long)]
+        png: Option<PathBuf>,
     },
     /// The ping-pong end of `latency` (started by it).
     #[command(hide = true)]
@@ -356,10 +359,13 @@ fn main() -> ExitCode {
                 check_sane("ping-pong", &r.baseline)
             })
         }
-        Mode::Tick { robot, iterations, json } => {
+        Mode::Tick { robot, iterations, json, png } => {
             let opts = tick::TickOptions { config: robot_config(&root, &robot), iterations, root: root.clone(), allocations };
             tick::run(&opts).and_then(|r| {
                 emit(json, &r, tick::print)?;
+                if let Some(p) = png {
+                    tick::plot(&r, &p)?;
+                }
                 check_sane("Controller::step", &r.total)?;
                 let allocating: Vec<&str> = r.stages.iter().filter(|s| s.allocations > 0).map(|s| s.name.as_str()).collect();
                 if r.allocations > 0 || !allocating.is_empty() {
