@@ -209,7 +209,7 @@ mod tests {
         }
         let d = Dist::of(&h);
         for (got, p) in [(d.p50_ns, 0.5), (d.p99_ns, 0.99), (d.p999_ns, 0.999), (d.p9999_ns, 0.9999)] {
-            let want = -10_000.0 * (1.0 - p).ln();
+            let want = -10_000.0 * (1.0f64 - p).ln();
             assert!(near(got, want), "p{p}: {got} vs {want}");
         }
         assert!(d.is_sane());
