@@ -5,6 +5,7 @@
 //! Functions documented as *tick-path safe* do not allocate, lock a mutex, print or use `tracing`;
 //! everything else runs at start-up, shutdown or on an error path.
 
+pub mod alloc_count;
 pub mod clock;
 pub mod histogram;
 pub mod ports;

@@ -50,10 +50,9 @@ pub fn to_wire(s: &Segment) -> ipc::Segment {
     }
 }
 
-/// Reads a G-code program for the cell described by `cfg`. Segment numbers start at 1 (the
-/// program's first segment); `resume_from = Some(n)` drops segments before `n` and starts with a
-/// travel (numbered `n − 1`) to where segment `n` starts, so a job interrupted at `n` can go on.
-pub fn load_gcode(path: &Path, cfg: &Config, resume_from: Option<u64>) -> Result<Job, String> {
+/// The program's segments in W (the config's `[bed]` applied), numbered from 1, each with its slicer
+/// layer, and the parser's warnings (one line each, naming the file). An error if it has no motion.
+pub fn load_segments(path: &Path, cfg: &Config) -> Result<(Vec<(Segment, Option<i32>)>, Vec<String>), String> {
     let bed = BedTransform::new(&cfg.bed).map_err(|e| format!("{}: [bed] {e}", cfg.file.display()))?;
     let options = GcodeOptions { first_seq: 1, ..GcodeOptions::default() };
     let mut parser = parse_file(path, options).map_err(|e| e.to_string())?;
@@ -66,6 +65,25 @@ pub fn load_gcode(path: &Path, cfg: &Config, resume_from: Option<u64>) -> Result
     if all.is_empty() {
         return Err(format!("{}: no motion in the program", path.display()));
     }
+    Ok((all, warnings))
+}
+
+/// `segments` (at most [`ipc::SEGMENT_BATCH_CAPACITY`]) as batch number `batch_seq`, all stamped now.
+pub fn batch(segments: &[ipc::Segment], batch_seq: u64) -> ipc::SegmentBatch {
+    let mut batch =
+        ipc::SegmentBatch { seq: batch_seq, stamp_ns: strand::io::clock::monotonic_ns(), len: segments.len() as u32, ..Default::default() };
+    for (k, s) in segments.iter().enumerate() {
+        batch.segments[k] = ipc::Segment { stamp_ns: batch.stamp_ns, ..*s };
+    }
+    batch
+}
+
+/// Reads a G-code program for the cell described by `cfg`. Segment numbers start at 1 (the
+/// program's first segment); `resume_from = Some(n)` drops segments before `n` and starts with a
+/// travel (numbered `n − 1`) to where segment `n` starts, so a job interrupted at `n` can go on.
+pub fn load_gcode(path: &Path, cfg: &Config, resume_from: Option<u64>) -> Result<Job, String> {
+    let (mut all, warnings) = load_segments(path, cfg)?;
+    let bed = BedTransform::new(&cfg.bed).map_err(|e| format!("{}: [bed] {e}", cfg.file.display()))?;
     let mut start = bed.point(&GcodeOptions::default().start);
     let mut skipped = 0;
     if let Some(n) = resume_from {

@@ -20,13 +20,16 @@ use strand::io::ports::{ClientPorts, ClientRoles};
 use strand_ipc as ipc;
 use strand_ipc::ServiceNames;
 
-use crate::feed::{Job, credit, load_gcode};
+use crate::feed::{Job, batch, credit, load_gcode};
 
 /// The job a loaded controller prints in `jitter` and `latency`: 004's 35 mm box (PrusaSlicer),
 /// 16 k segments, 21 minutes of printing, far longer than any benchmark run.
 pub fn bench_job(root: &Path, cfg: &Config) -> Result<Job, String> {
-    load_gcode(&root.join("tests/data/gcode/prusaslicer/box35.gcode"), cfg, None)
+    load_gcode(&root.join(BENCH_JOB), cfg, None)
 }
+
+/// [`bench_job`]'s program, relative to the repository root.
+pub const BENCH_JOB: &str = "tests/data/gcode/prusaslicer/box35.gcode";
 
 /// The repository root (where `config/` and `tests/data/` are): the working directory if it has
 /// them, else the one this binary was built from.
@@ -52,15 +55,10 @@ pub fn stream_job(prefix: &str, job: &Job, stop: &AtomicBool) -> Result<usize, S
         let allowed = (credit(&status, first, last, started) as usize).min(job.segments.len());
         while sent < allowed {
             let n = (allowed - sent).min(ipc::SEGMENT_BATCH_CAPACITY);
-            let mut batch = ipc::SegmentBatch::default();
             batch_seq += 1;
-            batch.seq = batch_seq;
-            batch.stamp_ns = strand::io::clock::monotonic_ns();
-            batch.len = n as u32;
-            for (k, s) in job.segments[sent..sent + n].iter().enumerate() {
-                batch.segments[k] = ipc::Segment { stamp_ns: batch.stamp_ns, ..*s };
+            if ports.send_segments(&batch(&job.segments[sent..sent + n], batch_seq)).map_err(|e| e.to_string())? == 0 {
+                break; // nobody subscribed yet: not delivered, so resend later
             }
-            ports.send_segments(&batch).map_err(|e| e.to_string())?;
             sent += n;
         }
         if !started && sent > 0 {

@@ -15,15 +15,15 @@ use strand::core::base::BaseEstimator;
 use strand::core::controller::{Controller, MAX_SEGMENTS_PER_TICK, TickInput};
 use strand::core::extrude::Extruder;
 use strand::core::kin::{ChainState, Clik, PathVelocity, TaskJacobian, TcpTarget};
-use strand::core::path::{BedTransform, PathEngine, Segment};
-use strand::gcode::{GcodeOptions, parse_file};
+use strand::core::path::{PathEngine, Segment};
 use strand::io::clock::monotonic_ns;
 use strand::io::histogram::Histogram;
 use strand::log::messages::TickTiming;
 use strand::log::writer::{LogContext, Logger};
 use strand_ipc as ipc;
 
-use super::{Dist, bench_job};
+use super::{BENCH_JOB, Dist, bench_job};
+use crate::feed::load_segments;
 
 /// What to run.
 #[derive(Clone, Debug)]
@@ -75,13 +75,6 @@ pub struct TickReport {
     pub histograms: Vec<(String, Histogram)>,
 }
 
-fn core_segments(cfg: &Config, root: &std::path::Path) -> Result<Vec<Segment>, String> {
-    let bed = BedTransform::new(&cfg.bed).map_err(|e| format!("[bed] {e}"))?;
-    let path = root.join("tests/data/gcode/prusaslicer/box35.gcode");
-    let parser = parse_file(&path, GcodeOptions { first_seq: 1, ..GcodeOptions::default() }).map_err(|e| e.to_string())?;
-    parser.map(|g| g.map(|g| bed.segment(&g.segment)).map_err(|e| e.to_string())).collect()
-}
-
 /// Runs the stages and the whole step for `iterations` ticks.
 pub fn run(opts: &TickOptions) -> Result<TickReport, String> {
     let cfg = Config::load(&opts.config).map_err(|e| e.to_string())?;
@@ -104,7 +97,8 @@ pub fn run(opts: &TickOptions) -> Result<TickReport, String> {
     let mut clik = Clik::new(cfg.clik).map_err(|e| e.to_string())?;
     let mut extruder = Extruder::new(&cfg.extruder, dt).map_err(|e| e.to_string())?;
     let mut state = ChainState::new(n);
-    let segments = core_segments(&cfg, &opts.root)?;
+    let (segments, _) = load_segments(&opts.root.join(BENCH_JOB), &cfg)?;
+    let segments: Vec<Segment> = segments.into_iter().map(|(s, _)| s).collect();
     let mut next_core = 0usize;
 
     // The whole controller, on the same job over the wire types, with its log.

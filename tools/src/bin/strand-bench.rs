@@ -10,14 +10,13 @@
 //! `Logger::push` to the writer thread. It reports the enqueue cost per record (p50 … max), drops
 //! (the aim is 0), the writer thread's CPU share and the bytes written per second.
 
-use std::alloc::{GlobalAlloc, Layout, System};
-use std::cell::Cell;
 use std::path::PathBuf;
 use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
 use strand::config::Config;
 use strand::core::controller::{Controller, MAX_SEGMENTS_PER_TICK, TickInput};
+use strand::io::alloc_count::{self, Counting};
 use strand::io::clock::{TimerClock, monotonic_ns};
 use strand::io::histogram::Histogram;
 use strand::log::messages::TickTiming;
@@ -25,33 +24,12 @@ use strand::log::writer::{LogContext, Logger, thread_cpu_s};
 use strand_ipc as ipc;
 use strand_tools::bench::{self, Dist, jitter, latency, tick};
 
-/// Counts this thread's allocations, for `tick` (the tick path must not allocate).
-struct Counting;
-
-thread_local! {
-    static ALLOCATIONS: Cell<u64> = const { Cell::new(0) };
-}
-
-// SAFETY: forwards to the system allocator; the counter is a thread-local Cell (no allocation).
-unsafe impl GlobalAlloc for Counting {
-    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
-        ALLOCATIONS.with(|c| c.set(c.get() + 1));
-        unsafe { System.alloc(layout) }
-    }
-    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
-        unsafe { System.dealloc(ptr, layout) }
-    }
-    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
-        ALLOCATIONS.with(|c| c.set(c.get() + 1));
-        unsafe { System.realloc(ptr, layout, new_size) }
-    }
-}
-
+/// Counts allocations, for `tick` (the tick path must not allocate).
 #[global_allocator]
 static GLOBAL: Counting = Counting;
 
 fn allocations() -> u64 {
-    ALLOCATIONS.with(|c| c.get())
+    alloc_count::allocations() as u64
 }
 
 #[derive(Parser)]

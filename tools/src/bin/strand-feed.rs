@@ -15,7 +15,7 @@ use strand::config::Config;
 use strand::io::ports::{ClientPorts, ClientRoles};
 use strand_ipc as ipc;
 use strand_ipc::{Command, JobOutcome, RunState, SEGMENT_BATCH_CAPACITY, ServiceNames};
-use strand_tools::feed::{Ending, Job, credit, load_gcode};
+use strand_tools::feed::{Ending, Job, batch, credit, load_gcode};
 
 #[derive(Parser)]
 #[command(name = "strand-feed", version, about = "Stream a G-code program to the strand service (back-pressure from Status)")]
@@ -164,15 +164,8 @@ fn stream(job: &Job, prefix: &str, cli: &Cli) -> Result<Ending, String> {
             let allowed = credit(&status, first_seq, last_seq, started).min(segments.len() as u64) as usize;
             while sent < allowed {
                 let n = (allowed - sent).min(SEGMENT_BATCH_CAPACITY);
-                let mut batch = ipc::SegmentBatch::default();
                 batch_seq += 1;
-                batch.seq = batch_seq;
-                batch.stamp_ns = strand::io::clock::monotonic_ns();
-                batch.len = n as u32;
-                for (k, s) in segments[sent..sent + n].iter().enumerate() {
-                    batch.segments[k] = ipc::Segment { stamp_ns: batch.stamp_ns, ..*s };
-                }
-                if ports.send_segments(&batch).map_err(|e| e.to_string())? == 0 {
+                if ports.send_segments(&batch(&segments[sent..sent + n], batch_seq)).map_err(|e| e.to_string())? == 0 {
                     break; // nobody subscribed yet: not delivered, so resend later
                 }
                 sent += n;
