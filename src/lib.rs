@@ -12,3 +12,4 @@ pub mod gcode;
 pub mod io;
 pub mod log;
 pub mod plan;
+pub mod segfile;

@@ -1,6 +1,6 @@
-//! What `strand-feed` sends: a G-code program read with `strand::gcode`, put on the bed with the
-//! config's `[bed]` transform, numbered, flagged (the last segment LAST) and converted to the wire
-//! `Segment`; and how a run ends, as an exit code. The streaming itself (credit from Status, never
+//! What `strand-feed` sends: a G-code program read with `strand::gcode` or a segment file read with
+//! `strand::segfile`, put on the bed with the config's `[bed]` transform, numbered, flagged (the
+//! last segment LAST) and converted to the wire `Segment`; and how a run ends, as an exit code. The streaming itself (credit from Status, never
 //! a dropped segment) is in the binary.
 
 use std::path::Path;
@@ -8,6 +8,7 @@ use std::path::Path;
 use strand::config::Config;
 use strand::core::path::{BedTransform, Segment, SegmentFlags, SegmentKind};
 use strand::gcode::{GcodeOptions, parse_file};
+use strand::segfile;
 use strand_ipc as ipc;
 
 /// A job ready to stream.
@@ -50,18 +51,25 @@ pub fn to_wire(s: &Segment) -> ipc::Segment {
     }
 }
 
-/// The program's segments in W (the config's `[bed]` applied), numbered from 1, each with its slicer
-/// layer, and the parser's warnings (one line each, naming the file). An error if it has no motion.
+/// The job's segments in W (the config's `[bed]` applied), numbered from 1, each with its slicer
+/// layer, and the reader's warnings (one line each, naming the file). The job is a G-code program
+/// or a segment file ([`strand::segfile`], told apart by its header line, whatever the file is
+/// called); both are in bed coordinates. An error if it has no motion.
 pub fn load_segments(path: &Path, cfg: &Config) -> Result<(Vec<(Segment, Option<i32>)>, Vec<String>), String> {
     let bed = BedTransform::new(&cfg.bed).map_err(|e| format!("{}: [bed] {e}", cfg.file.display()))?;
-    let options = GcodeOptions { first_seq: 1, ..GcodeOptions::default() };
-    let mut parser = parse_file(path, options).map_err(|e| e.to_string())?;
-    let mut all = Vec::new();
-    for item in parser.by_ref() {
-        let g = item.map_err(|e| e.to_string())?;
-        all.push((bed.segment(&g.segment), g.tags.layer));
-    }
-    let warnings = parser.warnings().iter().map(|w| format!("{}: {w}", path.display())).collect();
+    let (all, warnings) = if segfile::is_segment_file(path) {
+        let file = segfile::read_path(path, 1).map_err(|e| e.to_string())?;
+        (file.segments.iter().map(|(s, layer)| (bed.segment(s), *layer)).collect(), Vec::new())
+    } else {
+        let options = GcodeOptions { first_seq: 1, ..GcodeOptions::default() };
+        let mut parser = parse_file(path, options).map_err(|e| e.to_string())?;
+        let mut all = Vec::new();
+        for item in parser.by_ref() {
+            let g = item.map_err(|e| e.to_string())?;
+            all.push((bed.segment(&g.segment), g.tags.layer));
+        }
+        (all, parser.warnings().iter().map(|w| format!("{}: {w}", path.display())).collect())
+    };
     if all.is_empty() {
         return Err(format!("{}: no motion in the program", path.display()));
     }
@@ -78,7 +86,7 @@ pub fn batch(segments: &[ipc::Segment], batch_seq: u64) -> ipc::SegmentBatch {
     batch
 }
 
-/// Reads a G-code program for the cell described by `cfg`. Segment numbers start at 1 (the
+/// Reads a job (G-code or segment file) for the cell described by `cfg`. Segment numbers start at 1 (the
 /// program's first segment); `resume_from = Some(n)` drops segments before `n` and starts with a
 /// travel (numbered `n − 1`) to where segment `n` starts, so a job interrupted at `n` can go on.
 pub fn load_gcode(path: &Path, cfg: &Config, resume_from: Option<u64>) -> Result<Job, String> {

@@ -1,5 +1,6 @@
-//! strand-feed: streams a G-code program to the service over iceoryx2. It never sends past the
-//! credit the controller announces in Status, so nothing is ever dropped; it shows a progress bar
+//! strand-feed: streams a job (a G-code program or a `strand::segfile` segment file) to the service
+//! over iceoryx2. It never sends past the credit the controller announces in Status, so nothing is
+//! ever dropped; it shows a progress bar
 //! (segments, layer, ETA), turns Ctrl-C into a controlled stop (a second Ctrl-C into an emergency
 //! stop), can resume from a segment number, and exits with a code that says how the job ended:
 //! 0 finished, 3 stopped, 4 faulted, 5 a segment rejected, 2 a bad program or config, 1 no service.
@@ -18,9 +19,13 @@ use strand_ipc::{Command, JobOutcome, RunState, SEGMENT_BATCH_CAPACITY, ServiceN
 use strand_tools::feed::{Ending, Job, batch, credit, load_gcode};
 
 #[derive(Parser)]
-#[command(name = "strand-feed", version, about = "Stream a G-code program to the strand service (back-pressure from Status)")]
+#[command(
+    name = "strand-feed",
+    version,
+    about = "Stream a G-code program or segment file to the strand service (back-pressure from Status)"
+)]
 struct Cli {
-    /// The G-code program.
+    /// The job: a G-code program, or a segment file (JSON lines, see strand::segfile).
     file: PathBuf,
     /// Service configuration: its `[bed]` places the program in the world, its `[service] prefix`
     /// names the services.
