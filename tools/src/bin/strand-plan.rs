@@ -1,6 +1,8 @@
 //! strand-plan: offline planning tools. `strand-plan time` runs a G-code program through the same
 //! per-tick path and extrusion code the controller uses, at the configured rate, and reports how long
 //! it takes against the feed-rate bound, the limits it reached, its deviation and its flow error.
+//! `strand-plan truss` writes 000's 1D truss as G-code; `strand-plan surface` runs 003's path generation
+//! on a parametric surface (sampling, greedy / weighted greedy / TSP) and writes a segment file.
 
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -12,7 +14,11 @@ use strand::gcode::{GcodeOptions, parse_file};
 use strand::plan::time_program;
 
 #[derive(Parser)]
-#[command(name = "strand-plan", version, about = "Offline planning: time a G-code program through the path engine")]
+#[command(
+    name = "strand-plan",
+    version,
+    about = "Offline planning: time a G-code program through the path engine, plan trusses and surface paths"
+)]
 struct Cli {
     #[command(subcommand)]
     command: Command,
@@ -70,11 +76,24 @@ enum Command {
         #[arg(long, short)]
         output: Option<PathBuf>,
     },
+    /// 003's path generation on a parametric surface: sample it at a spacing (Algorithms 1-2), order
+    /// the samples (greedy, weighted greedy, TSP: Algorithms 3-5), report length, self-intersections
+    /// and compute time, and write the path as segments with the nozzle along the surface normal.
+    Surface(Box<strand_tools::plan::surface::SurfaceArgs>),
 }
 
 fn main() -> ExitCode {
     let (file, mode, config, json) = match Cli::parse().command {
         Command::Time { file, mode, config, json } => (file, mode, config, json),
+        Command::Surface(args) => {
+            return match strand_tools::plan::surface::run(&args) {
+                Ok(()) => ExitCode::SUCCESS,
+                Err(e) => {
+                    eprintln!("strand-plan surface: {e}");
+                    ExitCode::from(2)
+                }
+            };
+        }
         Command::Truss { length, width, pitch, layer_height, strand, filament, speed, output } => {
             let t = strand_tools::truss::Truss { length, width, pitch, layer_height, strand, filament, speed };
             if let Err(e) = t.validate() {
