@@ -463,6 +463,13 @@ pub fn sample<S: Surface + ?Sized>(surface: &S, sampling: &Sampling) -> Result<P
     if !(sampling.tolerance.is_finite() && sampling.tolerance > 0.0 && sampling.tolerance < 1.0) {
         return Err(format!("tolerance = {}: must lie in (0, 1)", sampling.tolerance));
     }
+    let estimate = estimated_samples(surface, &d, sampling);
+    if estimate > MAX_SAMPLES as f64 {
+        return Err(format!(
+            "about {estimate:.1e} samples, more than {MAX_SAMPLES}: the spacing ({} m, {} m) is too small for this surface",
+            sampling.spacing_u, sampling.spacing_v
+        ));
+    }
     let mut eval = Evaluator { surface, evaluations: 0 };
     let mut cloud = PointCloud::default();
     let (mut sum_u, mut n_u, mut sum_v, mut n_v) = (0.0, 0usize, 0.0, 0usize);
@@ -560,6 +567,19 @@ pub fn sample<S: Surface + ?Sized>(surface: &S, sampling: &Sampling) -> Result<P
     cloud.step_v = if n_v > 0 { sum_v / n_v as f64 } else { d.span_v() };
     cloud.evaluations = eval.evaluations;
     Ok(cloud)
+}
+
+/// A cheap estimate of the sample count, to refuse hopeless requests before sampling: the longest of
+/// three iso-curves in each direction (32-chord polylines) over the spacing, multiplied.
+fn estimated_samples<S: Surface + ?Sized>(s: &S, d: &Domain, sampling: &Sampling) -> f64 {
+    let along = |f: &dyn Fn(f64) -> Vector3<f64>| (0..32).map(|k| (f((k + 1) as f64 / 32.0) - f(k as f64 / 32.0)).norm()).sum::<f64>();
+    let (mut lu, mut lv) = (0.0f64, 0.0f64);
+    for t in [0.0, 0.5, 1.0] {
+        let (u, v) = (d.u.0 + t * d.span_u(), d.v.0 + t * d.span_v());
+        lu = lu.max(along(&|x| s.point(d.u.0 + x * d.span_u(), v)));
+        lv = lv.max(along(&|x| s.point(u, d.v.0 + x * d.span_v())));
+    }
+    (lu / sampling.spacing_u + 1.0) * (lv / sampling.spacing_v + 1.0)
 }
 
 /// The normal for a sample; where the parametrisation degenerates (a collapsed edge, where Eq. 2 gives
