@@ -26,6 +26,14 @@
 //!   since an extrusion does not return to its start; a final exhaustive 2-opt pass makes the result a true
 //!   2-opt local optimum.
 //! - Fig. 3's curved rectangle is not specified in the text; see [`CurvedRect`] for our reading.
+//! - Every path starts at the first sample (003: "choose starting sample"). With Algorithm 1 as printed
+//!   that sample is (u_min, v_min + α_v), not a corner, and on the curved rectangle this, not the
+//!   surface, is what makes greedy cross itself: from the whole, regular grid of the robust mode greedy
+//!   runs a clean boustrophedon (see the tests).
+//!
+//! No STL input: 003 chose STEP faces precisely because they carry the exact parametrisation r(u, v)
+//! that Algorithms 1 and 2 step through and Algorithm 4 weights; a triangle mesh has no (u, v), so it
+//! would need a mesh parametrisation first, a different method from the paper's.
 
 use std::cell::Cell;
 use std::f64::consts::PI;
@@ -161,7 +169,7 @@ impl Surface for Cylinder {
 
 /// 003's curved rectangle (Figs. 3, 5, 6), our reading. The text says only "a curved rectangular surface",
 /// chosen "to demonstrate how a path for printing in overhang can be achieved", sampled at 10 mm, and that
-/// weighting u "guide[s] the path along the v-direction, resulting in movements from side to side". We take
+/// weighting u "guide\\[s\\] the path along the v-direction, resulting in movements from side to side". We take
 /// a rectangular sheet, `width` wide along x, bent along its length into a circular arc of radius R in the
 /// y–z plane: it leaves the bed tangentially, rises through vertical and, past 90°, curls back over the
 /// bed, so its upper part overhangs and is printed with the nozzle pointing up-ish (a quarter pipe printed
