@@ -169,7 +169,7 @@ impl Surface for Cylinder {
 
 /// 003's curved rectangle (Figs. 3, 5, 6), our reading. The text says only "a curved rectangular surface",
 /// chosen "to demonstrate how a path for printing in overhang can be achieved", sampled at 10 mm, and that
-/// weighting u "guide\\[s\\] the path along the v-direction, resulting in movements from side to side". We take
+/// weighting u is "to guide the path along the v-direction, resulting in movements from side to side". We take
 /// a rectangular sheet, `width` wide along x, bent along its length into a circular arc of radius R in the
 /// y–z plane: it leaves the bed tangentially, rises through vertical and, past 90°, curls back over the
 /// bed, so its upper part overhangs and is printed with the nozzle pointing up-ish (a quarter pipe printed
