@@ -34,12 +34,13 @@ def main() -> int:
     direction = summary["direction_rad"]
     off = -summary["r_nom_m"] * np.array([np.cos(direction), np.sin(direction)])
     r_max = np.max(np.hypot(tcp_x - base_x - off[0], tcp_y - base_y - off[1]))
-    print(f"check_filter: {len(t)} samples, fc {fc * 1e3:.3f} mHz, max |strand − scipy| = {err:.3e} m "
+    print(f"check_filter {job}: {len(t)} samples, fc {fc * 1e3:.3f} mHz, max |strand − scipy| = {err:.3e} m "
           f"(span {span:.3f} m), r_max {r_max * 1e3:.3f} mm vs reported {summary['r_max_m'] * 1e3:.3f} mm")
     ok = err <= 1e-9 * span and abs(r_max - summary["r_max_m"]) < 1e-9
     if not ok:
-        print("check_filter: FAILED", file=sys.stderr)
+        print("check_filter: 0 passed, 1 failed", file=sys.stderr)
         return 1
+    print("check_filter: 1 passed, 0 failed")
     return 0
 
 
