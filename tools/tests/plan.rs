@@ -76,6 +76,30 @@ fn base_writes_the_csv_and_the_sweep() {
     assert_eq!(rows.len(), v["samples"].as_u64().unwrap() as usize);
     assert!(rows.windows(2).all(|w| (w[1][0] - w[0][0] - 0.06).abs() < 1e-9), "60 ms samples");
     assert!(std::fs::metadata(&png).unwrap().len() > 10_000);
+    // The same plan as strand-sim's base trajectory: from the free flyer's mount, after a 5 s hold.
+    let traj = dir.join("flyer.csv");
+    let out = plan(&[
+        "base",
+        truss,
+        "--timing",
+        "constant",
+        "--fc-start",
+        "0.02",
+        "--fc-step",
+        "0.001",
+        "--trajectory",
+        traj.to_str().unwrap(),
+        "--start-delay",
+        "5",
+    ]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let t = strand_tools::sim::flyer::BaseTrajectory::load(&traj, 0.0).unwrap();
+    assert_eq!(t.at(0.0)[..2], [0.0, 0.0], "the free flyer's mount");
+    assert_eq!(t.at(5.0)[..2], [0.0, 0.0]);
+    let k = 1000;
+    let (bx, by) = (rows[k][3] - rows[0][3], rows[k][4] - rows[0][4]);
+    let p = t.at(5.0 + rows[k][0]);
+    assert!((p[0] - bx).abs() < 1e-12 && (p[1] - by).abs() < 1e-12, "{p:?} vs {bx} {by}");
 }
 
 #[test]

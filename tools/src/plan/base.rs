@@ -313,6 +313,28 @@ pub fn write_csv(path: &Path, tcp: &TcpSeries, plan: &BasePlan) -> Result<(), St
     w.flush().map_err(|e| err(&e))
 }
 
+/// Writes the robot base's planned trajectory for strand-sim (`[flyer] trajectory`): t, base_x,
+/// base_y (s, m, W). The base starts at the config's mount and moves as the filtered TCP does:
+/// base(t) = mount + filtered(t − delay) − filtered(0), held at the mount for the first `delay`
+/// seconds (the controller's approach to the first point; the job's clock starts after it).
+pub fn write_trajectory(path: &Path, tcp: &TcpSeries, plan: &BasePlan, mount: [f64; 2], delay: f64) -> Result<(), String> {
+    let err = |e: &dyn std::fmt::Display| format!("{}: {e}", path.display());
+    let mut w = csv::Writer::from_path(path).map_err(|e| err(&e))?;
+    w.write_record(["t", "base_x", "base_y"]).map_err(|e| err(&e))?;
+    let (x0, y0) = (plan.base_x[0], plan.base_y[0]);
+    if delay > 0.0 {
+        w.write_record([0.0, mount[0], mount[1]].iter().map(|v| format!("{v:?}"))).map_err(|e| err(&e))?;
+    }
+    for k in 0..tcp.len() {
+        let row = [tcp.t(k) + delay, mount[0] + plan.base_x[k] - x0, mount[1] + plan.base_y[k] - y0];
+        if k == 0 && delay > 0.0 && row[0] <= 0.0 {
+            continue;
+        }
+        w.write_record(row.iter().map(|v| format!("{v:?}"))).map_err(|e| err(&e))?;
+    }
+    w.flush().map_err(|e| err(&e))
+}
+
 /// 000 Fig. 4 as a PNG: a_max, r_max and W_FF against f_c, the chosen f_c marked.
 pub fn plot_sweep(path: &Path, rows: &[BasePlan], reach: &Reach, chosen: Option<f64>) -> Result<(), String> {
     crate::replay_plot::register_font()?;
@@ -431,6 +453,12 @@ pub struct BaseArgs {
     /// Write t, tcp_x, tcp_y, base_x, base_y (s, m) at the chosen cut-off.
     #[arg(long)]
     pub csv: Option<PathBuf>,
+    /// Write the base trajectory for strand-sim (t, base_x, base_y in W, from the --config's mount).
+    #[arg(long)]
+    pub trajectory: Option<PathBuf>,
+    /// With --trajectory: hold the mount this long before following the job (s; the approach).
+    #[arg(long, default_value_t = 0.0)]
+    pub start_delay: f64,
     /// Also tabulate a_max, r_max and W_FF over cut-offs from --fc-step to --fc-start (000 Fig. 4).
     #[arg(long)]
     pub sweep: bool,
@@ -473,6 +501,13 @@ pub fn run(args: &BaseArgs) -> Result<(), String> {
     let rows = if args.sweep { Some(sweep(&tcp, &reach, args.mass, args.fc_step, args.fc_start, args.fc_step)?) } else { None };
     if let Some(p) = &args.csv {
         write_csv(p, &tcp, &found.plan)?;
+    }
+    if let Some(p) = &args.trajectory {
+        if !(args.start_delay.is_finite() && args.start_delay >= 0.0) {
+            return Err(format!("--start-delay {}: must be ≥ 0", args.start_delay));
+        }
+        let m = config.base.mount_xyz;
+        write_trajectory(p, &tcp, &found.plan, [m[0], m[1]], args.start_delay)?;
     }
     if let Some(p) = &args.png {
         match &rows {
