@@ -3,6 +3,7 @@
 pub mod bench;
 pub mod demo;
 pub mod feed;
+pub mod plan;
 pub mod replay;
 pub mod replay_plot;
 pub mod robot_arg;

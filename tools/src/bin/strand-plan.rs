@@ -1,6 +1,8 @@
 //! strand-plan: offline planning tools. `strand-plan time` runs a G-code program through the same
 //! per-tick path and extrusion code the controller uses, at the configured rate, and reports how long
 //! it takes against the feed-rate bound, the limits it reached, its deviation and its flow error.
+//! `strand-plan truss` writes 000's 1D truss; `strand-plan strips` splits a planar job into strips
+//! with 000's staggered overlap joint.
 
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -12,7 +14,7 @@ use strand::gcode::{GcodeOptions, parse_file};
 use strand::plan::time_program;
 
 #[derive(Parser)]
-#[command(name = "strand-plan", version, about = "Offline planning: time a G-code program through the path engine")]
+#[command(name = "strand-plan", version, about = "Offline planning: time a G-code program, write 000's truss, split a job into strips")]
 struct Cli {
     #[command(subcommand)]
     command: Command,
@@ -70,11 +72,23 @@ enum Command {
         #[arg(long, short)]
         output: Option<PathBuf>,
     },
+    /// Split a planar job into strips the arm can reach (000 Section 3.2): staggered overlap joint,
+    /// Eqs. 2-4, lines chained into paths, one G-code job strip after strip.
+    Strips(strand_tools::plan::strips::StripsArgs),
 }
 
 fn main() -> ExitCode {
     let (file, mode, config, json) = match Cli::parse().command {
         Command::Time { file, mode, config, json } => (file, mode, config, json),
+        Command::Strips(args) => {
+            return match strand_tools::plan::strips::run(&args) {
+                Ok(()) => ExitCode::SUCCESS,
+                Err(e) => {
+                    eprintln!("strand-plan strips: {e}");
+                    ExitCode::from(2)
+                }
+            };
+        }
         Command::Truss { length, width, pitch, layer_height, strand, filament, speed, output } => {
             let t = strand_tools::truss::Truss { length, width, pitch, layer_height, strand, filament, speed };
             if let Err(e) = t.validate() {
