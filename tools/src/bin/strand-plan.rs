@@ -1,6 +1,8 @@
 //! strand-plan: offline planning tools (the planners live in `strand_tools::plan`). `strand-plan time` runs a G-code program through the same
 //! per-tick path and extrusion code the controller uses, at the configured rate, and reports how long
 //! it takes against the feed-rate bound, the limits it reached, its deviation and its flow error.
+//! `strand-plan truss` writes 000's 1D truss; `strand-plan strips` splits a planar job into strips
+//! with 000's staggered overlap joint.
 
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -81,6 +83,9 @@ enum Command {
     Finish(strand_tools::plan::finish::FinishArgs),
     /// 004's inclined plane (Eqs. 7-10) applied to a G-code job, as a segment file with orientation.
     Tilt(strand_tools::plan::tilt::TiltArgs),
+    /// Split a planar job into strips the arm can reach (000 Section 3.2): staggered overlap joint,
+    /// Eqs. 2-4, lines chained into paths, one G-code job strip after strip.
+    Strips(strand_tools::plan::strips::StripsArgs),
 }
 
 /// A planner's result as an exit code: 0, or 2 with the message (it names the flag or file).
@@ -100,6 +105,7 @@ fn main() -> ExitCode {
         Command::Base(args) => return report("base", strand_tools::plan::base::run(&args)),
         Command::Finish(args) => return report("finish", strand_tools::plan::finish::run(&args)),
         Command::Tilt(args) => return report("tilt", strand_tools::plan::tilt::run(&args)),
+        Command::Strips(args) => return report("strips", strand_tools::plan::strips::run(&args)),
         Command::Truss { length, width, pitch, layer_height, strand, filament, speed, output } => {
             let t = strand_tools::truss::Truss { length, width, pitch, layer_height, strand, filament, speed };
             if let Err(e) = t.validate() {

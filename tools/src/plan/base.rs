@@ -427,7 +427,7 @@ pub struct BaseArgs {
     #[arg(long, default_value_t = 0.27)]
     pub reach_limit: f64,
     /// Direction from the base to the print (degrees from +x towards +y; 90: the base on the −y side).
-    #[arg(long, default_value_t = 90.0)]
+    #[arg(long, default_value_t = 90.0, allow_negative_numbers = true)]
     pub direction_deg: f64,
     /// Sample period of the trajectory (s; 000: 60 ms, its position update rate).
     #[arg(long, default_value_t = 0.06)]
