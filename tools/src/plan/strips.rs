@@ -914,7 +914,7 @@ fn draw(job: &Job, plan: &Plan, path: &Path) -> PlotResult {
         let shift = (plan.layers - 1 - i) as f64 * plan.overlap * 1e3;
         let paths: usize = plan.strips.iter().flat_map(|s| s.layers.iter().filter(|l| l.layer == i)).map(|l| l.paths.len()).sum();
         let mut chart = ChartBuilder::on(cell)
-            .caption(format!("split, layer {} of {}: boundaries −{shift:.1} mm, {paths} paths", i + 1, plan.layers), ("sans-serif", 18))
+            .caption(format!("split, layer {} of {}: boundaries +{shift:.1} mm, {paths} paths", i + 1, plan.layers), ("sans-serif", 18))
             .margin(10)
             .x_label_area_size(30)
             .y_label_area_size(45)
