@@ -1,7 +1,8 @@
 //! strand-feed against a real service over iceoryx2: a small two-layer job streams with
 //! back-pressure and finishes (exit 0) with every segment accepted and a log that replays
 //! identically; Ctrl-C is a controlled stop (exit 3); a bad program is refused naming file and line
-//! (exit 2); `--resume-from` starts with a travel to where the segment starts.
+//! (exit 2); `--resume-from` starts with a travel to where the segment starts; a segment file with
+//! orientations (from `strand-plan tilt`) streams and finishes like G-code.
 
 mod common;
 
@@ -78,6 +79,43 @@ fn a_job_streams_with_back_pressure_finishes_and_replays_identically() {
     // The queue never overflowed: the credit was respected.
     assert!(ticks.iter().all(|t| t.output.status.queue_free <= t.output.status.queue_capacity));
     assert!(matches!(verify(&[log]).unwrap(), Verdict::Identical { .. }));
+}
+
+#[test]
+fn a_segment_file_with_orientation_streams_like_g_code() {
+    let dir = temp_dir("feed", "segfile");
+    let program = square_program(&dir, 2, 5, 3000.0);
+    // The same job on a bed tilted 10° about x, written with its orientations by strand-plan tilt.
+    let tilted = dir.join("square_tilted.jsonl");
+    let out = Command::new(env!("CARGO_BIN_EXE_strand-plan"))
+        .arg("tilt")
+        .arg(&program)
+        .args(["--angle", "10", "-o"])
+        .arg(&tilted)
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let cfg = Config::load(&root().join("config/default.toml")).unwrap();
+    let job = load_gcode(&tilted, &cfg, None).unwrap();
+    assert_eq!(job.segments.len(), 42);
+    let tool_z =
+        |q: [f64; 4]| nalgebra::UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(q[0], q[1], q[2], q[3])) * nalgebra::Vector3::z();
+    let want = nalgebra::Vector3::new(0.0, 10f64.to_radians().sin(), -10f64.to_radians().cos());
+    assert!(job.segments.iter().all(|s| (tool_z(s.orientation) - want).norm() < 1e-12), "the nozzle stays normal to the tilted bed");
+    assert_eq!(job.layers.iter().flatten().max(), Some(&1), "layers come from the layer_start flags");
+    let prefix = format!("strand/feedtest-seg-{}", std::process::id());
+    let log = dir.join("run.mcap");
+    let mut svc = service(&prefix, "free-run", &log);
+    let out = feed(&prefix, &tilted, &[]).output().unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(0), "{stderr}");
+    let t0 = Instant::now();
+    while svc.0.try_wait().unwrap().is_none() && t0.elapsed() < Duration::from_secs(20) {
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    let log = LogFile::open(&log).unwrap();
+    let last = log.ticks().map(Result::unwrap).last().unwrap().output.status;
+    assert_eq!((last.job_outcome, last.segments_accepted, last.rejected), (ipc::JobOutcome::Finished as u32, 42, 0));
 }
 
 #[test]

@@ -1,8 +1,9 @@
-//! strand-plan: offline planning tools. `strand-plan time` runs a G-code program through the same
+//! strand-plan: offline planning tools (the planners live in `strand_tools::plan`). `strand-plan time` runs a G-code program through the same
 //! per-tick path and extrusion code the controller uses, at the configured rate, and reports how long
 //! it takes against the feed-rate bound, the limits it reached, its deviation and its flow error.
-//! `strand-plan truss` writes 000's 1D truss as G-code; `strand-plan surface` runs 003's path generation
-//! on a parametric surface (sampling, greedy / weighted greedy / TSP) and writes a segment file.
+//! `strand-plan truss` writes 000's 1D truss; `strand-plan strips` splits a planar job into strips
+//! with 000's staggered overlap joint; `strand-plan surface` runs 003's path generation on a parametric
+//! surface (sampling, greedy / weighted greedy / TSP) and writes a segment file.
 
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -17,7 +18,7 @@ use strand::plan::time_program;
 #[command(
     name = "strand-plan",
     version,
-    about = "Offline planning: time a G-code program through the path engine, plan trusses and surface paths"
+    about = "Offline planning: time a job through the path engine; the papers' planners (moving base, strips, surfaces, finishing, tilt)"
 )]
 struct Cli {
     #[command(subcommand)]
@@ -76,24 +77,41 @@ enum Command {
         #[arg(long, short)]
         output: Option<PathBuf>,
     },
+    /// 000's moving base: the job's TCP path low-passed with zero phase into the base trajectory,
+    /// the cut-off lowered until the arm's reach limit (Algorithm 1); W_FF (Eq. 1), Fig. 4 sweep.
+    Base(strand_tools::plan::base::BaseArgs),
+    /// 002's finishing layer over z = z0·exp(−y²/β²) with the tool tilted by Eq. 21, as a segment file.
+    Finish(strand_tools::plan::finish::FinishArgs),
+    /// 004's inclined plane (Eqs. 7-10) applied to a G-code job, as a segment file with orientation.
+    Tilt(strand_tools::plan::tilt::TiltArgs),
+    /// Split a planar job into strips the arm can reach (000 Section 3.2): staggered overlap joint,
+    /// Eqs. 2-4, lines chained into paths, one G-code job strip after strip.
+    Strips(strand_tools::plan::strips::StripsArgs),
     /// 003's path generation on a parametric surface: sample it at a spacing (Algorithms 1-2), order
     /// the samples (greedy, weighted greedy, TSP: Algorithms 3-5), report length, self-intersections
     /// and compute time, and write the path as segments with the nozzle along the surface normal.
     Surface(Box<strand_tools::plan::surface::SurfaceArgs>),
 }
 
+/// A planner's result as an exit code: 0, or 2 with the message (it names the flag or file).
+fn report(name: &str, result: Result<(), String>) -> ExitCode {
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("strand-plan {name}: {e}");
+            ExitCode::from(2)
+        }
+    }
+}
+
 fn main() -> ExitCode {
     let (file, mode, config, json) = match Cli::parse().command {
         Command::Time { file, mode, config, json } => (file, mode, config, json),
-        Command::Surface(args) => {
-            return match strand_tools::plan::surface::run(&args) {
-                Ok(()) => ExitCode::SUCCESS,
-                Err(e) => {
-                    eprintln!("strand-plan surface: {e}");
-                    ExitCode::from(2)
-                }
-            };
-        }
+        Command::Base(args) => return report("base", strand_tools::plan::base::run(&args)),
+        Command::Finish(args) => return report("finish", strand_tools::plan::finish::run(&args)),
+        Command::Tilt(args) => return report("tilt", strand_tools::plan::tilt::run(&args)),
+        Command::Strips(args) => return report("strips", strand_tools::plan::strips::run(&args)),
+        Command::Surface(args) => return report("surface", strand_tools::plan::surface::run(&args)),
         Command::Truss { length, width, pitch, layer_height, strand, filament, speed, output } => {
             let t = strand_tools::truss::Truss { length, width, pitch, layer_height, strand, filament, speed };
             if let Err(e) = t.validate() {
