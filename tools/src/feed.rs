@@ -51,11 +51,14 @@ pub fn to_wire(s: &Segment) -> ipc::Segment {
     }
 }
 
+/// A job's segments, each with its slicer layer (None where the job has none).
+pub type LayeredSegments = Vec<(Segment, Option<i32>)>;
+
 /// The job's segments in W (the config's `[bed]` applied), numbered from 1, each with its slicer
 /// layer, and the reader's warnings (one line each, naming the file). The job is a G-code program
 /// or a segment file ([`strand::segfile`], told apart by its header line, whatever the file is
 /// called); both are in bed coordinates. An error if it has no motion.
-pub fn load_segments(path: &Path, cfg: &Config) -> Result<(Vec<(Segment, Option<i32>)>, Vec<String>), String> {
+pub fn load_segments(path: &Path, cfg: &Config) -> Result<(LayeredSegments, Vec<String>), String> {
     let bed = BedTransform::new(&cfg.bed).map_err(|e| format!("{}: [bed] {e}", cfg.file.display()))?;
     let (all, warnings) = if segfile::is_segment_file(path) {
         let file = segfile::read_path(path, 1).map_err(|e| e.to_string())?;

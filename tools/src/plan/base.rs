@@ -260,15 +260,14 @@ pub fn search(tcp: &TcpSeries, reach: &Reach, mass_kg: f64, fc_start: f64, fc_st
         return Err(format!("--fc-step {fc_step}: must be positive"));
     }
     let mut best: Option<BasePlan> = None;
-    let mut steps = 0;
-    // fc = fc_start − k·Δfc, computed from k so the grid does not drift with rounding.
-    for k in 0.. {
+    // fc = fc_start − k·Δfc, computed from k so the grid does not drift with rounding; k + 1 tried.
+    for k in 0usize.. {
         let fc = fc_start - k as f64 * fc_step;
         if fc <= fc_step * 1e-9 {
             let plan = best.ok_or_else(|| format!("--fc-start {fc_start}: no positive cut-off on the grid"))?;
-            return Ok(Search { plan, steps, floor_reached: true });
+            return Ok(Search { plan, steps: k, floor_reached: true });
         }
-        steps += 1;
+        let steps = k + 1;
         let plan = plan_at(tcp, fc, reach, mass_kg)?;
         if plan.r_max_m > reach.reach_limit_m {
             return match best {

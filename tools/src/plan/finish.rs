@@ -16,6 +16,8 @@ use nalgebra::Vector3;
 use strand::core::path::{Segment, SegmentFlags, SegmentKind};
 use strand::segfile::{tool_pointing, write_path};
 
+use super::surface::{Bump, Surface};
+
 /// The profile of Eq. 20 and the raster laid over it (SI units).
 #[derive(Clone, Copy, Debug, PartialEq, clap::Args)]
 pub struct Finish {
@@ -72,14 +74,19 @@ impl Finish {
         Ok(())
     }
 
-    /// Eq. 20: the profile height at y (m).
+    /// The profile as the `surface` planner's bump (a ridge along x).
+    pub fn profile(&self) -> Bump {
+        Bump { length: self.width, width: 2.0 * self.half_length, height: self.z0, beta: self.beta }
+    }
+
+    /// Eq. 20: the profile height at y (m), on its foot.
     pub fn z(&self, y: f64) -> f64 {
-        self.z_base + self.z0 * (-(y * y) / (self.beta * self.beta)).exp()
+        self.z_base + self.profile().z(y)
     }
 
     /// dz/dy of Eq. 20.
     pub fn slope(&self, y: f64) -> f64 {
-        -2.0 * y / (self.beta * self.beta) * self.z0 * (-(y * y) / (self.beta * self.beta)).exp()
+        self.profile().slope(y)
     }
 
     /// Eq. 21: the nozzle's angle from +z at y (rad; π straight down).
@@ -89,15 +96,13 @@ impl Finish {
 
     /// The surface's outward unit normal at y (in the y–z plane).
     pub fn normal(&self, y: f64) -> Vector3<f64> {
-        Vector3::new(0.0, -self.slope(y), 1.0).normalize()
+        self.profile().normal(0.0, y)
     }
 
-    /// Filament per metre of strand (m/m): Slic3r's flow model, a rectangle with round ends,
-    /// A = h·(w − h) + π(h/2)², over the filament's section.
+    /// Filament per metre of strand (m/m), [`super::filament_per_metre`] with the spacing as the
+    /// strand width.
     pub fn filament_per_m(&self) -> f64 {
-        let h = self.layer_height;
-        let area = h * (self.spacing - h) + std::f64::consts::PI * h * h / 4.0;
-        area / (std::f64::consts::PI * self.filament * self.filament / 4.0)
+        super::filament_per_metre(self.spacing, self.layer_height, self.filament)
     }
 
     /// The layer: a travel to the first point, then the raster, the last segment LAST.

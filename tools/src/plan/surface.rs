@@ -220,8 +220,14 @@ pub struct Bump {
 }
 
 impl Bump {
-    fn z(&self, y: f64) -> f64 {
+    /// Eq. 20: the height at y (m).
+    pub fn z(&self, y: f64) -> f64 {
         self.height * (-(y * y) / (self.beta * self.beta)).exp()
+    }
+
+    /// dz/dy of Eq. 20.
+    pub fn slope(&self, y: f64) -> f64 {
+        -2.0 * y / (self.beta * self.beta) * self.z(y)
     }
 }
 
@@ -233,8 +239,7 @@ impl Surface for Bump {
         Vector3::new(u, v, self.z(v))
     }
     fn normal(&self, _u: f64, v: f64) -> Vector3<f64> {
-        let dz = -2.0 * v / (self.beta * self.beta) * self.z(v);
-        Vector3::new(0.0, -dz, 1.0).normalize()
+        Vector3::new(0.0, -self.slope(v), 1.0).normalize()
     }
     fn parameter_labels(&self) -> (&'static str, &'static str) {
         ("u = x (m)", "v = y (m)")
@@ -1166,8 +1171,7 @@ impl Deposition {
     /// Filament per metre of path (m/m): Slic3r's bead cross-section A = h(w − h) + π(h/2)² (a rectangle
     /// with round ends) over the filament's area π(d/2)².
     pub fn filament_per_metre(&self) -> f64 {
-        let (w, h, d) = (self.line_width, self.layer_height, self.filament_diameter);
-        (h * (w - h) + PI * (h / 2.0).powi(2)) / (PI * (d / 2.0).powi(2))
+        super::filament_per_metre(self.line_width, self.layer_height, self.filament_diameter)
     }
 
     /// Checks the values; the message names the flag.
