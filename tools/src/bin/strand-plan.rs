@@ -105,6 +105,12 @@ fn report(name: &str, result: Result<(), String>) -> ExitCode {
 }
 
 fn main() -> ExitCode {
+    // Like other Unix filters: a closed pipe (`strand-plan base … | head`) ends the process quietly
+    // instead of a panic in println!.
+    // SAFETY: setting a signal's disposition to the default before any thread starts.
+    unsafe {
+        libc::signal(libc::SIGPIPE, libc::SIG_DFL);
+    }
     let (file, mode, config, json) = match Cli::parse().command {
         Command::Time { file, mode, config, json } => (file, mode, config, json),
         Command::Base(args) => return report("base", strand_tools::plan::base::run(&args)),
