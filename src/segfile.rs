@@ -55,6 +55,14 @@ pub const FORMAT: &str = "strand-segments";
 /// The format version this module reads and writes.
 pub const VERSION: u32 = 1;
 
+/// The `flags` names, one per flag bit.
+const FLAG_NAMES: [(SegmentFlags, &str); 4] = [
+    (SegmentFlags::EXTRUDE, "extrude"),
+    (SegmentFlags::TRAVEL, "travel"),
+    (SegmentFlags::LAYER_START, "layer_start"),
+    (SegmentFlags::LAST, "last"),
+];
+
 /// Why a segment file cannot be read, and where.
 #[derive(Clone, Debug, Error, PartialEq, Eq)]
 #[error("{file}:{line}: {message}")]
@@ -300,13 +308,10 @@ fn segment(
         Some(names) => {
             let mut f = SegmentFlags::default();
             for name in names {
-                f = f.with(match name.as_str() {
-                    "extrude" => SegmentFlags::EXTRUDE,
-                    "travel" => SegmentFlags::TRAVEL,
-                    "layer_start" => SegmentFlags::LAYER_START,
-                    "last" => SegmentFlags::LAST,
-                    other => return Err(format!("flags: \"{other}\" is not one of \"extrude\", \"travel\", \"layer_start\", \"last\"")),
-                });
+                let Some((bit, _)) = FLAG_NAMES.iter().find(|(_, n)| n == name) else {
+                    return Err(format!("flags: \"{name}\" is not one of \"extrude\", \"travel\", \"layer_start\", \"last\""));
+                };
+                f = f.with(*bit);
             }
             if f.contains(SegmentFlags::EXTRUDE) && f.contains(SegmentFlags::TRAVEL) {
                 return Err("flags: \"extrude\" and \"travel\" together".into());
@@ -374,13 +379,7 @@ fn record(out: &mut String, s: &Segment) {
     }
     let _ = write!(out, ",\"orientation\":[{:?},{:?},{:?},{:?}]", q.w, q.i, q.j, q.k);
     let _ = write!(out, ",\"filament\":{:?}", s.filament);
-    let names = [
-        (SegmentFlags::EXTRUDE, "extrude"),
-        (SegmentFlags::TRAVEL, "travel"),
-        (SegmentFlags::LAYER_START, "layer_start"),
-        (SegmentFlags::LAST, "last"),
-    ];
-    let flags: Vec<String> = names.iter().filter(|(f, _)| s.flags.contains(*f)).map(|(_, n)| format!("\"{n}\"")).collect();
+    let flags: Vec<String> = FLAG_NAMES.iter().filter(|(f, _)| s.flags.contains(*f)).map(|(_, n)| format!("\"{n}\"")).collect();
     let _ = write!(out, ",\"flags\":[{}]}}", flags.join(","));
 }
 

@@ -43,14 +43,13 @@ impl Default for Truss {
 impl Truss {
     /// Checks the dimensions; the message names the parameter.
     pub fn validate(&self) -> Result<(), String> {
-        let pos = |k: &str, v: f64| if v.is_finite() && v > 0.0 { Ok(()) } else { Err(format!("--{k} = {v}: must be positive")) };
-        pos("length", self.length)?;
-        pos("width", self.width)?;
-        pos("pitch", self.pitch)?;
-        pos("layer-height", self.layer_height)?;
-        pos("strand", self.strand)?;
-        pos("filament", self.filament)?;
-        pos("speed", self.speed)?;
+        crate::plan::positive("length", self.length)?;
+        crate::plan::positive("width", self.width)?;
+        crate::plan::positive("pitch", self.pitch)?;
+        crate::plan::positive("layer-height", self.layer_height)?;
+        crate::plan::positive("strand", self.strand)?;
+        crate::plan::positive("filament", self.filament)?;
+        crate::plan::positive("speed", self.speed)?;
         if self.pitch > self.length {
             return Err(format!("--pitch = {} m is longer than --length = {} m", self.pitch, self.length));
         }

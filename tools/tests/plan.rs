@@ -46,22 +46,8 @@ fn base_writes_the_csv_and_the_sweep() {
     let csv = dir.join("base.csv");
     let png = dir.join("sweep.png");
     let truss = "tests/data/gcode/truss/truss_200mm.gcode";
-    let v = json(&plan(&[
-        "base",
-        truss,
-        "--timing",
-        "constant",
-        "--fc-start",
-        "0.02",
-        "--fc-step",
-        "0.001",
-        "--sweep",
-        "--json",
-        "--csv",
-        csv.to_str().unwrap(),
-        "--png",
-        png.to_str().unwrap(),
-    ]));
+    let search = ["base", truss, "--timing", "constant", "--fc-start", "0.02", "--fc-step", "0.001"];
+    let v = json(&plan(&[&search[..], &["--sweep", "--json", "--csv", csv.to_str().unwrap(), "--png", png.to_str().unwrap()]].concat()));
     let sweep = v["sweep"].as_array().unwrap();
     assert_eq!(sweep.len(), 20, "1 to 20 mHz");
     // Fig. 4: a_max falls and r_max rises as the cut-off is lowered.
@@ -78,20 +64,7 @@ fn base_writes_the_csv_and_the_sweep() {
     assert!(std::fs::metadata(&png).unwrap().len() > 10_000);
     // The same plan as strand-sim's base trajectory: from the free flyer's mount, after a 5 s hold.
     let traj = dir.join("flyer.csv");
-    let out = plan(&[
-        "base",
-        truss,
-        "--timing",
-        "constant",
-        "--fc-start",
-        "0.02",
-        "--fc-step",
-        "0.001",
-        "--trajectory",
-        traj.to_str().unwrap(),
-        "--start-delay",
-        "5",
-    ]);
+    let out = plan(&[&search[..], &["--trajectory", traj.to_str().unwrap(), "--start-delay", "5"]].concat());
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let t = strand_tools::sim::flyer::BaseTrajectory::load(&traj, 0.0).unwrap();
     assert_eq!(t.at(0.0)[..2], [0.0, 0.0], "the free flyer's mount");

@@ -213,22 +213,22 @@ pub fn plan_at(tcp: &TcpSeries, fc_hz: f64, reach: &Reach, mass_kg: f64) -> Resu
         r_max = r_max.max(d.norm());
     }
     let n = tcp.len();
-    let (mut a_max, mut a_sum, mut distance, mut work) = (0.0f64, 0.0, 0.0, 0.0);
     let dt2 = tcp.dt * tcp.dt;
+    // |a| by central second differences at the inner samples; the ends take their neighbour's.
+    let acc = |j: usize| {
+        let j = j.clamp(1, n - 2);
+        ((base_x[j + 1] - 2.0 * base_x[j] + base_x[j - 1]) / dt2).hypot((base_y[j + 1] - 2.0 * base_y[j] + base_y[j - 1]) / dt2)
+    };
+    let a: Vec<f64> = (0..n).map(acc).collect();
+    let inner = &a[1..n - 1];
+    let a_max = inner.iter().cloned().fold(0.0f64, f64::max);
+    let a_sum: f64 = inner.iter().sum();
+    let (mut distance, mut work) = (0.0, 0.0);
     for k in 1..n {
         let ds = (base_x[k] - base_x[k - 1]).hypot(base_y[k] - base_y[k - 1]);
         distance += ds;
-        // |a| at the middle of the step: the mean of the central differences at its two ends.
-        let acc = |j: usize| {
-            let j = j.clamp(1, n - 2);
-            ((base_x[j + 1] - 2.0 * base_x[j] + base_x[j - 1]) / dt2).hypot((base_y[j + 1] - 2.0 * base_y[j] + base_y[j - 1]) / dt2)
-        };
-        work += mass_kg * 0.5 * (acc(k - 1) + acc(k)) * ds;
-    }
-    for k in 1..n - 1 {
-        let a = ((base_x[k + 1] - 2.0 * base_x[k] + base_x[k - 1]) / dt2).hypot((base_y[k + 1] - 2.0 * base_y[k] + base_y[k - 1]) / dt2);
-        a_max = a_max.max(a);
-        a_sum += a;
+        // |a| at the middle of the step: the mean of its two ends.
+        work += mass_kg * 0.5 * (a[k - 1] + a[k]) * ds;
     }
     Ok(BasePlan {
         fc_hz,
@@ -485,11 +485,10 @@ struct Summary<'a> {
 
 /// Runs `strand-plan base`.
 pub fn run(args: &BaseArgs) -> Result<(), String> {
-    let positive = |k: &str, v: f64| if v.is_finite() && v > 0.0 { Ok(()) } else { Err(format!("--{k} {v}: must be positive")) };
-    positive("r-nom", args.r_nom)?;
-    positive("reach-limit", args.reach_limit)?;
-    positive("mass", args.mass)?;
-    positive("fc-start", args.fc_start)?;
+    super::positive("r-nom", args.r_nom)?;
+    super::positive("reach-limit", args.reach_limit)?;
+    super::positive("mass", args.mass)?;
+    super::positive("fc-start", args.fc_start)?;
     if args.reach_limit < args.r_nom {
         return Err(format!("--reach-limit {} m is below --r-nom {} m", args.reach_limit, args.r_nom));
     }

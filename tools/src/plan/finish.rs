@@ -56,15 +56,14 @@ pub struct Finish {
 impl Finish {
     /// Checks the parameters; the message names the flag.
     pub fn validate(&self) -> Result<(), String> {
-        let pos = |k: &str, v: f64| if v.is_finite() && v > 0.0 { Ok(()) } else { Err(format!("--{k} {v}: must be positive")) };
-        pos("beta", self.beta)?;
-        pos("half-length", self.half_length)?;
-        pos("width", self.width)?;
-        pos("spacing", self.spacing)?;
-        pos("step", self.step)?;
-        pos("layer-height", self.layer_height)?;
-        pos("filament", self.filament)?;
-        pos("feed", self.feed)?;
+        super::positive("beta", self.beta)?;
+        super::positive("half-length", self.half_length)?;
+        super::positive("width", self.width)?;
+        super::positive("spacing", self.spacing)?;
+        super::positive("step", self.step)?;
+        super::positive("layer-height", self.layer_height)?;
+        super::positive("filament", self.filament)?;
+        super::positive("feed", self.feed)?;
         if !(self.z0.is_finite() && self.z_base.is_finite()) {
             return Err("--z0 and --z-base must be finite".into());
         }

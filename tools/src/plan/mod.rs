@@ -17,3 +17,8 @@ pub fn filament_per_metre(line_width: f64, layer_height: f64, filament_diameter:
     let pi = std::f64::consts::PI;
     (h * (w - h) + pi * (h / 2.0).powi(2)) / (pi * (d / 2.0).powi(2))
 }
+
+/// `v` if it is finite and positive, else an error naming the flag: `--{flag} = {v}: must be positive`.
+pub fn positive(flag: &str, v: f64) -> Result<f64, String> {
+    if v.is_finite() && v > 0.0 { Ok(v) } else { Err(format!("--{flag} = {v}: must be positive")) }
+}

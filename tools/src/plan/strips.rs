@@ -1003,10 +1003,6 @@ pub struct StripsArgs {
     pub json: bool,
 }
 
-fn positive(flag: &str, v: f64) -> Result<(), String> {
-    if v.is_finite() && v > 0.0 { Ok(()) } else { Err(format!("--{flag} {v}: must be a positive number of metres")) }
-}
-
 fn non_negative(flag: &str, v: f64) -> Result<(), String> {
     if v.is_finite() && v >= 0.0 { Ok(()) } else { Err(format!("--{flag} {v}: must be finite and ≥ 0")) }
 }
@@ -1015,7 +1011,7 @@ impl StripsArgs {
     fn spec(&self) -> Result<StripSpec, String> {
         let widths = match (&self.width.width, &self.width.widths) {
             (Some(w), _) => {
-                positive("width", *w)?;
+                super::positive("width", *w)?;
                 Widths::Uniform(*w)
             }
             (None, Some(ws)) => {
@@ -1023,18 +1019,18 @@ impl StripsArgs {
                     return Err("--widths: give at least one width".into());
                 }
                 for (k, w) in ws.iter().enumerate() {
-                    positive(&format!("widths (strip {})", k + 1), *w)?;
+                    super::positive(&format!("widths (strip {})", k + 1), *w)?;
                 }
                 Widths::List(ws.clone())
             }
             (None, None) => return Err("give --width or --widths".into()),
         };
-        positive("overlap", self.overlap)?;
-        positive("reach", self.reach)?;
-        positive("join-tolerance", self.join_tolerance)?;
-        positive("arc-tolerance", self.arc_tolerance)?;
-        positive("travel-speed", self.travel_speed)?;
-        positive("retract-speed", self.retract_speed)?;
+        super::positive("overlap", self.overlap)?;
+        super::positive("reach", self.reach)?;
+        super::positive("join-tolerance", self.join_tolerance)?;
+        super::positive("arc-tolerance", self.arc_tolerance)?;
+        super::positive("travel-speed", self.travel_speed)?;
+        super::positive("retract-speed", self.retract_speed)?;
         non_negative("retract", self.retract)?;
         non_negative("z-hop", self.z_hop)?;
         if let Some(o) = self.origin

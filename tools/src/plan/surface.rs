@@ -1176,12 +1176,11 @@ impl Deposition {
 
     /// Checks the values; the message names the flag.
     pub fn validate(&self) -> Result<(), String> {
-        let pos = |k: &str, v: f64| if v.is_finite() && v > 0.0 { Ok(()) } else { Err(format!("--{k} = {v}: must be positive")) };
-        pos("line-width", self.line_width)?;
-        pos("layer-height", self.layer_height)?;
-        pos("filament-diameter", self.filament_diameter)?;
-        pos("speed", self.speed)?;
-        pos("travel-speed", self.travel_speed)?;
+        super::positive("line-width", self.line_width)?;
+        super::positive("layer-height", self.layer_height)?;
+        super::positive("filament-diameter", self.filament_diameter)?;
+        super::positive("speed", self.speed)?;
+        super::positive("travel-speed", self.travel_speed)?;
         if self.layer_height > self.line_width {
             return Err(format!("--layer-height = {} m is more than --line-width = {} m", self.layer_height, self.line_width));
         }
@@ -1415,11 +1414,10 @@ pub struct SurfaceArgs {
 impl SurfaceArgs {
     /// The surface the flags describe, with its defaults filled in; errors name the flag and value.
     pub fn surface(&self) -> Result<Box<dyn Surface>, String> {
-        let pos = |k: &str, v: f64| if v.is_finite() && v > 0.0 { Ok(v) } else { Err(format!("--{k} = {v}: must be positive")) };
-        let length = pos("length", self.length.unwrap_or(0.1))?;
-        let width = pos("width", self.width.unwrap_or(0.1))?;
-        let radius = pos("radius", self.radius.unwrap_or(0.05))?;
-        let sweep = pos("sweep", self.sweep.unwrap_or(2.0 * PI / 3.0))?;
+        let length = super::positive("length", self.length.unwrap_or(0.1))?;
+        let width = super::positive("width", self.width.unwrap_or(0.1))?;
+        let radius = super::positive("radius", self.radius.unwrap_or(0.05))?;
+        let sweep = super::positive("sweep", self.sweep.unwrap_or(2.0 * PI / 3.0))?;
         Ok(match self.shape {
             Shape::CurvedRect => {
                 if sweep > 2.0 * PI {
@@ -1439,16 +1437,16 @@ impl SurfaceArgs {
                 if !height.is_finite() {
                     return Err(format!("--height = {height}: must be finite"));
                 }
-                Box::new(Bump { length, width, height, beta: pos("beta", self.beta.unwrap_or(18.0e-3))? })
+                Box::new(Bump { length, width, height, beta: super::positive("beta", self.beta.unwrap_or(18.0e-3))? })
             }
             Shape::Blade => {
-                let hub = pos("hub-radius", self.hub_radius)?;
-                let tip = pos("tip-radius", self.tip_radius)?;
+                let hub = super::positive("hub-radius", self.hub_radius)?;
+                let tip = super::positive("tip-radius", self.tip_radius)?;
                 if tip <= hub {
                     return Err(format!("--tip-radius = {tip} m must exceed --hub-radius = {hub} m"));
                 }
-                let chord = pos("chord", self.chord)?;
-                let pitch = pos("pitch", self.pitch)?;
+                let chord = super::positive("chord", self.chord)?;
+                let pitch = super::positive("pitch", self.pitch)?;
                 if !(self.camber.is_finite() && self.camber.abs() <= 1.0) {
                     return Err(format!("--camber = {}: must lie in [-1, 1]", self.camber));
                 }
