@@ -89,7 +89,8 @@ fn pause_holds_on_the_path_and_resume_finishes() {
     assert_eq!(paused.diagnostics.path_speed, 0.0);
     // Held still on the path for a while (the null space may still move the joints), extruder
     // retracted.
-    for _ in 0..200 {
+    // Longer than `[path] stall_timeout`: a pause is not a stall.
+    for _ in 0..1200 {
         let out = cell.step();
         assert!((out.diagnostics.tcp_command_world - paused.diagnostics.tcp_command_world).norm() < 1e-6);
         assert_eq!(out.diagnostics.tcp_target_world, paused.diagnostics.tcp_target_world);
@@ -177,10 +178,12 @@ fn underrun_waits_on_the_path_and_resumes() {
     // Runs dry at the end of what arrived and waits there, still running.
     let r = run(&mut cell, 60_000, |c| c.last.unwrap().status.underruns == 1);
     assert!(r.worst_error < 20e-6);
-    for _ in 0..300 {
+    // Longer than `[path] stall_timeout`: waiting for segments is an underrun, not a stall.
+    for _ in 0..1200 {
         let out = cell.step();
         assert_eq!(out.status.run_state, RunState::Running as u32);
         assert_eq!(out.diagnostics.path_speed, 0.0);
+        assert_eq!(out.status.fault, FaultCode::None as u32);
     }
     cell.send(rest);
     run(&mut cell, 60_000, |c| c.state() == RunState::Idle);
@@ -189,6 +192,48 @@ fn underrun_waits_on_the_path_and_resumes() {
     assert_eq!(out.status.underruns, 1);
     println!("pushed {} of {}", out.extruder.filament_position, job_filament(&job));
     assert!((out.extruder.filament_position - job_filament(&job)).abs() < 1e-3 * job_filament(&job));
+}
+
+/// Issue 17's hang: dwells and E-only moves in a row (a slicer's retract, a second retract, two
+/// dwells) now run through, each for its time, and the watchdog, which watches the dwell clock as
+/// well as the path, never fires on them although together they last far longer than its timeout.
+#[test]
+fn consecutive_dwells_and_retractions_finish_without_a_stall_fault() {
+    let mut cell = Cell::iiwa();
+    let [x, y, z] = ORIGIN;
+    let dwell = |seq: u64, duration: f64, filament: f64| strand_ipc::Segment {
+        seq,
+        kind: strand_ipc::SegmentKind::Dwell as u32,
+        end: ORIGIN_END,
+        orientation: DOWN,
+        duration,
+        filament,
+        ..Default::default()
+    };
+    const ORIGIN_END: [f64; 3] = [0.47, -0.02, 0.2];
+    let mut job = vec![line(1, ORIGIN, 0.1, 0.0), line(2, [x + 0.02, y, z], 0.03, 0.02 * FLOW)];
+    job.push(dwell(3, 0.02, -0.5e-3));
+    job.push(dwell(4, 0.044, -2e-3));
+    job.push(dwell(5, 0.8, 0.0));
+    job.push(dwell(6, 0.6, 0.0));
+    job.push(dwell(7, 0.05, 2.5e-3));
+    let mut last = line(8, [x + 0.02, y + 0.01, z], 0.03, 0.0);
+    last.flags |= strand_ipc::segment_flags::LAST;
+    job.push(last);
+    cell.send(&job);
+    cell.control(Command::Start, 0.0);
+    run(&mut cell, 60_000, |c| c.state() == RunState::Running);
+    let started = cell.tick;
+    let r = run(&mut cell, 60_000, |c| c.state() == RunState::Idle);
+    let out = cell.last.unwrap();
+    assert_eq!(out.status.job_outcome, JobOutcome::Finished as u32);
+    assert_eq!(out.status.fault, FaultCode::None as u32);
+    assert_eq!(r.visited, vec![RunState::Idle]);
+    // 1.514 s of dwells plus the two short moves.
+    let seconds = (cell.tick - started) as f64 * 1e-3;
+    assert!(seconds > 1.514 && seconds < 3.5, "ran {seconds} s");
+    // Retractions and the prime cancel: the filament is the bead's.
+    assert!((out.extruder.filament_position - 0.02 * FLOW).abs() < 1e-6, "{}", out.extruder.filament_position);
 }
 
 #[test]

@@ -343,6 +343,9 @@ pub enum FaultCode {
     ApproachFailed = 5,
     /// The measured joints left their limits or the commanded path by more than allowed.
     RobotDeviation = 6,
+    /// The path had segments to execute but made no progress (neither the path position nor a
+    /// dwell advanced) for `[path] stall_timeout`: a planner fault, never a silent hang.
+    PathStalled = 7,
 }
 
 impl FaultCode {
@@ -356,6 +359,7 @@ impl FaultCode {
             4 => FaultCode::NonFinite,
             5 => FaultCode::ApproachFailed,
             6 => FaultCode::RobotDeviation,
+            7 => FaultCode::PathStalled,
             _ => return None,
         })
     }

@@ -287,6 +287,10 @@ pub enum Event {
     Fault {
         /// Which.
         code: FaultCode,
+        /// The segment executing when it latched (0 before the path started).
+        seq: u64,
+        /// Its source line (0 if none).
+        line: u32,
     },
     /// A job ended.
     JobEnded {
@@ -468,6 +472,9 @@ pub struct Controller {
     last_sample: Option<PathSample>,
     last_clik: Option<ClikStep>,
     out_seq: u64,
+    /// The path's progress measure when it last changed, and when (ns): the stall watchdog.
+    progress_mark: (f64, f64),
+    progress_ns: u64,
 }
 
 impl Controller {
@@ -540,6 +547,8 @@ impl Controller {
             last_sample: None,
             last_clik: None,
             out_seq: 0,
+            progress_mark: (0.0, 0.0),
+            progress_ns: 0,
             model,
         })
     }
@@ -616,7 +625,7 @@ impl Controller {
         out.diagnostics.base = base;
         let q_des = self.motion(&base, &mut out);
         self.final_stage(&q_des, &mut out);
-        self.after_motion(&mut out);
+        self.after_motion(input.time_ns, &mut out);
 
         let (p_cmd_b, q_cmd_b) = {
             let f = self.model.forward_kinematics(&self.q);
@@ -645,7 +654,8 @@ impl Controller {
     fn latch_fault(&mut self, code: FaultCode, out: &mut TickOutput) {
         if self.fault == FaultCode::None {
             self.fault = code;
-            out.push(Event::Fault { code });
+            let (seq, line) = self.last_sample.map_or((0, 0), |s| (s.seq, s.source_line));
+            out.push(Event::Fault { code, seq, line });
         }
         if self.job_open {
             self.end_job(JobOutcome::Faulted, out);
@@ -1165,7 +1175,10 @@ impl Controller {
     }
 
     /// State changes that follow from this tick's motion.
-    fn after_motion(&mut self, out: &mut TickOutput) {
+    fn after_motion(&mut self, now_ns: u64, out: &mut TickOutput) {
+        if self.watch_progress(now_ns) {
+            return self.latch_fault(FaultCode::PathStalled, out);
+        }
         if self.state == RunState::Approaching && self.approach_done {
             self.approach_done = false;
             self.enter_running();
@@ -1196,6 +1209,24 @@ impl Controller {
             }
             _ => {}
         }
+    }
+
+    /// The progress watchdog: true when the path has had work to do, no hold, and made no
+    /// progress (path position or dwell clock) for `[path] stall_timeout`. The clock restarts
+    /// whenever the path advances, waits for segments (an underrun is the feeder's business,
+    /// reported as such), or holds by request.
+    fn watch_progress(&mut self, now_ns: u64) -> bool {
+        let timeout = self.engine.config().stall_timeout;
+        let running =
+            matches!(self.state, RunState::Running | RunState::Pausing | RunState::Stopping) && !self.settling && !self.stop_by_brake;
+        let progress = self.engine.progress();
+        let waiting = !running || self.engine.is_held() || !self.engine.has_work();
+        if waiting || progress != self.progress_mark {
+            self.progress_mark = progress;
+            self.progress_ns = now_ns;
+            return false;
+        }
+        timeout > 0.0 && now_ns.saturating_sub(self.progress_ns) as f64 * 1e-9 > timeout
     }
 
     /// Ends the job at rest and readies the engine for the next one, where the tool is.
@@ -1310,5 +1341,120 @@ fn rest_sample() -> PathSample {
         flow: 0.0,
         dwell_filament_rate: 0.0,
         motion: Motion::Idle,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    //! The stall watchdog end to end: a path engine frozen mid-job (as a planner bug would leave
+    //! it) becomes a `PathStalled` fault naming the segment and line, the extruder stops, and the
+    //! arm brakes within its limits. (That it never fires on dwells, underruns and pauses is in
+    //! tests/controller.rs.)
+    use super::*;
+    use crate::config::Config;
+
+    const START: [f64; 7] = [0.0, 0.4, 0.0, -1.5, 0.0, 1.2, 0.0];
+    const DOWN: [f64; 4] = [0.0, 0.0, 1.0, 0.0];
+
+    fn segment(seq: u64, end: [f64; 3], filament: f64, last: bool) -> ipc::Segment {
+        let mut flags = if filament > 0.0 { ipc::segment_flags::EXTRUDE } else { ipc::segment_flags::TRAVEL };
+        if last {
+            flags |= ipc::segment_flags::LAST;
+        }
+        ipc::Segment {
+            seq,
+            kind: ipc::SegmentKind::Line as u32,
+            flags,
+            end,
+            orientation: DOWN,
+            feed: 0.02,
+            filament,
+            source_line: seq as u32 * 10,
+            ..Default::default()
+        }
+    }
+
+    #[test]
+    fn a_frozen_path_faults_as_path_stalled_and_the_arm_brakes() {
+        let cfg = Config::load(std::path::Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/config/default.toml"))).unwrap();
+        let settings = cfg.controller_settings();
+        let timeout = settings.path.stall_timeout;
+        assert_eq!(timeout, 0.5);
+        let model = cfg.robot.build_model().unwrap();
+        let dof = model.dof();
+        let limits: Vec<_> = (0..dof).map(|i| model.limits(i).clone()).collect();
+        let mut ctl = Controller::new(&settings, model).unwrap();
+        let dt_ns = (cfg.controller.dt() * 1e9).round() as u64;
+        let mut q = [0.0; 8];
+        q[..7].copy_from_slice(&START);
+        let job = [
+            segment(1, [0.45, -0.02, 0.2], 0.0, false),
+            segment(2, [0.55, -0.02, 0.2], 3e-3, false),
+            segment(3, [0.55, 0.08, 0.2], 3e-3, true),
+        ];
+        let tick = std::cell::Cell::new(0u64);
+        let mut step = |ctl: &mut Controller, segments: &[ipc::Segment], start: bool| {
+            let t = tick.get();
+            let now = 1_000_000_000 + t * dt_ns;
+            let mut input = TickInput::new(t, now);
+            input.joint_state = Some(ipc::JointState { seq: t + 1, stamp_ns: now, dof: dof as u32, position: q, ..Default::default() });
+            for s in segments {
+                input.push_segment(s);
+            }
+            if start {
+                input.push_control(&ipc::Control { seq: 1, stamp_ns: now, command: Command::Start as u32, value: 0.0, _reserved: 0 });
+            }
+            let out = ctl.step(&input);
+            if out.joint_command.valid == 1 {
+                q = out.joint_command.position;
+            }
+            tick.set(t + 1);
+            out
+        };
+        step(&mut ctl, &job, true);
+        // Run until the tool is well into the second (extruding) segment.
+        let mut out = step(&mut ctl, &[], false);
+        for _ in 0..60_000 {
+            if ctl.last_sample.is_some_and(|s| s.seq == 2 && s.speed > 0.019) {
+                break;
+            }
+            out = step(&mut ctl, &[], false);
+        }
+        assert_eq!(ctl.run_state(), RunState::Running);
+        assert!(out.extruder.filament_rate > 0.0);
+        ctl.engine.freeze_for_test();
+        let frozen_at = tick.get();
+        let mut fault = None;
+        let mut previous_speed = f64::INFINITY;
+        for _ in 0..2_000 {
+            let out = step(&mut ctl, &[], false);
+            for e in out.events() {
+                if let Event::Fault { code, seq, line } = *e {
+                    fault = Some((tick.get(), code, seq, line));
+                }
+            }
+            let jc = &out.joint_command;
+            for i in 0..dof {
+                assert!(jc.position[i].is_finite() && jc.velocity[i].abs() <= limits[i].velocity * (1.0 + 1e-9));
+                assert!(jc.acceleration[i].abs() <= limits[i].acceleration * (1.0 + 1e-6) + 1e-6, "joint {i} brakes too hard");
+            }
+            if fault.is_some() {
+                // From the fault on: no filament, and the joints only slow down.
+                assert_eq!(out.extruder.filament_rate, 0.0, "extrusion stops at the fault");
+                let speed = (0..dof).map(|i| jc.velocity[i].abs()).fold(0.0, f64::max);
+                assert!(speed <= previous_speed + 1e-12, "the arm brakes: {speed} after {previous_speed}");
+                previous_speed = speed;
+                if ctl.run_state() == RunState::Fault {
+                    break;
+                }
+            }
+        }
+        let (at, code, seq, line) = fault.expect("the watchdog fired");
+        assert_eq!(code, FaultCode::PathStalled);
+        assert_eq!((seq, line), (2, 20), "the fault names the segment and its source line");
+        let waited = (at - frozen_at) as f64 * cfg.controller.dt();
+        assert!(waited > timeout && waited < timeout + 0.01, "fired after {waited} s");
+        assert_eq!(ctl.run_state(), RunState::Fault);
+        assert_eq!(ctl.outcome, JobOutcome::Faulted);
     }
 }

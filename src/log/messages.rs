@@ -131,7 +131,7 @@ fn intern(s: &str) -> &'static str {
 const EVENT_DEFINITION: &str = "\
 # 1 segment rejected (seq, a = reason, field), 2 control rejected (a = command, b = reason),
 # 3 joint state rejected (seq, a = reason), 4 base pose rejected (seq), 5 state changed (a = from, b = to),
-# 6 fault (a = code), 7 job ended (a = outcome, seq = last segment), 8 clamped (a = joint)
+# 6 fault (a = code, seq = segment executing, b = its source line), 7 job ended (a = outcome, seq = last segment), 8 clamped (a = joint)
 uint8 kind
 uint64 seq
 uint32 a
@@ -168,7 +168,7 @@ impl CdrType for Event {
             3 => Event::JointStateRejected { seq, reason: reason(a)? },
             4 => Event::BasePoseRejected { seq },
             5 => Event::StateChanged { from: state(a)?, to: state(b)? },
-            6 => Event::Fault { code: FaultCode::from_u32(a).ok_or(unknown("FaultCode", a))? },
+            6 => Event::Fault { code: FaultCode::from_u32(a).ok_or(unknown("FaultCode", a))?, seq, line: b },
             7 => Event::JobEnded { outcome: JobOutcome::from_u32(a).ok_or(unknown("JobOutcome", a))?, last_seq: seq },
             8 => Event::Clamped { joint: a as u8 },
             k => return Err(unknown("event kind", k as u32)),
@@ -193,7 +193,7 @@ impl Event {
             Event::JointStateRejected { seq, reason } => (3, seq, reason as u32, 0, ""),
             Event::BasePoseRejected { seq } => (4, seq, 0, 0, ""),
             Event::StateChanged { from, to } => (5, 0, from as u32, to as u32, ""),
-            Event::Fault { code } => (6, 0, code as u32, 0, ""),
+            Event::Fault { code, seq, line } => (6, seq, code as u32, line, ""),
             Event::JobEnded { outcome, last_seq } => (7, last_seq, outcome as u32, 0, ""),
             Event::Clamped { joint } => (8, 0, joint as u32, 0, ""),
         }

@@ -123,6 +123,7 @@ class FaultCode(enum.IntEnum):
     NON_FINITE = 4
     APPROACH_FAILED = 5
     ROBOT_DEVIATION = 6
+    PATH_STALLED = 7
 
 
 class RejectReason(enum.IntEnum):

@@ -184,7 +184,9 @@ pub fn report(log: &Path, truth: &[Truth], flyer: bool) -> Result<Report, String
         }
         for e in o.events() {
             match *e {
-                strand::core::controller::Event::Fault { code } => r.faults.push((i.tick, format!("{code:?}"))),
+                strand::core::controller::Event::Fault { code, seq, line } => {
+                    r.faults.push((i.tick, if seq > 0 { format!("{code:?} at segment {seq}, line {line}") } else { format!("{code:?}") }))
+                }
                 strand::core::controller::Event::JobEnded { outcome, .. } => {
                     r.job_outcome = format!("{outcome:?}");
                     ended = Some(i.time_ns);

@@ -180,7 +180,7 @@ pub fn analyse(files: &[LogFile]) -> Result<(Series, Summary, RobotModel), Strin
             sum.segments += i.segment_count as u64;
             for e in o.events() {
                 match *e {
-                    Event::Fault { code } => sum.faults.push((i.tick, code)),
+                    Event::Fault { code, .. } => sum.faults.push((i.tick, code)),
                     Event::JobEnded { outcome, .. } => sum.jobs.push((i.tick, outcome)),
                     _ => {}
                 }

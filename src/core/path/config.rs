@@ -55,6 +55,10 @@ pub struct PathConfig {
     /// Largest kink (rad) passed without slowing to a stop where no blend is possible (arc
     /// junctions); larger kinks are passed at `centripetal_acceleration · dt / angle`.
     pub max_kink: f64,
+    /// The controller's progress watchdog (s): with segments left to execute, no hold requested,
+    /// and neither the path position nor a dwell's clock advancing for this long, the job faults
+    /// with `PathStalled`. 0 disables.
+    pub stall_timeout: f64,
 }
 
 impl Default for PathConfig {
@@ -70,6 +74,7 @@ impl Default for PathConfig {
             deviation_tolerance: 0.05e-3,
             corner_cosine: 0.5,
             max_kink: 0.01,
+            stall_timeout: 0.5,
         }
     }
 }
@@ -104,6 +109,9 @@ impl PathConfig {
         positive("max_kink", self.max_kink)?;
         if !(self.corner_cosine.is_finite() && (-1.0..=1.0).contains(&self.corner_cosine)) {
             return Err(InvalidPathConfig { key: "corner_cosine", message: "must be in [-1, 1]" });
+        }
+        if !(self.stall_timeout.is_finite() && (0.0..=3600.0).contains(&self.stall_timeout)) {
+            return Err(InvalidPathConfig { key: "stall_timeout", message: "must be in [0, 3600] s (0 disables)" });
         }
         Ok(())
     }

@@ -21,6 +21,23 @@
 //! so ticks sample one continuous, jerk-limited motion. New segments, a feed override, a speed
 //! scale from the CLIK, or entering a piece with a higher cap start a new trajectory from the
 //! current state. Nothing here allocates after [`PathEngine::new`].
+//!
+//! Progress (why every valid stream ends). The executor is one loop over *plans* — a rsruckig
+//! trajectory, a trapezoid, or a dwell on a hold — that spends the tick's time: each pass either
+//! returns inside the current plan (its clock advanced by what was left of the tick) or uses the
+//! plan up and starts the next one from where it ended, in the same tick. A dwell is a plan like
+//! the others, so one that ends mid-tick hands over to whatever follows — another dwell, an E-only
+//! retraction, a move — exactly as a trajectory does. (Before, the dwell lived outside that loop
+//! and a second hold entered from the end of a first one was taken for the end of the path: the
+//! engine reported `Starved` with work left and stood still forever — issue 17's hang.) So:
+//!
+//! > every tick either advances the path state (s, ṡ or s̈ changes), advances a dwell's clock, or
+//! > leaves the engine at rest with nothing left to execute (idle, starved, finished) or held by
+//! > request.
+//!
+//! [`PathEngine::step`] asserts this in debug builds, [`PathEngine::progress`] exposes the
+//! measure, and the controller's stall watchdog (`[path] stall_timeout`) faults if it ever stops
+//! growing while [`PathEngine::has_work`].
 
 use nalgebra::{UnitQuaternion, Vector3};
 use rsruckig::prelude::*;
@@ -278,6 +295,11 @@ enum Plan {
     Ruckig { target: u64, position: f64, speed: f64, cap: f64 },
     /// A trapezoid over one piece (stop-and-go and rules-004).
     Trapezoid { piece: u64, profile: Trapezoid },
+    /// Standing still on the hold under the cursor for `duration` seconds (a dwell, or a slicer's
+    /// retraction or prime). It is a plan like the others: the executor's loop spends the tick's
+    /// time on it and, when it runs out inside a tick, starts whatever follows in the same tick —
+    /// another dwell included.
+    Dwell { duration: f64 },
 }
 
 /// The path engine. See the module documentation.
@@ -313,7 +335,9 @@ pub struct PathEngine {
     /// Where the tool rests when no piece is left (m, W), and its orientation.
     rest_point: Vector3<f64>,
     last_piece_orientation: UnitQuaternion<f64>,
-    dwell_left: f64,
+    /// Seconds of dwell completed since the start (the dwell clock); with `state.s` it is the
+    /// engine's progress measure (see [`progress`](Self::progress)).
+    dwell_done: f64,
     motion: Motion,
     otg: Ruckig<1, IgnoreErrorHandler>,
     input: InputParameter<1>,
@@ -323,6 +347,9 @@ pub struct PathEngine {
     stats: PathStats,
     /// Stop on the path and stay there (pause or controlled stop).
     held: bool,
+    /// Test only: the executor stands still with its work left, as a planner bug would make it.
+    #[cfg(test)]
+    frozen: bool,
 }
 
 impl PathEngine {
@@ -366,7 +393,7 @@ impl PathEngine {
             plan_origin: 0.0,
             rest_point: start,
             last_piece_orientation: orientation,
-            dwell_left: 0.0,
+            dwell_done: 0.0,
             motion: Motion::Idle,
             otg: Ruckig::new(None, dt),
             input,
@@ -374,6 +401,8 @@ impl PathEngine {
             candidate: Trajectory::new(None),
             stats: PathStats::default(),
             held: false,
+            #[cfg(test)]
+            frozen: false,
         })
     }
 
@@ -400,7 +429,6 @@ impl PathEngine {
         self.plan_origin = 0.0;
         self.rest_point = start;
         self.last_piece_orientation = orientation;
-        self.dwell_left = 0.0;
         self.motion = Motion::Idle;
         self.held = false;
     }
@@ -465,11 +493,13 @@ impl PathEngine {
         let fraction = fraction.clamp(0.01, 2.0);
         if fraction != self.feed_override {
             self.feed_override = fraction;
-            // Every cap depends on it: recompute the whole window.
+            // Every cap depends on it: recompute the whole window. The pass must start dirty at
+            // the head: marked at the tail it would stop one braking distance before the end and
+            // keep the old speeds everywhere else.
             for k in self.pieces.head..self.pieces.tail {
                 self.refresh_cap(k);
             }
-            self.mark_dirty(self.pieces.tail);
+            self.mark_dirty(self.pieces.head);
             self.backward_pass();
             self.replan = true;
         }
@@ -849,18 +879,71 @@ impl PathEngine {
     /// One control tick. `speed_scale` is the fraction of the current path speed the caller could
     /// follow last tick (the CLIK's joint-limit scale; 1 when unconstrained).
     pub fn step(&mut self, speed_scale: f64) -> PathSample {
+        #[cfg(test)]
+        if self.frozen {
+            return self.sample();
+        }
+        #[cfg(debug_assertions)]
+        let before = (self.state, self.progress().1);
         self.plan();
         self.apply_speed_scale(speed_scale);
-        if self.replan && self.motion != Motion::Dwelling {
+        // A dwell runs to its end whatever arrives meanwhile (new segments, a hold, an override).
+        if self.replan && !matches!(self.plan, Plan::Dwell { .. }) {
             self.replan = false;
             let moving = matches!(self.plan, Plan::Ruckig { .. });
             self.start_plan_from(self.state, 0.0, moving);
-            if self.motion == Motion::Dwelling {
-                return self.sample();
-            }
         }
         self.advance();
+        #[cfg(debug_assertions)]
+        self.debug_assert_progress(before);
         self.sample()
+    }
+
+    /// The progress measure (path position in m plus completed dwell time in s): it never
+    /// decreases, and while [`has_work`](Self::has_work) it grows every tick (the module's
+    /// progress invariant). The controller's stall watchdog watches it.
+    pub fn progress(&self) -> (f64, f64) {
+        (self.state.s, self.dwell_done + if let Plan::Dwell { .. } = self.plan { self.plan_time } else { 0.0 })
+    }
+
+    /// Whether anything that has arrived is still to be executed: a piece the tool has not run to
+    /// its end, or a dwell with time left. False when the engine is at rest at the end of what
+    /// arrived (idle, starved or finished); a hold ([`set_hold`](Self::set_hold)) does not change it.
+    pub fn has_work(&self) -> bool {
+        if self.intake.len() > 0 {
+            return true;
+        }
+        let s = self.state.s;
+        (self.piece.max(self.pieces.head)..self.pieces.tail).any(|k| {
+            let p = self.pieces.get(k);
+            if p.is_hold() { p.hold_time > 0.0 } else { p.end() > s + 1e-9 }
+        })
+    }
+
+    /// The progress invariant (debug builds): every tick either advances the path state (s, v or a
+    /// changes), advances a dwell's clock, or leaves the engine at rest with nothing executable
+    /// (idle, starved or finished: every piece that arrived has run) or held by request.
+    #[cfg(debug_assertions)]
+    fn debug_assert_progress(&self, before: (PathState, f64)) {
+        let (state, dwell) = before;
+        let advanced = self.state.s != state.s || self.state.v != state.v || self.state.a != state.a || self.progress().1 > dwell;
+        match self.motion {
+            Motion::Moving | Motion::Dwelling => debug_assert!(
+                advanced,
+                "path engine made no progress while {:?}: s {} v {} a {} piece {} plan {:?}",
+                self.motion, state.s, state.v, state.a, self.piece, self.plan
+            ),
+            Motion::Idle | Motion::Starved | Motion::Finished => debug_assert!(
+                !self.has_work() || self.pieces.room() < 4 || self.intake.len() > 0,
+                "path engine at rest ({:?}) with work left: s {} piece {} of {}..{}",
+                self.motion,
+                self.state.s,
+                self.piece,
+                self.pieces.head,
+                self.pieces.tail
+            ),
+            Motion::Held => debug_assert!(self.held),
+        }
     }
 
     fn apply_speed_scale(&mut self, scale: f64) {
@@ -948,7 +1031,7 @@ impl PathEngine {
             let current = *self.pieces.get(self.piece);
             if current.is_hold() && state.v <= 1e-12 {
                 if current.hold_time > 0.0 {
-                    self.enter_dwell(elapsed);
+                    self.enter_dwell();
                     return;
                 }
                 if self.piece + 1 < self.pieces.tail {
@@ -1040,9 +1123,11 @@ impl PathEngine {
                 std::mem::swap(&mut self.trajectory, &mut self.candidate);
                 self.plan = Plan::Ruckig { target, position, speed, cap: vrun };
             }
-            None if event && matches!(self.plan, Plan::Ruckig { target, .. } if target != u64::MAX) => {
+            None if event && matches!(self.plan, Plan::Ruckig { target, cap, .. } if target != u64::MAX && cap <= vrun * (1.0 + 1e-9)) => {
                 // A re-plan mid-trajectory found nothing better (numerically at the edge of
-                // feasibility): keep following the current trajectory, which meets its target.
+                // feasibility): keep following the current trajectory, which meets its target —
+                // but only if it was planned under a cap no higher than today's (after a feed
+                // override or speed-scale drop it would run too fast: brake instead, below).
                 self.plan_time = previous_time;
             }
             None => {
@@ -1173,39 +1258,40 @@ impl PathEngine {
         self.plan_origin = state.s;
     }
 
-    /// Starts the dwell of the hold under the cursor, reached `elapsed` seconds into the tick.
-    fn enter_dwell(&mut self, elapsed: f64) {
+    /// Starts the dwell of the hold under the cursor; the executor's loop spends time on it.
+    fn enter_dwell(&mut self) {
         let p = *self.pieces.get(self.piece);
         self.motion = Motion::Dwelling;
-        self.dwell_left = p.hold_time - (self.dt - elapsed);
         self.state = PathState { s: self.state.s.max(p.start), v: 0.0, a: 0.0, j: 0.0 };
-        self.plan = Plan::Rest;
+        self.plan = Plan::Dwell { duration: p.hold_time };
     }
 
-    /// Advances the executor by one tick.
+    /// Advances the executor by one tick: `t` is the time since the current plan started, at the
+    /// end of this tick. Each pass of the loop either returns inside the current plan or spends
+    /// the plan's whole remaining time and starts the next one from where it ended, in the same
+    /// tick; so every plan — trajectory, trapezoid or dwell — hands over to the next the same way.
     fn advance(&mut self) {
         let mut t = self.plan_time + self.dt;
-        if self.motion == Motion::Dwelling {
-            if self.dwell_left > 0.0 {
-                self.dwell_left -= self.dt;
-                if self.dwell_left > 0.0 {
-                    return;
-                }
-            }
-            // The dwell ended `leftover` seconds before the end of this tick: mark the hold done and
-            // move on for the rest of the tick.
-            let leftover = (-self.dwell_left).clamp(0.0, self.dt);
-            self.dwell_left = 0.0;
-            self.pieces.get_mut(self.piece).hold_time = 0.0;
-            self.motion = Motion::Moving;
-            self.start_plan(self.state, self.dt - leftover);
-            t = leftover;
-        }
         for _ in 0..1024 {
             match self.plan {
                 Plan::Rest => {
                     self.settle_at_rest();
                     return;
+                }
+                Plan::Dwell { duration } => {
+                    if t < duration {
+                        self.plan_time = t;
+                        self.motion = Motion::Dwelling;
+                        return;
+                    }
+                    // The dwell ended `rest` seconds before the end of this tick: mark the hold
+                    // done and go on with what follows for the rest of the tick.
+                    let rest = t - duration;
+                    self.dwell_done += duration;
+                    self.pieces.get_mut(self.piece).hold_time = 0.0;
+                    self.motion = Motion::Moving;
+                    self.start_plan(self.state, self.dt - rest);
+                    t = rest;
                 }
                 Plan::Ruckig { target, position, speed, .. } => {
                     let duration = self.trajectory.get_duration();
@@ -1242,9 +1328,6 @@ impl PathEngine {
                     self.start_plan(end_state, self.dt - rest);
                     t = rest;
                 }
-            }
-            if self.motion == Motion::Dwelling {
-                return;
             }
         }
     }
@@ -1335,6 +1418,15 @@ impl PathEngine {
             dwell_filament_rate: dwell_rate,
             motion: self.motion,
         }
+    }
+}
+
+#[cfg(test)]
+impl PathEngine {
+    /// Test only: stop advancing from the next tick on while keeping everything queued, as a stall
+    /// in the planner would (the controller's watchdog must turn it into a fault).
+    pub(crate) fn freeze_for_test(&mut self) {
+        self.frozen = true;
     }
 }
 

@@ -106,6 +106,8 @@ pub struct Trapezoid {
     pub v_out: f64,
     /// Acceleration (m/s²).
     pub a: f64,
+    /// Acceleration of the first phase (m/s²): `a`, or `−a` when the entry is above the cap.
+    pub a_in: f64,
     /// Durations of the three phases (s).
     pub t_acc: f64,
     pub t_cruise: f64,
@@ -130,21 +132,25 @@ pub struct PathState {
 
 impl Trapezoid {
     /// The profile over `length` (m) from `v_in` to `v_out` with cruise cap `v_cruise` and
-    /// acceleration `a`. The end speeds are clamped to what the length allows.
+    /// acceleration `a`. The end speeds are clamped to what the length allows. An entry faster than
+    /// the cap (a feed override lowered mid-piece) first slows to the cap: the first phase then
+    /// decelerates, and if even braking all the way cannot reach `v_out`, the exit is as slow as
+    /// braking allows.
     pub fn new(length: f64, v_in: f64, v_out: f64, v_cruise: f64, a: f64) -> Trapezoid {
         let length = length.max(0.0);
         let v_in = v_in.max(0.0);
         // Exit speed reachable from the entry (and vice versa, in case the entry is too fast).
-        let v_out = v_out.max(0.0).min((v_in * v_in + 2.0 * a * length).sqrt());
+        let v_out = v_out.max(0.0).min((v_in * v_in + 2.0 * a * length).sqrt()).max((v_in * v_in - 2.0 * a * length).max(0.0).sqrt());
         let v_peak_room = ((2.0 * a * length + v_in * v_in + v_out * v_out) / 2.0).sqrt();
-        let v_peak = v_cruise.min(v_peak_room).max(v_in.max(v_out));
-        let t_acc = (v_peak - v_in) / a;
+        let v_peak = if v_in <= v_cruise { v_cruise.min(v_peak_room).max(v_in.max(v_out)) } else { v_cruise.max(v_out) };
+        let a_in = if v_peak >= v_in { a } else { -a };
+        let t_acc = (v_peak - v_in).abs() / a;
         let t_dec = (v_peak - v_out) / a;
-        let d_acc = (v_peak * v_peak - v_in * v_in) / (2.0 * a);
+        let d_acc = if a > 0.0 { (v_peak * v_peak - v_in * v_in) / (2.0 * a_in) } else { 0.0 };
         let d_dec = (v_peak * v_peak - v_out * v_out) / (2.0 * a);
         let d_cruise = (length - d_acc - d_dec).max(0.0);
         let t_cruise = if v_peak > 0.0 { d_cruise / v_peak } else { 0.0 };
-        Trapezoid { v_in, v_peak, v_out, a, t_acc, t_cruise, t_dec, d_acc, d_cruise }
+        Trapezoid { v_in, v_peak, v_out, a, a_in, t_acc, t_cruise, t_dec, d_acc, d_cruise }
     }
 
     /// Total duration (s), 004 Eq. 3 for a rest-to-rest trapezoid.
@@ -156,7 +162,8 @@ impl Trapezoid {
     pub fn at(&self, t: f64) -> PathState {
         let a = self.a;
         if t < self.t_acc {
-            return PathState { s: self.v_in * t + 0.5 * a * t * t, v: self.v_in + a * t, a, j: 0.0 };
+            let a_in = self.a_in;
+            return PathState { s: self.v_in * t + 0.5 * a_in * t * t, v: (self.v_in + a_in * t).max(0.0), a: a_in, j: 0.0 };
         }
         let t2 = t - self.t_acc;
         if t2 < self.t_cruise {
