@@ -26,7 +26,7 @@
 #                               Ender-3's ("Ender 3 Custom Start G-code"); end code: creality_base's
 #                               (ends with `M84 X Y E`), {machine_depth} replaced by 235 as Cura does.
 #                               The evaluated settings that differ from the definitions'
-#                               default_value: cura/ender3_settings.txt.
+#                               default_value: slicers/cura_ender3_settings.txt.
 #                               Override: none (the STL is centred on x = y = 0 and CuraEngine adds
 #                               half the bed, machine_center_is_zero = false).
 #   prusaslicer25/default_*.gcode  prusa-slicer 2.5.0 with no config at all: its built-in defaults
@@ -35,9 +35,12 @@
 #   prusaslicer25/mk3s_*.gcode  prusa-slicer 2.5.0 --load mk3s.ini: the bundled PrusaResearch.ini
 #                               preset "Original Prusa i3 MK3S & MK3S+" with its default print and
 #                               filament presets ("0.15mm QUALITY @MK3", "Prusament PLA"), flattened by
-#                               prusa_preset.py (mk3s.ini is kept next to the files).
+#                               prusa_preset.py (each file ends with the full configuration).
 #   slic3r13/default_*.gcode    slic3r 1.3.0 --no-gui with no config: its built-in defaults (0.3 mm
 #                               layers, start `G28` / `G1 Z5 F5000`, end `M104 S0` / `G28 X0` / `M84`).
+#
+# Reruns give the same CuraEngine files; PrusaSlicer's and Slic3r's carry the time of slicing, and
+# PrusaSlicer's seam points can move by a few hundredths of a millimetre from run to run.
 set -eu
 
 here=$(cd "$(dirname "$0")" && pwd)
@@ -57,16 +60,16 @@ fi
 mkdir -p "$data/cura"
 for p in $parts; do
     python3 "$here/cura_slice.py" "$CURA_RESOURCES" creality_ender3 "$here/parts/$p.stl" "$data/cura/ender3_$p.gcode" \
-        --settings-out "$data/cura/ender3_settings.txt"
+        --settings-out "$here/cura_ender3_settings.txt"
 done
 
 # PrusaSlicer 2.5
 mkdir -p "$data/prusaslicer25"
 python3 "$here/prusa_preset.py" /usr/share/PrusaSlicer/profiles/PrusaResearch.ini "Original Prusa i3 MK3S & MK3S+" \
-    > "$data/prusaslicer25/mk3s.ini"
+    > "$tmp/mk3s.ini"
 for p in $parts; do
     prusa-slicer --loglevel 1 --export-gcode "$here/parts/$p.stl" -o "$data/prusaslicer25/default_$p.gcode" >/dev/null
-    prusa-slicer --loglevel 1 --load "$data/prusaslicer25/mk3s.ini" --export-gcode "$here/parts/$p.stl" \
+    prusa-slicer --loglevel 1 --load "$tmp/mk3s.ini" --export-gcode "$here/parts/$p.stl" \
         -o "$data/prusaslicer25/mk3s_$p.gcode" >/dev/null
 done
 
