@@ -6,7 +6,8 @@ use std::f64::consts::{PI, TAU};
 use nalgebra::Vector3;
 
 use super::block::Block;
-use super::interpreter::{Interpreter, Motion, PlaneAxes, finite};
+use super::codes::{Motion, PlaneAxes};
+use super::interpreter::{Interpreter, bounded, finite};
 use super::lexer::Fault;
 use super::{MM, ZERO_LENGTH};
 use crate::core::path::{Segment, SegmentKind};
@@ -108,7 +109,7 @@ impl Interpreter {
         } else {
             (position[axes.first] + i, position[axes.second] + j)
         };
-        Ok((finite(centre.0, block.column(first))?, finite(centre.1, block.column(second))?))
+        Ok((bounded(centre.0, block.column(first))?, bounded(centre.1, block.column(second))?))
     }
 
     /// Centre from R (LinuxCNC's construction): on the chord's perpendicular bisector, on the side
@@ -126,7 +127,7 @@ impl Interpreter {
         if let Some(letter) = [first, second, normal].into_iter().find(|l| block.has(*l)) {
             return Err(Fault::new(block.column(letter), format!("both R and {} given for one arc", letter as char)));
         }
-        let radius = block.take(b'R')?.unwrap_or(0.0) * self.modal.unit;
+        let radius = bounded(block.take(b'R')?.unwrap_or(0.0) * self.modal.unit, r_column)?;
         let abs_radius = radius.abs();
         if abs_radius < self.zero_radius() {
             return Err(Fault::new(r_column, "zero radius arc"));

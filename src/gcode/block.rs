@@ -1,6 +1,6 @@
 //! Blocks: the words of one line, grouped into codes and at most one parameter per letter.
 
-use super::lexer::{Fault, Word, code_tenths};
+use super::lexer::{Fault, Value, Word, code_tenths};
 
 /// A G- or M-code on a line.
 #[derive(Clone, Copy, Debug)]
@@ -12,8 +12,20 @@ pub(super) struct Code {
 /// A parameter word (any letter but G, M, N).
 #[derive(Clone, Copy, Debug)]
 pub(super) struct Param {
-    pub(super) value: Option<f64>,
+    pub(super) value: Value,
     pub(super) column: usize,
+}
+
+impl Param {
+    /// The number; an error naming the column for a string or a bare letter.
+    pub(super) fn number(&self, letter: u8) -> Result<f64, Fault> {
+        let letter = letter as char;
+        match self.value {
+            Value::Number(v) => Ok(v),
+            Value::Text => Err(Fault::new(self.column, format!("{letter} needs a number, not a string"))),
+            Value::Bare => Err(Fault::new(self.column, format!("{letter} without a number"))),
+        }
+    }
 }
 
 /// The words of one line: its codes, and at most one parameter per letter.
@@ -44,7 +56,7 @@ impl Block {
 
     pub(super) fn add(&mut self, word: &Word) -> Result<(), Fault> {
         let letter = word.letter as char;
-        let number = |w: &Word| w.value.ok_or_else(|| Fault::new(w.column, format!("{letter} needs a number, not a string")));
+        let number = |w: &Word| Param { value: w.value, column: w.column }.number(w.letter);
         match word.letter {
             b'G' | b'M' => {
                 let value = number(word)?;
@@ -79,12 +91,21 @@ impl Block {
         self.params[letter_index(letter)].map_or(0, |p| p.column)
     }
 
-    /// The number of `letter`'s word, marking it used; an error if it is a string.
+    /// The number of `letter`'s word, marking it used; an error if it is a string or bare.
     pub(super) fn take(&mut self, letter: u8) -> Result<Option<f64>, Fault> {
-        let Some(param) = self.params[letter_index(letter)] else { return Ok(None) };
+        self.take_param(letter).map(|p| p.number(letter)).transpose()
+    }
+
+    /// `letter`'s word as written, marking it used.
+    pub(super) fn take_param(&mut self, letter: u8) -> Option<Param> {
+        let param = self.params[letter_index(letter)]?;
         self.used |= 1 << letter_index(letter);
-        let message = || format!("{} needs a number, not a string", letter as char);
-        param.value.map(Some).ok_or_else(|| Fault::new(param.column, message()))
+        Some(param)
+    }
+
+    /// True if the line has any G- or M-code besides the one at `column`.
+    pub(super) fn has_other_code(&self, column: usize) -> bool {
+        self.g.iter().chain(&self.m).any(|c| c.column != column)
     }
 
     /// Parameters present but not consumed, in letter order.

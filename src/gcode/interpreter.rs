@@ -4,153 +4,14 @@ use std::collections::VecDeque;
 
 use nalgebra::Vector3;
 
+use super::arc::segment_length;
 use super::block::{Block, Code};
-use super::lexer::{Fault, code_name, code_tenths};
+use super::codes::{FirmwareM, GAction, MAction, Motion, Plane, classify_g, classify_m, ignored_g_message, ignored_m_message};
+use super::dialect::{Dialect, Firmware};
+use super::lexer::{Fault, Value, code_name};
 use super::report::Reports;
-use super::{GcodeOptions, GcodeSegment, INCH, MM, Tags, ZERO_LENGTH};
+use super::{GcodeOptions, GcodeSegment, MAX_COORDINATE, MM, Tags, ZERO_LENGTH};
 use crate::core::path::{Segment, SegmentFlags, SegmentKind};
-
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub(super) enum Motion {
-    Rapid,
-    Linear,
-    Clockwise,
-    CounterClockwise,
-}
-
-impl Motion {
-    pub(super) fn name(self) -> &'static str {
-        match self {
-            Motion::Rapid => "G0",
-            Motion::Linear => "G1",
-            Motion::Clockwise => "G2",
-            Motion::CounterClockwise => "G3",
-        }
-    }
-
-    pub(super) fn is_arc(self) -> bool {
-        matches!(self, Motion::Clockwise | Motion::CounterClockwise)
-    }
-}
-
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub(super) enum Plane {
-    Xy,
-    Zx,
-    Yz,
-}
-
-/// An arc plane as LinuxCNC orders it: (first, second, normal) form a right-handed frame, and G3
-/// turns from first towards second.
-pub(super) struct PlaneAxes {
-    pub(super) first: usize,
-    pub(super) second: usize,
-    pub(super) normal: usize,
-    /// Centre-offset letters along first, second and normal.
-    pub(super) offsets: [u8; 3],
-    pub(super) name: &'static str,
-}
-
-impl Plane {
-    pub(super) fn axes(self) -> PlaneAxes {
-        match self {
-            Plane::Xy => PlaneAxes { first: 0, second: 1, normal: 2, offsets: [b'I', b'J', b'K'], name: "XY plane (G17)" },
-            Plane::Zx => PlaneAxes { first: 2, second: 0, normal: 1, offsets: [b'K', b'I', b'J'], name: "ZX plane (G18)" },
-            Plane::Yz => PlaneAxes { first: 1, second: 2, normal: 0, offsets: [b'J', b'K', b'I'], name: "YZ plane (G19)" },
-        }
-    }
-}
-
-/// What a G-code does here.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub(super) enum GAction {
-    Motion(Motion),
-    CancelMotion,
-    Dwell,
-    Plane(Plane),
-    Units(f64),
-    Absolute(bool),
-    AbsoluteArcCentres(bool),
-    SetPosition,
-    ResetOffsets,
-    /// Not acted on; true if it takes axis words (`G28 X0`).
-    Ignored {
-        takes_axes: bool,
-    },
-    /// Acting on it would change the path, ignoring it too: an error.
-    Unsupported(&'static str),
-}
-
-pub(super) fn classify_g(tenths: u32) -> GAction {
-    use GAction::*;
-    match tenths {
-        0 => Motion(self::Motion::Rapid),
-        10 => Motion(self::Motion::Linear),
-        20 => Motion(self::Motion::Clockwise),
-        30 => Motion(self::Motion::CounterClockwise),
-        1..=39 => Unsupported("unknown motion variant"),
-        40 => Dwell,
-        170 => Plane(self::Plane::Xy),
-        180 => Plane(self::Plane::Zx),
-        190 => Plane(self::Plane::Yz),
-        200 => Units(INCH),
-        210 => Units(MM),
-        800 => CancelMotion,
-        900 => Absolute(true),
-        910 => Absolute(false),
-        901 => AbsoluteArcCentres(true),
-        911 => AbsoluteArcCentres(false),
-        920 => SetPosition,
-        921 | 922 => ResetOffsets,
-        50..=53 => Unsupported("spline motion"),
-        60 => Unsupported("direct stepper motion"),
-        70 => Unsupported("lathe diameter mode"),
-        330 | 331 => Unsupported("spindle-synchronised motion"),
-        382..=385 => Unsupported("probing motion"),
-        410 | 411 | 420 | 421 => Unsupported("cutter radius compensation"),
-        510 => Unsupported("scaling"),
-        520 => Unsupported("local coordinate offset"),
-        530 => Unsupported("motion in machine coordinates"),
-        680 => Unsupported("coordinate rotation"),
-        700..=722 | 730 | 740 | 760 | 810..=890 => Unsupported("canned cycle"),
-        930 => Unsupported("inverse-time feed"),
-        950 => Unsupported("feed per revolution"),
-        100 | 110 | 120 | 260 | 270 | 280 | 281 | 290..=299 | 300 | 301 | 310 | 320 | 340 | 350 => Ignored { takes_axes: true },
-        _ => Ignored { takes_axes: false },
-    }
-}
-
-/// A short description of a code not acted on, for the first warning of its kind.
-pub(super) fn ignored_g_message(tenths: u32) -> &'static str {
-    match tenths {
-        280 | 281 | 300 | 301 => "homing / predefined position not acted on: position unchanged",
-        290..=299 => "bed levelling not acted on",
-        100 | 110 => "G10/G11 (offsets or firmware retraction) not acted on",
-        400 => "cutter compensation off: nothing to do",
-        430..=432 | 490 => "tool length offset not acted on",
-        540..=593 => "work coordinate system not acted on",
-        610 | 611 | 640 => "path control mode not acted on (blending is the path engine's)",
-        80 => "lathe radius mode: X is read as a radius, as always here",
-        940 => "units-per-minute feed mode: the only one supported",
-        _ => "G-code not acted on",
-    }
-}
-
-pub(super) fn ignored_m_message(tenths: u32) -> &'static str {
-    match tenths {
-        0 | 10 | 600 => "program pause not acted on",
-        30 | 40 | 50 => "spindle / torch not acted on",
-        60 => "tool change not acted on",
-        70..=90 => "coolant not acted on",
-        180 | 840 => "motors off not acted on",
-        1040 | 1090 => "hotend temperature not acted on",
-        1400 | 1900 => "bed temperature not acted on",
-        1060 | 1070 => "fan not acted on",
-        2200 => "feed override not acted on: feeds as programmed",
-        2210 => "flow override not acted on: filament as programmed",
-        _ => "M-code not acted on",
-    }
-}
 
 /// Modes that persist from line to line.
 pub(super) struct Modal {
@@ -165,8 +26,6 @@ pub(super) struct Modal {
     pub(super) feed: Option<f64>,
     /// Last feed given on a line executing G0 (m/s).
     pub(super) rapid_feed: Option<f64>,
-    /// An E word or M82/M83 has been seen: G4 P is in milliseconds.
-    pub(super) slicer_dialect: bool,
 }
 
 /// Where the machine is.
@@ -193,8 +52,16 @@ pub(super) struct Plan {
     pub(super) reset_offsets: bool,
     pub(super) absolute_e: Option<bool>,
     pub(super) program_end: bool,
-    /// An unacted code that owns the line's leftover parameters (all of them if it takes axes).
+    /// A code that owns the line's leftover parameters (all of them, axes too, if the flag is set).
     pub(super) owner: Option<(usize, bool)>,
+    /// `G10` (true) or `G11` (false) as firmware retraction, and its column.
+    pub(super) retract: Option<(bool, usize)>,
+    /// A firmware M-code acted on, and its column.
+    pub(super) firmware: Option<(FirmwareM, usize)>,
+    /// `F` is a firmware M-code's parameter (`M207 F`), not the modal feed.
+    pub(super) f_is_parameter: bool,
+    /// `T` selects a tool (no M-code on the line but M6); otherwise it is an M-code's parameter.
+    pub(super) t_is_tool: bool,
 }
 
 /// Which modal group a code is in, for the one-per-line check.
@@ -206,6 +73,7 @@ pub(super) enum Group {
     Distance,
     ArcDistance,
     Extruder,
+    Retraction,
 }
 
 pub(super) struct Interpreter {
@@ -214,6 +82,10 @@ pub(super) struct Interpreter {
     pub(super) machine: Machine,
     pub(super) tags: Tags,
     pub(super) layer_marker_pending: bool,
+    /// A line or arc was emitted since the last layer marker (two markers with no motion between
+    /// them, e.g. Orca's `;LAYER_CHANGE` and `; CHANGE_LAYER`, are one layer change).
+    pub(super) moved_since_marker: bool,
+    pub(super) firmware: Firmware,
     pub(super) next_seq: u64,
     pub(super) warnings: Reports,
     pub(super) notes: Reports,
@@ -241,11 +113,12 @@ impl Interpreter {
                 absolute_arc_centres: false,
                 feed: None,
                 rapid_feed: None,
-                slicer_dialect: false,
             },
             machine: Machine { position: options.start, offset: Vector3::zeros(), extruder: 0.0 },
             tags: Tags::default(),
             layer_marker_pending: false,
+            moved_since_marker: false,
+            firmware: Firmware::new(options.dialect, options.firmware_retraction),
             next_seq: options.first_seq,
             warnings: Reports::default(),
             notes: Reports::default(),
@@ -273,28 +146,49 @@ impl Interpreter {
         }
     }
 
-    /// Executes one block in RS274/NGC order: feed, unacted codes, extruder mode, dwell, modes,
-    /// G92, motion, words left over, program end.
-    pub(super) fn execute(&mut self, block: &mut Block, line: usize, out: &mut VecDeque<GcodeSegment>) -> Result<(), Fault> {
+    /// Executes one block in RS274/NGC order: feed, tool, unacted codes, extruder mode, dwell,
+    /// retraction, modes, G92, firmware M-code, motion, words left over, program end. `unread` is a
+    /// word the lexer could not read on an M-code line: an error unless the line's codes are all
+    /// ones the parser does not act on (whose parameters it does not read).
+    pub(super) fn execute(
+        &mut self,
+        block: &mut Block,
+        line: usize,
+        unread: Option<Fault>,
+        out: &mut VecDeque<GcodeSegment>,
+    ) -> Result<(), Fault> {
         self.started = true;
         let plan = self.plan(block, line)?;
+        if let Some(fault) = unread
+            && (!block.g.is_empty() || plan.firmware.is_some() || plan.absolute_e.is_some() || plan.program_end)
+        {
+            return Err(fault);
+        }
         let motion = self.motion_to_execute(&plan, block)?;
-        self.set_feed(block, motion.map(|(m, _)| m), &plan)?;
+        if !plan.f_is_parameter {
+            self.set_feed(block, motion.map(|(m, _)| m), &plan)?;
+        }
+        if plan.t_is_tool {
+            self.select_tool(block, line)?;
+        }
         if let Some(absolute_e) = plan.absolute_e {
             self.modal.absolute_e = absolute_e;
-        }
-        if block.has(b'E') || plan.absolute_e.is_some() {
-            self.modal.slicer_dialect = true;
         }
         if let Some(column) = plan.dwell {
             self.dwell(block, line, column, out)?;
         }
+        if let Some((retract, column)) = plan.retract {
+            self.firmware_retract(retract, line, column, out)?;
+        }
         self.apply_modes(&plan);
         if plan.set_position.is_some() {
-            self.set_position(block)?;
+            self.set_position(block, line)?;
         }
         if plan.reset_offsets {
             self.machine.offset = Vector3::zeros();
+        }
+        if let Some((code, column)) = plan.firmware {
+            self.firmware_m(code, block, line, column)?;
         }
         if let Some((motion, column)) = motion {
             self.move_to(block, motion, column, line, out)?;
@@ -308,13 +202,13 @@ impl Interpreter {
 
     /// Sorts the line's codes; rejects unsupported ones and two of one modal group.
     pub(super) fn plan(&mut self, block: &Block, line: usize) -> Result<Plan, Fault> {
-        let mut plan = Plan::default();
+        let mut plan = Plan { t_is_tool: block.m.iter().all(|m| m.tenths == 60), ..Plan::default() };
         self.groups_seen.clear();
         for code in &block.g {
-            self.plan_g(*code, &mut plan, line)?;
+            self.plan_g(*code, block, &mut plan, line)?;
         }
         for code in &block.m {
-            self.plan_m(*code, &mut plan, line)?;
+            self.plan_m(*code, block, &mut plan, line)?;
         }
         Ok(plan)
     }
@@ -328,8 +222,8 @@ impl Interpreter {
         Ok(())
     }
 
-    pub(super) fn plan_g(&mut self, code: Code, plan: &mut Plan, line: usize) -> Result<(), Fault> {
-        match classify_g(code.tenths) {
+    pub(super) fn plan_g(&mut self, code: Code, block: &Block, plan: &mut Plan, line: usize) -> Result<(), Fault> {
+        match classify_g(code.tenths, self.firmware.dialect, block) {
             GAction::Motion(motion) => {
                 self.claim_group(Group::Motion, code, 'G')?;
                 plan.motion = Some((motion, code.column));
@@ -357,6 +251,11 @@ impl Interpreter {
             }
             GAction::SetPosition => plan.set_position = Some(code.column),
             GAction::ResetOffsets => plan.reset_offsets = true,
+            GAction::Retract(retract) => {
+                self.claim_group(Group::Retraction, code, 'G')?;
+                plan.retract = Some((retract, code.column));
+                plan.owner = Some(merge_owner(plan.owner, code.column, true));
+            }
             GAction::Ignored { takes_axes } => {
                 let name = code_name('G', code.tenths);
                 self.warnings.record(&name, line, code.column, || ignored_g_message(code.tenths).to_string());
@@ -369,14 +268,23 @@ impl Interpreter {
         Ok(())
     }
 
-    pub(super) fn plan_m(&mut self, code: Code, plan: &mut Plan, line: usize) -> Result<(), Fault> {
-        match code.tenths {
-            820 | 830 => {
+    pub(super) fn plan_m(&mut self, code: Code, block: &Block, plan: &mut Plan, line: usize) -> Result<(), Fault> {
+        match classify_m(code.tenths, self.firmware.dialect) {
+            MAction::ExtruderMode { absolute } => {
                 self.claim_group(Group::Extruder, code, 'M')?;
-                plan.absolute_e = Some(code.tenths == 820);
+                plan.absolute_e = Some(absolute);
             }
-            20 | 300 => plan.program_end = true,
-            _ => {
+            MAction::ProgramEnd => plan.program_end = true,
+            MAction::Firmware(firmware) => {
+                if block.has_other_code(code.column) {
+                    let message = format!("{} must be alone on its line: its words are its parameters", code_name('M', code.tenths));
+                    return Err(Fault::new(code.column, message));
+                }
+                plan.firmware = Some((firmware, code.column));
+                plan.f_is_parameter = true;
+                plan.owner = Some(merge_owner(plan.owner, code.column, true));
+            }
+            MAction::Ignored => {
                 let name = code_name('M', code.tenths);
                 self.warnings.record(&name, line, code.column, || ignored_m_message(code.tenths).to_string());
                 plan.owner = Some(merge_owner(plan.owner, code.column, true));
@@ -444,14 +352,15 @@ impl Interpreter {
         }
     }
 
-    /// G4: S seconds; P milliseconds in slicer dialect, else seconds.
+    /// G4: S seconds; P milliseconds in the firmware dialect (Marlin, RepRapFirmware, Klipper),
+    /// seconds in RS274/NGC (LinuxCNC).
     pub(super) fn dwell(&mut self, block: &mut Block, line: usize, column: usize, out: &mut VecDeque<GcodeSegment>) -> Result<(), Fault> {
         let seconds = block.take(b'S')?;
         let p = block.take(b'P')?;
         let duration = match (seconds, p) {
             (Some(_), Some(_)) => return Err(Fault::new(block.column(b'P'), "G4 with both P and S: which is the dwell time?")),
             (Some(s), None) => s,
-            (None, Some(p)) if self.modal.slicer_dialect => p / 1000.0,
+            (None, Some(p)) if self.firmware.dialect == Dialect::Firmware => p / 1000.0,
             (None, Some(p)) => p,
             (None, None) => 0.0,
         };
@@ -463,22 +372,28 @@ impl Interpreter {
         Ok(())
     }
 
-    /// G92: the given axes (all, E included, if none) take the given values at the current position.
-    pub(super) fn set_position(&mut self, block: &mut Block) -> Result<(), Fault> {
+    /// G92: the given axes (all, E included, if none) take the given values at the current
+    /// position. An axis letter without a number is left as it is, as Marlin does (its G92 reads
+    /// only axes with a value), with a note.
+    pub(super) fn set_position(&mut self, block: &mut Block, line: usize) -> Result<(), Fault> {
         let unit = self.modal.unit;
         if !block.has_any(&POSITION_WORDS) {
             self.machine.offset = self.machine.position;
             self.machine.extruder = 0.0;
             return Ok(());
         }
-        for (axis, letter) in AXES.iter().enumerate() {
-            if let Some(value) = block.take(*letter)? {
-                let offset = self.machine.position[axis] - value * unit;
-                self.machine.offset[axis] = finite(offset, block.column(*letter))?;
+        for (axis, letter) in POSITION_WORDS.iter().enumerate() {
+            let Some(param) = block.take_param(*letter) else { continue };
+            if param.value == Value::Bare {
+                let kind = format!("G92 {}", *letter as char);
+                self.notes.record(&kind, line, param.column, || format!("{kind} without a number: left unchanged, as Marlin does"));
+                continue;
             }
-        }
-        if let Some(e) = block.take(b'E')? {
-            self.machine.extruder = finite(e * unit, block.column(b'E'))?;
+            let value = bounded(param.number(*letter)? * unit, param.column)?;
+            match axis {
+                3 => self.machine.extruder = value,
+                _ => self.machine.offset[axis] = bounded(self.machine.position[axis] - value, param.column)?,
+            }
         }
         Ok(())
     }
@@ -490,13 +405,14 @@ impl Interpreter {
             if let Some(value) = block.take(*letter)? {
                 let metres = value * self.modal.unit;
                 let coordinate = if self.modal.absolute { metres + self.machine.offset[axis] } else { target[axis] + metres };
-                target[axis] = finite(coordinate, block.column(*letter))?;
+                target[axis] = bounded(coordinate, block.column(*letter))?;
             }
         }
         Ok(target)
     }
 
-    /// Filament pushed by the E word (m), updating the extruder position.
+    /// Filament pushed by the E word (m) after the flow percentage (`M221`), updating the
+    /// extruder position (which, as in firmware, stays the program's: unscaled).
     pub(super) fn extrusion(&mut self, block: &mut Block) -> Result<f64, Fault> {
         let Some(e) = block.take(b'E')? else { return Ok(0.0) };
         let column = block.column(b'E');
@@ -505,8 +421,8 @@ impl Interpreter {
             true => (metres - self.machine.extruder, metres),
             false => (metres, self.machine.extruder + metres),
         };
-        self.machine.extruder = finite(extruder, column)?;
-        finite(delta, column)
+        self.machine.extruder = bounded(extruder, column)?;
+        bounded(delta * self.firmware.flow_factor(), column)
     }
 
     /// The feed (m/s) a motion runs at: see the module's choices for G0.
@@ -525,6 +441,8 @@ impl Interpreter {
         }
     }
 
+    /// A G0..G3 move: the feed after the feed percentage (`M220`) and the velocity limits, the
+    /// target, the filament; an E-only move becomes a dwell.
     pub(super) fn move_to(
         &mut self,
         block: &mut Block,
@@ -533,11 +451,13 @@ impl Interpreter {
         line: usize,
         out: &mut VecDeque<GcodeSegment>,
     ) -> Result<(), Fault> {
-        let feed = self.feed_for(motion, column)?;
+        let feed = self.feed_for(motion, column)? * self.firmware.feed_factor();
+        let start = self.machine.position;
         let target = self.target(block)?;
         let filament = self.extrusion(block)?;
         if motion.is_arc() {
             let arc = self.arc(block, motion, column, target)?;
+            let normal_axis = self.modal.plane.axes().normal;
             let segment = Segment {
                 kind: SegmentKind::Arc,
                 end: target,
@@ -546,16 +466,25 @@ impl Interpreter {
                 sweep: arc.sweep,
                 ..Segment::default()
             };
+            let length = segment_length(&start, &segment).max(ZERO_LENGTH);
+            let mut shares = [1.0, 1.0, 1.0, filament.abs() / length];
+            shares[normal_axis] = (target[normal_axis] - start[normal_axis]).abs() / length;
+            let feed = self.limit_feed(feed, shares, line);
             self.emit_move(segment, feed, filament, line, out);
             return Ok(());
         }
-        let length = (target - self.machine.position).norm();
+        let displacement = target - start;
+        let length = displacement.norm();
         if length >= ZERO_LENGTH {
+            let shares =
+                [displacement.x.abs() / length, displacement.y.abs() / length, displacement.z.abs() / length, filament.abs() / length];
+            let feed = self.limit_feed(feed, shares, line);
             self.emit_move(Segment { kind: SegmentKind::Line, end: target, ..Segment::default() }, feed, filament, line, out);
             return Ok(());
         }
         if filament != 0.0 {
             let duration = finite(filament.abs() / feed, column)?;
+            let duration = self.limit_extruder_time(filament, duration, line);
             let segment = Segment { kind: SegmentKind::Dwell, end: self.machine.position, filament, duration, ..Segment::default() };
             self.emit(segment, line, out);
         } else {
@@ -573,6 +502,7 @@ impl Interpreter {
             segment.flags = segment.flags.with(SegmentFlags::LAYER_START);
             self.layer_marker_pending = false;
         }
+        self.moved_since_marker = true;
         self.machine.position = segment.end;
         self.emit(segment, line, out);
     }
@@ -582,13 +512,18 @@ impl Interpreter {
         self.next_seq = self.next_seq.wrapping_add(1);
         segment.orientation = self.options.orientation;
         segment.source_line = u32::try_from(line).unwrap_or(u32::MAX);
+        if segment.filament > 0.0 {
+            self.firmware.tool_used = true;
+        }
         out.push_back(GcodeSegment { segment, line, tags: self.tags.clone() });
     }
 
-    /// Words no code acted on: parameters of an unacted code, or warned once per kind; unsupported
-    /// axes are an error.
+    /// Words no code acted on: parameters of a code that owns them, or warned once per kind; a
+    /// letter without a number that no code takes as a flag, and unsupported axes, are errors.
     pub(super) fn report_leftovers(&mut self, block: &mut Block, plan: &Plan, line: usize) -> Result<(), Fault> {
-        block.take(b'F')?;
+        if !plan.f_is_parameter {
+            block.take(b'F')?;
+        }
         if plan.owner.is_some() {
             block.mark_all_used();
         }
@@ -596,18 +531,12 @@ impl Interpreter {
             if UNSUPPORTED_AXES.contains(&letter) {
                 return Err(Fault::new(param.column, format!("unsupported axis word {}", letter as char)));
             }
-            if letter == b'T' {
-                let kind = match param.value.and_then(code_tenths) {
-                    Some(tenths) => code_name('T', tenths),
-                    None => "T".to_string(),
-                };
-                self.warnings.record(&kind, line, param.column, || "tool selection not acted on".into());
-            } else {
-                let kind = format!("word {}", letter as char);
-                let context =
-                    if letter == b'S' { "spindle speed / S parameter not acted on" } else { "word not used by any code on its line" };
-                self.warnings.record(&kind, line, param.column, || context.into());
+            if param.value == Value::Bare {
+                return Err(Fault::new(param.column, format!("{} without a number", letter as char)));
             }
+            let kind = format!("word {}", letter as char);
+            let context = if letter == b'S' { "spindle speed / S parameter not acted on" } else { "word not used by any code on its line" };
+            self.warnings.record(&kind, line, param.column, || context.into());
         }
         Ok(())
     }
@@ -634,4 +563,12 @@ pub(super) fn first_column(block: &Block, letters: &[u8]) -> usize {
 
 pub(super) fn finite(value: f64, column: usize) -> Result<f64, Fault> {
     if value.is_finite() { Ok(value) } else { Err(Fault::new(column, "value out of range (not finite)")) }
+}
+
+/// A length (m): finite and within ±[`MAX_COORDINATE`], so later arithmetic cannot overflow.
+pub(super) fn bounded(value: f64, column: usize) -> Result<f64, Fault> {
+    match finite(value, column)? {
+        v if v.abs() <= MAX_COORDINATE => Ok(v),
+        v => Err(Fault::new(column, format!("value out of range: {v:e} m is beyond ±{MAX_COORDINATE:e} m"))),
+    }
 }

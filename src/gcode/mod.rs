@@ -1,10 +1,12 @@
-//! G-code intake: a streaming parser that turns a G-code program (slicer output or RS274/NGC, as
-//! LinuxCNC reads it) into motion [`Segment`]s in SI units.
+//! G-code intake: a streaming parser that turns a G-code program (slicer output for Marlin,
+//! RepRapFirmware or Klipper, or RS274/NGC as LinuxCNC reads it) into motion [`Segment`]s in SI units.
 //!
 //! This module owns the reading of G-code text: the lexical rules (words, numbers, comments,
-//! checksums), the modal state of the program (units, distance modes, plane, feed, extruder mode,
-//! `G92` offsets), the conversion of each motion block into a line, arc or dwell segment, and the
-//! bookkeeping of what it did not act on. It does not place the part on the bed (segments are in the
+//! checksums: `lexer`), the words of a line (`block`), the modal state of the program (units,
+//! distance modes, plane, feed, extruder mode, `G92` offsets: `interpreter`, with the code tables in
+//! `codes`), the conversion of each motion block into a line, arc (`arc`) or dwell segment, the
+//! firmware commands slicers add to RS274/NGC (`dialect`), slicer comments (`tags`), and the
+//! bookkeeping of what it did and did not act on (`report`). It does not place the part on the bed (segments are in the
 //! G-code frame, converted to metres; a later stage maps them) and it is not used by the real-time
 //! loop: it allocates, but never in proportion to the length of the program. It reads one line at a
 //! time from any [`BufRead`] (lines longer than [`MAX_LINE_BYTES`] are an error), holds back only the
@@ -15,7 +17,7 @@
 //! # Output
 //!
 //! [`Parser`] is an iterator of [`GcodeSegment`]s: the [`Segment`] (units m, m/s, s, rad), its 1-based
-//! source line and the slicer [`Tags`] in force there (`;TYPE:` feature, layer, `;Z:` marker).
+//! source line and the slicer [`Tags`] in force there (feature, layer, top of layer, layer height).
 //! Sequence numbers count up from [`GcodeOptions::first_seq`]; every segment carries
 //! [`GcodeOptions::orientation`]; the last segment of a program that ends normally (end of input,
 //! `M2`/`M30` or a closing `%`) carries [`SegmentFlags::LAST`] (so the parser holds one segment back).
@@ -31,9 +33,9 @@
 //!   [`GcodeOptions::rapid_feed`] (LinuxCNC files often rapid before the first `F`). `G1`/`G2`/`G3`
 //!   without any `F` ever given are an error. `F` is converted when given (mm/min or, under `G20`,
 //!   in/min → m/s); `F0` or a negative `F` is an error wherever it appears.
-//! - **`G4` units.** `S` is seconds. `P` is milliseconds once the program looks like slicer output (an
-//!   `E` word or `M82`/`M83` seen before the `G4`, as Marlin reads it) and seconds otherwise (LinuxCNC).
-//!   `P` and `S` together are an error.
+//! - **`G4` units.** `S` is seconds. `P` is milliseconds in the firmware dialect (Marlin,
+//!   RepRapFirmware, Klipper) and seconds in RS274/NGC (LinuxCNC): see [`Dialect`]. `P` and `S`
+//!   together are an error.
 //! - **E-only moves** (a slicer's retraction `G1 E-1 F2100` and its undo `G1 E1`) become a `Dwell` of
 //!   duration |ΔE|/F with `filament` = ΔE: the extruder moves while the arm stands still. A move with
 //!   neither XYZ nor E change is skipped and counted as a note of kind `"zero-length"`. A motion line
@@ -57,17 +59,52 @@
 //!   an error, since `X1e5` is either scientific notation or a missing space before an `E` word, and
 //!   guessing wrong extrudes 5 mm. Values that overflow (`X` with 400 digits) are errors, as are `#`
 //!   parameters, `[...]` expressions and `O` words.
+//! - **Positions** (targets, `G92` offsets, arc centres and radii, extruder positions) beyond
+//!   ±[`MAX_COORDINATE`] (10⁶ m) after unit conversion are errors, so no later sum or square can
+//!   overflow; every value a segment carries is finite.
 //! - **Not acted on.** Codes and words the parser does not act on (temperatures, fans, spindle,
-//!   homing `G28`, tool length `G43`, work offsets, `T`, `S`, ...) are reported once per kind with the
-//!   first line and a count ([`Parser::warnings`]). The words on a line with an M-code not acted on
-//!   (or `G28`, `G29`, `G10`, ...) are its parameters, not a move (Marlin's `M92 X80 E93`); with other
-//!   unacted G-codes (`G43 H1 Z5`) the axis words still move. Marlin's free-text codes (`M117 text`),
-//!   quoted strings (`M862.3 P "MK3S"`) and Klipper-style commands (a first word with an underscore,
-//!   `EXCLUDE_OBJECT_START NAME=a`) are reported likewise. `M2`/`M30` and a closing `%` end the program
-//!   and any code after them is counted, not executed. Codes that would change the path if ignored
-//!   (cutter compensation, splines, canned cycles, scaling, `G52`/`G53`, inverse-time feed, rotary
-//!   axes A B C U V W, ...) are errors.
+//!   homing `G28`, tool length `G43`, work offsets, `S`, ...) are reported once per kind with the
+//!   first line and a count ([`Parser::warnings`]). The words on a line with an M-code (or `G28`,
+//!   `G29` or any G-code RS274/NGC does not define) are its parameters, not a move (Marlin's
+//!   `M92 X80 E93`); with RS274/NGC's modal G-codes (`G43 H1 Z5`) the axis words still move. A letter
+//!   without a number is a flag (`M84 X Y E`, `G28 X Y`, `M18 E`), accepted where a code owns it as a
+//!   parameter; where it would be read as a value (`G1 X F600`, `G4 P`) it is an error. Marlin's
+//!   free-text codes (`M117 text`), quoted strings (`M862.3 P "MK3S"`) and, in the firmware dialect,
+//!   whatever follows an M-code the parser cannot read (`M486 AShape-Box`) are the M-code's business.
+//!   `M2`/`M30` and a closing `%` end the program and any code after them is counted, not executed.
+//!   Codes that would change the path if ignored (cutter compensation, splines, canned cycles,
+//!   scaling, `G52`/`G53`, inverse-time feed, rotary axes A B C U V W, ...) are errors.
 //! - **Errors** stop the iterator with a [`GcodeError`] naming file, line and 1-based column.
+//!
+//! # Dialects
+//!
+//! [`GcodeOptions::dialect`] says which language a program is in; callers pick it with
+//! [`GcodeOptions::for_path`] (`.ngc`, `.nc`, `.tap` are RS274/NGC, anything else printer firmware).
+//! In RS274/NGC the firmware commands below are reported as not acted on (`G10` is "set offsets"),
+//! and a Klipper-style command is an error. In the firmware dialect:
+//!
+//! | what the program says | what the parser does |
+//! |---|---|
+//! | `G10` / `G11` (no `L`/`P` word) | firmware retraction: a dwell with −length of filament at the retraction speed, then +(length + extra) at the recovery speed ([`GcodeOptions::firmware_retraction`], Marlin's 3 mm at 45 mm/s and 8 mm/s by default; changed by `M207 S F R T` and Klipper's `SET_RETRACTION`). A second `G10` before `G11` (and a `G11` with nothing retracted) does nothing, as in Marlin and Klipper. Not scaled by `M220`/`M221` (Marlin's fwretract unscales both). `G10 L..`/`G10 P..` (offsets, RepRapFirmware tool settings) are reported |
+//! | `G28`, `G29`, `G29.x`, `G80 X..` | reported; no motion, position unchanged |
+//! | `G92 E` (no number) | the axis is left unchanged, as in Marlin (its `G92` reads only axes with a value); a note |
+//! | `M220 S<1..1000>`, `B`, `R` | later feeds × S %; `B` backs the percentage up, `R` restores it; without any, reported. Applies to every move, E-only ones included |
+//! | `M221 S<1..1000>` | later filament × S % (moves and E-only moves; the E position stays the program's); with a `T` other than the selected tool, reported |
+//! | `M203 X Y Z E` (units/s, Marlin) | honoured: each later line's feed is lowered so that no axis' share of it, E included, exceeds its limit (an arc's in-plane axes are taken at their peak, the whole feed); E-only moves are lengthened. RepRapFirmware writes mm/min: read as mm/s, its limits are 60× too high and clamp nothing — the safe side |
+//! | `SET_VELOCITY_LIMIT VELOCITY=` (mm/s) | honoured: later feeds clamped to it |
+//! | `M201 X Y Z`, `M204 P T S`, `SET_VELOCITY_LIMIT ACCEL=` | the lowest acceleration is recorded in [`Parser::program_limits`] (m/s²) |
+//! | `M205 X Y Z J`, `M566 X Y Z` (per minute), `SET_VELOCITY_LIMIT SQUARE_CORNER_VELOCITY=` | the lowest jerk, junction deviation and square-corner velocity are recorded |
+//! | `M900 K`, `M572 S`, `SET_PRESSURE_ADVANCE ADVANCE= SMOOTH_TIME=` | the last pressure advance and smooth time (s) are recorded |
+//! | `T<n>` | selects the tool; once filament has been pushed, a different tool is an error ("multi-tool jobs are not supported"). `T` beside an M-code other than `M6` is that code's parameter (`M104 T0 S200`) |
+//! | `M73`, `M117`/`M118` (free text), `M400`, temperatures, fans, motors off, any other M-code | reported once per kind, never an error |
+//! | Klipper extended commands (`EXCLUDE_OBJECT_*`, `PRINT_START`, `BED_MESH_CALIBRATE`, any `NAME KEY=VALUE ...`) | reported once per name, never an error (the three above are acted on) |
+//!
+//! Values acted on must be finite and in range (percentages 1–1000, limits > 0, jerk and corner
+//! velocity ≥ 0, pressure advance 0–10 s, smooth time 0–0.2 s), else an error naming the line and
+//! column; an acted-on firmware M-code must be alone on its line. Each command acted on leaves one
+//! note per kind ([`Parser::notes`]) saying what was done, and a lowered feed counts under
+//! `"feed limited"`. Recorded limits are for offline tools to apply as min(config, program): the
+//! program can make the machine gentler, never harsher.
 
 use std::collections::VecDeque;
 use std::fmt;
@@ -83,6 +120,8 @@ use crate::core::path::{Segment, SegmentFlags};
 
 mod arc;
 mod block;
+mod codes;
+mod dialect;
 mod interpreter;
 mod lexer;
 mod report;
@@ -90,6 +129,7 @@ mod tags;
 
 pub use arc::segment_length;
 use block::Block;
+pub use dialect::{Dialect, FirmwareRetraction, ProgramLimits, ProgramSetting};
 use interpreter::Interpreter;
 use lexer::{Fault, Lexed, Lexer, LineKind};
 
@@ -105,6 +145,9 @@ pub const MAX_LINE_BYTES: usize = 64 * 1024;
 pub const MAX_REPORT_KINDS: usize = 64;
 /// Kind under which reports beyond [`MAX_REPORT_KINDS`] kinds are counted.
 pub const OTHER_KIND: &str = "other";
+/// Largest accepted magnitude of a position, offset, arc centre or extruder position (m): far
+/// beyond any machine, and far enough below overflow that no later sum or square can overflow.
+pub const MAX_COORDINATE: f64 = 1e6;
 
 /// How to read a program.
 #[derive(Clone, Debug, PartialEq)]
@@ -122,11 +165,33 @@ pub struct GcodeOptions {
     pub rapid_feed: f64,
     /// Sequence number of the first segment.
     pub first_seq: u64,
+    /// The G-code language ([`Dialect::from_path`] picks it from a file's extension). Default:
+    /// printer firmware.
+    pub dialect: Dialect,
+    /// What `G10`/`G11` do until the program sets its own (`M207`, `SET_RETRACTION`). Default:
+    /// Marlin's, 3 mm at 45 mm/s, recovered at 8 mm/s.
+    pub firmware_retraction: FirmwareRetraction,
 }
 
 impl Default for GcodeOptions {
     fn default() -> Self {
-        GcodeOptions { start: Vector3::zeros(), orientation: nozzle_down(), arc_radius_tolerance: 0.05e-3, rapid_feed: 0.1, first_seq: 0 }
+        GcodeOptions {
+            start: Vector3::zeros(),
+            orientation: nozzle_down(),
+            arc_radius_tolerance: 0.05e-3,
+            rapid_feed: 0.1,
+            first_seq: 0,
+            dialect: Dialect::Firmware,
+            firmware_retraction: FirmwareRetraction::default(),
+        }
+    }
+}
+
+impl GcodeOptions {
+    /// The defaults, with the dialect `path`'s extension implies (see [`Dialect::from_path`]):
+    /// what every caller that reads a file should start from.
+    pub fn for_path(path: &Path) -> Self {
+        GcodeOptions { dialect: Dialect::from_path(path), ..GcodeOptions::default() }
     }
 }
 
@@ -135,18 +200,25 @@ fn nozzle_down() -> UnitQuaternion<f64> {
     UnitQuaternion::new_unchecked(Quaternion::new(0.0, 0.0, 1.0, 0.0))
 }
 
-/// Slicer annotations in force at a segment's source line.
+/// Slicer annotations in force at a segment's source line (the spellings each slicer uses are
+/// listed in the `tags` module).
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct Tags {
-    /// Value of the last `;TYPE:` comment, e.g. `"External perimeter"` (PrusaSlicer) or `"WALL-OUTER"`
-    /// (Cura). None before the first.
+    /// Value of the last feature comment (`;TYPE:`, `; FEATURE:`, Simplify3D's `; feature`), e.g.
+    /// `"External perimeter"` (PrusaSlicer), `"WALL-OUTER"` (Cura), `"Outer wall"` (Orca). None before
+    /// the first.
     pub feature: Option<Arc<str>>,
-    /// Layer index (0-based): the number in Cura's `;LAYER:n` (negative for raft layers), or the count
-    /// of PrusaSlicer's `;LAYER_CHANGE` markers minus one. None before the first marker (and
+    /// Layer index (0-based): the number in Cura's `;LAYER:n` (negative for raft layers), Simplify3D's
+    /// `; layer n` minus one, or the count of `;LAYER_CHANGE` / `; CHANGE_LAYER` markers minus one
+    /// (markers with no move between them count once). None before the first marker (and
     /// throughout Slic3r 1.3 output, which writes no layer comments).
     pub layer: Option<i32>,
-    /// Value of the last PrusaSlicer `;Z:` comment (m), the nominal top of the layer.
+    /// The nominal top of the layer (m): the last `;Z:` or `; Z_HEIGHT:` comment, or the Z of
+    /// Simplify3D's `; layer n, Z = z`.
     pub z_marker: Option<f64>,
+    /// The layer height (m): the last `;HEIGHT:` or `; LAYER_HEIGHT:` comment, or the H of
+    /// Simplify3D's `; tool H.. W..`.
+    pub height: Option<f64>,
 }
 
 /// One segment with where it came from.
@@ -226,7 +298,7 @@ impl<R: BufRead> Parser<R> {
             reader,
             file: file_name.to_string(),
             line_bytes: Vec::with_capacity(256),
-            lexer: Lexer::default(),
+            lexer: Lexer::new(options.dialect == Dialect::Firmware),
             block: Block::default(),
             interpreter: Interpreter::new(options),
             queue: VecDeque::with_capacity(4),
@@ -241,10 +313,19 @@ impl<R: BufRead> Parser<R> {
         &self.interpreter.warnings.entries
     }
 
-    /// Notes on what the parser did that the program did not literally say: skipped zero-length
-    /// moves (kind `"zero-length"`), once per kind with a count.
+    /// Notes on what the parser did that the program did not literally say, once per kind with a
+    /// count: skipped zero-length moves (`"zero-length"`), firmware commands acted on (`"G10"`,
+    /// `"M220"`, `"M203"`, `"SET_VELOCITY_LIMIT"`, ...), feeds lowered to a velocity limit
+    /// (`"feed limited"`).
     pub fn notes(&self) -> &[Warning] {
         &self.interpreter.notes.entries
+    }
+
+    /// Motion settings the program requested in the lines read so far (accelerations, jerk, pressure
+    /// advance, ...), for a caller to apply as min(config, program). Complete once the iterator has
+    /// ended.
+    pub fn program_limits(&self) -> &ProgramLimits {
+        &self.interpreter.firmware.limits
     }
 
     /// Position (m) after the lines read so far: the end of the last segment produced, which may
@@ -278,7 +359,7 @@ impl<R: BufRead> Parser<R> {
             return Ok(true);
         }
         let fault = match self.lexer.lex(&self.line_bytes) {
-            Ok(lexed) => self.execute(&lexed, line).err(),
+            Ok(mut lexed) => self.execute(&mut lexed, line).err(),
             Err(fault) => Some(fault),
         };
         match fault {
@@ -287,7 +368,7 @@ impl<R: BufRead> Parser<R> {
         }
     }
 
-    fn execute(&mut self, lexed: &Lexed, line: usize) -> Result<(), Fault> {
+    fn execute(&mut self, lexed: &mut Lexed, line: usize) -> Result<(), Fault> {
         let interpreter = &mut self.interpreter;
         if let Some(range) = lexed.comment.clone() {
             interpreter.read_tag_comment(&self.lexer.chars[range]);
@@ -305,15 +386,16 @@ impl<R: BufRead> Parser<R> {
                 return Ok(());
             }
             LineKind::Extended(name) => {
-                interpreter.warnings.record(name, line, lexed.first_column, || format!("extended command {name} not acted on"));
-                return Ok(());
+                let malformed = lexed.malformed_param.take();
+                return interpreter.extended(name, &self.lexer.params, malformed, line, lexed.first_column);
             }
         }
         if self.lexer.words.is_empty() {
             return Ok(());
         }
         self.block.fill(&self.lexer.words)?;
-        self.interpreter.execute(&mut self.block, line, &mut self.queue)
+        let unread = lexed.unread.take();
+        self.interpreter.execute(&mut self.block, line, unread, &mut self.queue)
     }
 
     fn error_at(&self, line: usize, column: usize, message: String) -> GcodeError {
