@@ -488,7 +488,8 @@ fn plasmatest_keeps_its_crlf_and_reads_like_lf() {
     assert!(bytes.windows(2).filter(|w| w == b"\r\n").count() > 400, "the corpus copy keeps CRLF");
     let lf: Vec<u8> = bytes.iter().copied().filter(|b| *b != b'\r').collect();
     let read = |data: Vec<u8>| -> Vec<Segment> {
-        Parser::new(Cursor::new(data), "p", GcodeOptions::default()).map(|s| s.unwrap().segment).collect()
+        let options = GcodeOptions { dialect: Dialect::Rs274ngc, ..GcodeOptions::default() };
+        Parser::new(Cursor::new(data), "p", options).map(|s| s.unwrap().segment).collect()
     };
     assert_eq!(read(bytes), read(lf));
 }

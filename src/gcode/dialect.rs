@@ -105,8 +105,9 @@ const PERCENT_RANGE: (f64, f64) = (1.0, 1000.0);
 const ADVANCE_RANGE: (f64, f64) = (0.0, 10.0);
 /// Pressure-advance smooth time accepted (s): Klipper's range.
 const SMOOTH_TIME_RANGE: (f64, f64) = (0.0, 0.2);
-/// Highest tool number accepted.
-const MAX_TOOL: f64 = 255.0;
+/// Tool numbers from here up are firmware special tools, not extruders: Bambu's `T255` (unload)
+/// and `T1000` (nozzle-prime mode, in its default start code after the purge with `T0`).
+const SPECIAL_TOOLS: f64 = 255.0;
 
 /// Firmware state beside the RS274/NGC modal state.
 pub(super) struct Firmware {
@@ -234,11 +235,17 @@ impl Interpreter {
     }
 
     /// A `T` word as a tool selection: any tool before filament is pushed, then only that one.
+    /// Special tools (`T255` and up) are reported and change nothing.
     pub(super) fn select_tool(&mut self, block: &mut Block, line: usize) -> Result<(), Fault> {
         let Some(param) = block.take_param(b'T') else { return Ok(()) };
         let number = param.number(b'T')?;
-        if !(0.0..=MAX_TOOL).contains(&number) || number.fract() != 0.0 {
-            return Err(Fault::new(param.column, format!("T{number}: a tool is a whole number from 0 to {MAX_TOOL}")));
+        if number < 0.0 || number.fract() != 0.0 || number > 1e6 {
+            return Err(Fault::new(param.column, format!("T{number}: a tool is a whole number")));
+        }
+        if number >= SPECIAL_TOOLS {
+            let kind = format!("T{number}");
+            self.warnings.record(&kind, line, param.column, || format!("{kind}: a firmware special tool, not an extruder: not acted on"));
+            return Ok(());
         }
         let tool = number as u32;
         if self.firmware.tool_used && tool != self.firmware.tool {

@@ -58,7 +58,7 @@ pub(super) struct Plan {
     pub(super) retract: Option<(bool, usize)>,
     /// A firmware M-code acted on, and its column.
     pub(super) firmware: Option<(FirmwareM, usize)>,
-    /// `F` is a firmware M-code's parameter (`M207 F`), not the modal feed.
+    /// `F` is an M-code's parameter, not the modal feed (firmware dialect, or `M207 F`).
     pub(super) f_is_parameter: bool,
     /// `T` selects a tool (no M-code on the line but M6); otherwise it is an M-code's parameter.
     pub(super) t_is_tool: bool,
@@ -202,7 +202,13 @@ impl Interpreter {
 
     /// Sorts the line's codes; rejects unsupported ones and two of one modal group.
     pub(super) fn plan(&mut self, block: &Block, line: usize) -> Result<Plan, Fault> {
-        let mut plan = Plan { t_is_tool: block.m.iter().all(|m| m.tenths == 60), ..Plan::default() };
+        let mut plan = Plan {
+            // Marlin reads F only on G0/G1: beside an M-code it is that code's parameter (Bambu's
+            // `M620.1 E F523 T240`); RS274/NGC reads F on any line.
+            f_is_parameter: self.firmware.dialect == Dialect::Firmware && block.g.is_empty() && !block.m.is_empty(),
+            t_is_tool: block.m.iter().all(|m| m.tenths == 60),
+            ..Plan::default()
+        };
         self.groups_seen.clear();
         for code in &block.g {
             self.plan_g(*code, block, &mut plan, line)?;

@@ -262,11 +262,17 @@ impl Lexer {
             _ => {}
         }
         if self.chars.get(j) == Some(&'"') {
+            if matches!(letter, b'G' | b'M' | b'N') {
+                return Err(Fault::new(column, format!("{} needs a number, not a string", letter as char)));
+            }
             let end = self.quoted_string(j, column)?;
             self.words.push(Word { letter, value: Value::Text, column });
             return Ok(end);
         }
         if self.is_bare(i + 1, j) {
+            if matches!(letter, b'G' | b'M' | b'N') {
+                return Err(Fault::new(column, format!("{} without a number", letter as char)));
+            }
             self.words.push(Word { letter, value: Value::Bare, column });
             return Ok(j);
         }
