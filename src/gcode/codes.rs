@@ -163,8 +163,17 @@ pub(super) enum FirmwareM {
     FeedOverride,
     /// M221: flow percentage.
     FlowOverride,
+    /// M207: firmware retraction settings.
+    RetractSettings,
+    /// A motion limit (see the `limits` module).
+    Limit(LimitM),
+}
+
+/// A firmware M-code that sets a motion limit.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(super) enum LimitM {
     /// M203: per-axis maximum feed (units/s).
-    AxisFeedLimits,
+    AxisFeeds,
     /// M201: per-axis maximum acceleration (units/s²).
     AxisAccelerations,
     /// M204: print / travel acceleration (units/s²).
@@ -177,8 +186,6 @@ pub(super) enum FirmwareM {
     LinearAdvance,
     /// M572: RepRapFirmware pressure advance (s).
     PressureAdvance,
-    /// M207: firmware retraction settings.
-    RetractSettings,
 }
 
 /// What an M-code does here.
@@ -192,20 +199,21 @@ pub(super) enum MAction {
 
 pub(super) fn classify_m(tenths: u32, dialect: Dialect) -> MAction {
     use FirmwareM::*;
+    use LimitM::*;
     let firmware = match tenths {
         820 | 830 => return MAction::ExtruderMode { absolute: tenths == 820 },
         20 | 300 => return MAction::ProgramEnd,
         _ if dialect == Dialect::Rs274ngc => return MAction::Ignored,
         2200 => FeedOverride,
         2210 => FlowOverride,
-        2030 => AxisFeedLimits,
-        2010 => AxisAccelerations,
-        2040 => Accelerations,
-        2050 => Jerk,
-        5660 => JerkPerMinute,
-        9000 => LinearAdvance,
-        5720 => PressureAdvance,
         2070 => RetractSettings,
+        2030 => Limit(AxisFeeds),
+        2010 => Limit(AxisAccelerations),
+        2040 => Limit(Accelerations),
+        2050 => Limit(Jerk),
+        5660 => Limit(JerkPerMinute),
+        9000 => Limit(LinearAdvance),
+        5720 => Limit(PressureAdvance),
         _ => return MAction::Ignored,
     };
     MAction::Firmware(firmware)

@@ -1,8 +1,8 @@
 //! Dialects: the commands that printer firmwares (Marlin, RepRapFirmware, Klipper) and slicers add
 //! to RS274/NGC, and what the parser does with them. The core interpreter knows RS274/NGC; this
 //! module holds the firmware state that sits beside it — firmware retraction, feed and flow
-//! percentages, velocity limits, the limits recorded for the caller, the selected tool — and acts
-//! on the firmware codes and Klipper's extended commands. See the module documentation of
+//! percentages, the selected tool, the motion limits (kept by the `limits` module) — and acts on
+//! the firmware codes and Klipper's extended commands. See the module documentation of
 //! [`crate::gcode`] for the table of what is honoured and how.
 
 use std::collections::VecDeque;
@@ -12,6 +12,7 @@ use super::block::Block;
 use super::codes::FirmwareM;
 use super::interpreter::{Interpreter, bounded};
 use super::lexer::{ExtendedParam, Fault};
+use super::limits::{self, FEED_LIMITED, Limits, Outcome, in_range, non_negative, positive};
 use super::{GcodeSegment, MM};
 use crate::core::path::{Segment, SegmentKind};
 
@@ -63,48 +64,8 @@ impl Default for FirmwareRetraction {
     }
 }
 
-/// A value the program requested and where.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct ProgramSetting {
-    /// SI value (m/s, m/s², m or s as the field says).
-    pub value: f64,
-    /// Line (1-based) of the request that set it.
-    pub line: usize,
-    /// The code that set it, e.g. `"M204 P"` or `"SET_VELOCITY_LIMIT ACCEL"`.
-    pub source: &'static str,
-}
-
-/// Motion settings the program asked for that the parser does not apply itself (except
-/// `velocity`, which it does): offline tools apply them as min(config, program) so a program can
-/// only make the machine gentler. Limits keep the lowest value requested anywhere in the program;
-/// pressure advance and its smooth time keep the last.
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
-pub struct ProgramLimits {
-    /// Lowest path velocity limit (m/s): `SET_VELOCITY_LIMIT VELOCITY`, or the lowest XYZ value
-    /// of `M203`. Already honoured by the parser (feeds are clamped); here for information.
-    pub velocity: Option<ProgramSetting>,
-    /// Lowest acceleration (m/s²): `M204 P/T/S`, the lowest XYZ value of `M201`,
-    /// `SET_VELOCITY_LIMIT ACCEL`.
-    pub acceleration: Option<ProgramSetting>,
-    /// Lowest jerk (m/s): the lowest XYZ value of Marlin's `M205` or RepRapFirmware's `M566`.
-    pub jerk: Option<ProgramSetting>,
-    /// Lowest junction deviation (m): Marlin's `M205 J`.
-    pub junction_deviation: Option<ProgramSetting>,
-    /// Lowest square-corner velocity (m/s): `SET_VELOCITY_LIMIT SQUARE_CORNER_VELOCITY`.
-    pub square_corner_velocity: Option<ProgramSetting>,
-    /// Last pressure advance (s): `SET_PRESSURE_ADVANCE ADVANCE`, Marlin's `M900 K`,
-    /// RepRapFirmware's `M572 S`.
-    pub pressure_advance: Option<ProgramSetting>,
-    /// Last pressure-advance smooth time (s): `SET_PRESSURE_ADVANCE SMOOTH_TIME`.
-    pub smooth_time: Option<ProgramSetting>,
-}
-
 /// Feed and flow percentages accepted by `M220`/`M221` (outside: an error).
 const PERCENT_RANGE: (f64, f64) = (1.0, 1000.0);
-/// Pressure advance accepted (s): Marlin's `M900` range.
-const ADVANCE_RANGE: (f64, f64) = (0.0, 10.0);
-/// Pressure-advance smooth time accepted (s): Klipper's range.
-const SMOOTH_TIME_RANGE: (f64, f64) = (0.0, 0.2);
 /// Tool numbers from here up are firmware special tools, not extruders: Bambu's `T255` (unload)
 /// and `T1000` (nozzle-prime mode, in its default start code after the purge with `T0`).
 const SPECIAL_TOOLS: f64 = 255.0;
@@ -120,11 +81,7 @@ pub(super) struct Firmware {
     feed_backup: f64,
     /// `M221` flow percentage.
     flow_percent: f64,
-    /// `M203` maximum feed per axis X, Y, Z, E (m/s), as last set.
-    axis_limits: [Option<f64>; 4],
-    /// `SET_VELOCITY_LIMIT VELOCITY` (m/s), as last set.
-    velocity_limit: Option<f64>,
-    pub(super) limits: ProgramLimits,
+    pub(super) limits: Limits,
     /// Selected tool, and whether it has pushed filament (then another tool is an error).
     tool: u32,
     pub(super) tool_used: bool,
@@ -139,9 +96,7 @@ impl Firmware {
             feed_percent: 100.0,
             feed_backup: 100.0,
             flow_percent: 100.0,
-            axis_limits: [None; 4],
-            velocity_limit: None,
-            limits: ProgramLimits::default(),
+            limits: Limits::default(),
             tool: 0,
             tool_used: false,
         }
@@ -156,31 +111,6 @@ impl Firmware {
     pub(super) fn flow_factor(&self) -> f64 {
         self.flow_percent / 100.0
     }
-}
-
-/// Keeps the lower of `slot` and `value`.
-fn lower(slot: &mut Option<ProgramSetting>, value: f64, line: usize, source: &'static str) {
-    if slot.is_none_or(|s| value < s.value) {
-        *slot = Some(ProgramSetting { value, line, source });
-    }
-}
-
-/// A number in `[min, max]` (inclusive unless `positive`, which excludes 0), else an error naming
-/// what was given.
-fn in_range(value: f64, (min, max): (f64, f64), column: usize, what: &str) -> Result<f64, Fault> {
-    if value.is_finite() && value >= min && value <= max {
-        Ok(value)
-    } else {
-        Err(Fault::new(column, format!("{what} {value} is out of range [{min}, {max}]")))
-    }
-}
-
-fn positive(value: f64, column: usize, what: &str) -> Result<f64, Fault> {
-    if value.is_finite() && value > 0.0 { Ok(value) } else { Err(Fault::new(column, format!("{what} {value} must be > 0"))) }
-}
-
-fn non_negative(value: f64, column: usize, what: &str) -> Result<f64, Fault> {
-    if value.is_finite() && value >= 0.0 { Ok(value) } else { Err(Fault::new(column, format!("{what} {value} must be ≥ 0"))) }
 }
 
 impl Interpreter {
@@ -257,109 +187,37 @@ impl Interpreter {
         Ok(())
     }
 
-    /// Feed (m/s) of a line or arc after the program's velocity limits: `SET_VELOCITY_LIMIT
-    /// VELOCITY` on the path speed, `M203` on each axis' share of it. `shares` are |dX|, |dY|, |dZ|,
-    /// |dE| per metre of path (1 for an arc's in-plane axes: their peak).
+    /// Feed (m/s) of a line or arc after the program's velocity limits (see [`Limits::feed`]),
+    /// counting the feeds lowered.
     pub(super) fn limit_feed(&mut self, feed: f64, shares: [f64; 4], line: usize) -> f64 {
-        let mut limited = feed;
-        if let Some(limit) = self.firmware.velocity_limit {
-            limited = limited.min(limit);
-        }
-        for (limit, share) in self.firmware.axis_limits.iter().zip(shares) {
-            if let Some(limit) = limit
-                && share > 0.0
-            {
-                limited = limited.min(limit / share);
-            }
-        }
+        let limited = self.firmware.limits.feed(feed, shares);
         if limited < feed {
-            self.notes
-                .record("feed limited", line, 0, || "feed lowered to the program's velocity limits (M203, SET_VELOCITY_LIMIT)".into());
+            self.notes.record(FEED_LIMITED.0, line, 0, || FEED_LIMITED.1.into());
         }
         limited
     }
 
-    /// Duration (s) of an extruder-only move of `filament` (m) after `M203 E`.
+    /// Duration (s) of an extruder-only move after `M203 E`, counting the moves slowed.
     pub(super) fn limit_extruder_time(&mut self, filament: f64, duration: f64, line: usize) -> f64 {
-        match self.firmware.axis_limits[3] {
-            Some(limit) if filament.abs() / limit > duration => {
-                self.notes
-                    .record("feed limited", line, 0, || "feed lowered to the program's velocity limits (M203, SET_VELOCITY_LIMIT)".into());
-                filament.abs() / limit
-            }
-            _ => duration,
+        let limited = self.firmware.limits.extruder_time(filament, duration);
+        if limited > duration {
+            self.notes.record(FEED_LIMITED.0, line, 0, || FEED_LIMITED.1.into());
         }
+        limited
     }
 
     /// An M-code the firmware dialect acts on; its words are its parameters.
     pub(super) fn firmware_m(&mut self, code: FirmwareM, block: &mut Block, line: usize, column: usize) -> Result<(), Fault> {
-        let unit = self.modal.unit;
-        let name = match code {
+        let limit = match code {
             FirmwareM::FeedOverride => return self.feed_override(block, line, column),
             FirmwareM::FlowOverride => return self.flow_override(block, line, column),
-            FirmwareM::AxisFeedLimits => {
-                for (axis, letter) in b"XYZE".iter().enumerate() {
-                    if let Some(v) = block.take(*letter)? {
-                        let limit = positive(v * unit, block.column(*letter), &format!("M203 {}", *letter as char))?;
-                        self.firmware.axis_limits[axis] = Some(limit);
-                        if axis < 3 {
-                            lower(&mut self.firmware.limits.velocity, limit, line, "M203");
-                        }
-                    }
-                }
-                "M203"
-            }
-            FirmwareM::AxisAccelerations => {
-                for letter in b"XYZ" {
-                    if let Some(v) = block.take(*letter)? {
-                        let a = positive(v * unit, block.column(*letter), &format!("M201 {}", *letter as char))?;
-                        lower(&mut self.firmware.limits.acceleration, a, line, "M201");
-                    }
-                }
-                "M201"
-            }
-            FirmwareM::Accelerations => {
-                for (letter, source) in [(b'P', "M204 P"), (b'T', "M204 T"), (b'S', "M204 S")] {
-                    if let Some(v) = block.take(letter)? {
-                        let a = positive(v * unit, block.column(letter), source)?;
-                        lower(&mut self.firmware.limits.acceleration, a, line, source);
-                    }
-                }
-                "M204"
-            }
-            FirmwareM::Jerk | FirmwareM::JerkPerMinute => {
-                let (name, per) = if code == FirmwareM::Jerk { ("M205", 1.0) } else { ("M566", 60.0) };
-                for letter in b"XYZ" {
-                    if let Some(v) = block.take(*letter)? {
-                        let jerk = non_negative(v * unit / per, block.column(*letter), &format!("{name} {}", *letter as char))?;
-                        lower(&mut self.firmware.limits.jerk, jerk, line, name);
-                    }
-                }
-                if code == FirmwareM::Jerk
-                    && let Some(j) = block.take(b'J')?
-                {
-                    let deviation = non_negative(j * unit, block.column(b'J'), "M205 J")?;
-                    lower(&mut self.firmware.limits.junction_deviation, deviation, line, "M205 J");
-                }
-                name
-            }
-            FirmwareM::LinearAdvance | FirmwareM::PressureAdvance => {
-                let (name, letter) = if code == FirmwareM::LinearAdvance { ("M900", b'K') } else { ("M572", b'S') };
-                let Some(k) = block.take(letter)? else {
-                    self.warnings.record(name, line, column, || format!("{name} without {}: nothing to do", letter as char));
-                    return Ok(());
-                };
-                let advance =
-                    in_range(k, ADVANCE_RANGE, block.column(letter), &format!("{name} {} (pressure advance, s)", letter as char))?;
-                self.firmware.limits.pressure_advance = Some(ProgramSetting { value: advance, line, source: name });
-                name
-            }
-            FirmwareM::RetractSettings => {
-                self.retract_settings(block, line, column)?;
-                "M207"
-            }
+            FirmwareM::RetractSettings => return self.retract_settings(block, line, column),
+            FirmwareM::Limit(limit) => limit,
         };
-        self.notes.record(name, line, column, || limits_message(name).into());
+        match self.firmware.limits.m_code(limit, block, self.modal.unit, line)? {
+            Outcome::Acted(name) => self.notes.record(name, line, column, || limits::message(name).into()),
+            Outcome::NothingToDo(name, message) => self.warnings.record(name, line, column, || message),
+        }
         Ok(())
     }
 
@@ -423,6 +281,7 @@ impl Interpreter {
         if block.has(b'Z') {
             self.warnings.record("M207 Z", line, column, || "retraction Z hop not acted on".into());
         }
+        self.notes.record("M207", line, column, || "firmware retraction settings changed for later G10/G11".into());
         Ok(())
     }
 
@@ -449,51 +308,37 @@ impl Interpreter {
         }
         let mut ignored = false;
         for param in params {
-            let value = || extended_number(name, param);
+            let value = extended_number(name, param)?;
             let (key, column) = (param.key.as_str(), param.column);
-            let limits = &mut self.firmware.limits;
-            match (name, key) {
-                ("SET_VELOCITY_LIMIT", "VELOCITY") => {
-                    let v = positive(value()? * MM, column, "VELOCITY")?;
-                    self.firmware.velocity_limit = Some(v);
-                    lower(&mut limits.velocity, v, line, "SET_VELOCITY_LIMIT VELOCITY");
-                }
-                ("SET_VELOCITY_LIMIT", "ACCEL") => {
-                    lower(&mut limits.acceleration, positive(value()? * MM, column, "ACCEL")?, line, "SET_VELOCITY_LIMIT ACCEL");
-                }
-                ("SET_VELOCITY_LIMIT", "SQUARE_CORNER_VELOCITY") => {
-                    let v = non_negative(value()? * MM, column, "SQUARE_CORNER_VELOCITY")?;
-                    lower(&mut limits.square_corner_velocity, v, line, "SET_VELOCITY_LIMIT SQUARE_CORNER_VELOCITY");
-                }
-                ("SET_PRESSURE_ADVANCE", "ADVANCE") => {
-                    let advance = in_range(value()?, ADVANCE_RANGE, column, "ADVANCE (s)")?;
-                    limits.pressure_advance = Some(ProgramSetting { value: advance, line, source: "SET_PRESSURE_ADVANCE ADVANCE" });
-                }
-                ("SET_PRESSURE_ADVANCE", "SMOOTH_TIME") => {
-                    let smooth = in_range(value()?, SMOOTH_TIME_RANGE, column, "SMOOTH_TIME (s)")?;
-                    limits.smooth_time = Some(ProgramSetting { value: smooth, line, source: "SET_PRESSURE_ADVANCE SMOOTH_TIME" });
-                }
-                ("SET_RETRACTION", "RETRACT_LENGTH") => {
-                    self.firmware.retraction.length = non_negative(value()? * MM, column, "RETRACT_LENGTH")?;
-                }
-                ("SET_RETRACTION", "RETRACT_SPEED") => {
-                    self.firmware.retraction.speed = positive(value()? * MM, column, "RETRACT_SPEED")?;
-                }
-                ("SET_RETRACTION", "UNRETRACT_EXTRA_LENGTH") => {
-                    self.firmware.retraction.extra_prime = bounded(value()? * MM, column)?;
-                }
-                ("SET_RETRACTION", "UNRETRACT_SPEED") => {
-                    self.firmware.retraction.prime_speed = positive(value()? * MM, column, "UNRETRACT_SPEED")?;
-                }
-                _ => ignored = true,
-            }
+            let acted = match (name, key) {
+                ("SET_RETRACTION", _) => self.set_retraction(key, value, column)?,
+                _ => self.firmware.limits.extended(name, key, value, column, line)?,
+            };
+            ignored |= !acted;
         }
         if ignored {
             let kind = format!("{name} parameters");
             self.warnings.record(&kind, line, column, || format!("{name}: parameters other than the ones acted on are not acted on"));
         }
-        self.notes.record(name, line, column, || limits_message(name).into());
+        let message = match name {
+            "SET_RETRACTION" => "firmware retraction settings changed for later G10/G11",
+            _ => limits::message(name),
+        };
+        self.notes.record(name, line, column, || message.into());
         Ok(())
+    }
+
+    /// A `KEY=value` of Klipper's `SET_RETRACTION` (mm, mm/s); false if the key is not acted on.
+    fn set_retraction(&mut self, key: &str, value: f64, column: usize) -> Result<bool, Fault> {
+        let settings = &mut self.firmware.retraction;
+        match key {
+            "RETRACT_LENGTH" => settings.length = non_negative(value * MM, column, "RETRACT_LENGTH")?,
+            "RETRACT_SPEED" => settings.speed = positive(value * MM, column, "RETRACT_SPEED")?,
+            "UNRETRACT_EXTRA_LENGTH" => settings.extra_prime = bounded(value * MM, column)?,
+            "UNRETRACT_SPEED" => settings.prime_speed = positive(value * MM, column, "UNRETRACT_SPEED")?,
+            _ => return Ok(false),
+        }
+        Ok(true)
     }
 }
 
@@ -503,20 +348,5 @@ fn extended_number(name: &str, param: &ExtendedParam) -> Result<f64, Fault> {
     match param.value.trim().parse::<f64>() {
         Ok(v) if v.is_finite() => Ok(v),
         _ => Err(Fault::new(param.column, format!("{name} {}={:?}: not a finite number", param.key, param.value))),
-    }
-}
-
-/// What was done with a limit command, for its first note.
-fn limits_message(name: &str) -> &'static str {
-    match name {
-        "M203" => "per-axis feed limits (Marlin units/s) honoured: later moves slowed so that no axis, E included, exceeds them",
-        "M201" | "M204" => "acceleration recorded in program_limits() (the lowest requested), to apply as min(config, program)",
-        "M205" | "M566" => "jerk / junction deviation recorded in program_limits() (the lowest requested)",
-        "M900" | "M572" | "SET_PRESSURE_ADVANCE" => "pressure advance recorded in program_limits() (the last requested)",
-        "M207" | "SET_RETRACTION" => "firmware retraction settings changed for later G10/G11",
-        "SET_VELOCITY_LIMIT" => {
-            "VELOCITY honoured (later feeds clamped); ACCEL and SQUARE_CORNER_VELOCITY recorded in program_limits() (the lowest requested)"
-        }
-        _ => "acted on",
     }
 }

@@ -125,14 +125,16 @@ mod codes;
 mod dialect;
 mod interpreter;
 mod lexer;
+mod limits;
 mod report;
 mod tags;
 
 pub use arc::segment_length;
 use block::Block;
-pub use dialect::{Dialect, FirmwareRetraction, ProgramLimits, ProgramSetting};
+pub use dialect::{Dialect, FirmwareRetraction};
 use interpreter::Interpreter;
 use lexer::{Fault, Lexed, Lexer, LineKind};
+pub use limits::{ProgramLimits, ProgramSetting};
 
 /// Metres per millimetre.
 const MM: f64 = 1e-3;
@@ -326,7 +328,7 @@ impl<R: BufRead> Parser<R> {
     /// advance, ...), for a caller to apply as min(config, program). Complete once the iterator has
     /// ended.
     pub fn program_limits(&self) -> &ProgramLimits {
-        &self.interpreter.firmware.limits
+        &self.interpreter.firmware.limits.recorded
     }
 
     /// Position (m) after the lines read so far: the end of the last segment produced, which may
