@@ -152,7 +152,7 @@ fn retraction_settings_come_from_the_options_m207_and_set_retraction() {
     let parsed = parse("M207 S1 F1200 R0.5 T600 Z0.2\nG10\nG11\n");
     assert!(try_parse_with("M207 S1 F1200\nG1 X1\n", GcodeOptions::default()).is_err(), "M207's F is not a feed");
     let s: Vec<Segment> = parsed.segments.iter().map(|s| s.segment).take(2).collect();
-    close(s[0].filament, -1.0 * MM, "M207 S");
+    close(s[0].filament, -MM, "M207 S");
     close(s[0].duration, 1.0 / 20.0, "M207 F1200 = 20 mm/s");
     close(s[1].filament, 1.5 * MM, "M207 S + R");
     close(s[1].duration, 1.5 / 10.0, "M207 T600 = 10 mm/s");
@@ -462,7 +462,7 @@ fn positions_beyond_a_million_metres_are_errors_naming_the_column() {
         ("F60\nG91\nG1 X900000000\nG1 X900000000".into(), 4, 4),
         (format!("G92 X-{huge}"), 1, 5),
         (format!("G1 X1 E{huge} F60"), 1, 7),
-        (format!("M83\nG1 X1 E900000000 F60\nG1 X2 E900000000"), 3, 7),
+        ("M83\nG1 X1 E900000000 F60\nG1 X2 E900000000".to_string(), 3, 7),
         (format!("F60\nG2 X1 Y0 I{huge}"), 2, 10),
         (format!("F60\nG2 X1 R{huge}"), 2, 7),
     ];
