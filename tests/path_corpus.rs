@@ -32,7 +32,7 @@ fn lookahead_holds_every_limit_on_every_corpus_file() {
     let config = PathConfig::default();
     for name in FILES {
         let file = common::root().join("tests/data/gcode").join(name);
-        let parser = parse_file(&file, GcodeOptions::default()).unwrap();
+        let parser = parse_file(&file, GcodeOptions::for_path(&file)).unwrap();
         let mut worst_speed: f64 = 0.0;
         let mut last_s = 0.0;
         let report = time_program(parser, name, &config, &ExtruderConfig::default(), &BedTransform::flat(), 1000.0, |s| {
@@ -77,7 +77,7 @@ fn first_outer_wall() -> Vec<Segment> {
     let file = common::root().join("tests/data/gcode/prusaslicer/box35.gcode");
     let mut out = Vec::new();
     let mut started = false;
-    for g in parse_file(&file, GcodeOptions::default()).unwrap() {
+    for g in parse_file(&file, GcodeOptions::for_path(&file)).unwrap() {
         let g = g.unwrap();
         let outer = g.tags.feature.as_deref() == Some("External perimeter") && g.segment.extrudes();
         if outer {

@@ -64,7 +64,7 @@ pub fn load_segments(path: &Path, cfg: &Config) -> Result<(LayeredSegments, Vec<
         let file = segfile::read_path(path, 1).map_err(|e| e.to_string())?;
         (file.segments.iter().map(|(s, layer)| (bed.segment(s), *layer)).collect(), Vec::new())
     } else {
-        let options = GcodeOptions { first_seq: 1, ..GcodeOptions::default() };
+        let options = GcodeOptions { first_seq: 1, ..GcodeOptions::for_path(path) };
         let mut parser = parse_file(path, options).map_err(|e| e.to_string())?;
         let mut all = Vec::new();
         for item in parser.by_ref() {

@@ -25,7 +25,7 @@ fn extrusions(path: &Path) -> (f64, Vec<([f64; 3], strand::gcode::GcodeSegment)>
     let mut at = GcodeOptions::default().start;
     let mut out = Vec::new();
     let mut total = 0.0;
-    for g in parse_file(path, GcodeOptions::default()).unwrap() {
+    for g in parse_file(path, GcodeOptions::for_path(path)).unwrap() {
         let g = g.unwrap();
         let from = at;
         at = g.segment.end;

@@ -159,7 +159,7 @@ fn main() -> ExitCode {
         };
     }
     let bed = BedTransform::new(&config.bed).expect("validated with the config");
-    let mut parser = match parse_file(&file, GcodeOptions::default()) {
+    let mut parser = match parse_file(&file, GcodeOptions::for_path(&file)) {
         Ok(p) => p,
         Err(e) => {
             eprintln!("strand-plan: {e}");

@@ -82,7 +82,7 @@ pub fn sample_job(job: &Path, timing: Timing, dt: f64, config: &Config) -> Resul
         return Err(format!("--dt {dt}: must be positive"));
     }
     let name = job.display().to_string();
-    let parser = parse_file(job, GcodeOptions::default()).map_err(|e| e.to_string())?;
+    let parser = parse_file(job, GcodeOptions::for_path(job)).map_err(|e| e.to_string())?;
     let mut series = TcpSeries { dt, ..TcpSeries::default() };
     match timing {
         Timing::Controller => {

@@ -1143,7 +1143,7 @@ pub fn report(job: &Job, plan: &Plan, written: &Written) -> serde_json::Value {
 pub fn run(args: &StripsArgs) -> Result<(), String> {
     let spec = args.spec()?;
     let name = args.job.display().to_string();
-    let mut parser = parse_file(&args.job, GcodeOptions::default()).map_err(|e| e.to_string())?;
+    let mut parser = parse_file(&args.job, GcodeOptions::for_path(&args.job)).map_err(|e| e.to_string())?;
     let job = read_job(&mut parser, &name, &ReadOptions { arc_tolerance: args.arc_tolerance, keep_skirt: args.keep_skirt })?;
     let plan = plan(&job, &spec)?;
     let travel = Travel { speed: args.travel_speed, retract: args.retract, retract_speed: args.retract_speed, z_hop: args.z_hop };

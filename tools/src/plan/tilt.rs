@@ -42,7 +42,7 @@ pub struct TiltArgs {
 /// The job's segments on the tilted bed (the bed origin stays at the origin).
 pub fn tilt_job(job: &std::path::Path, alpha: f64) -> Result<(Vec<Segment>, Vec<String>), String> {
     let bed = BedTransform::new(&BedConfig { tilt: alpha, offset: [0.0; 3] }).map_err(|e| e.replace("[bed] tilt", "--angle"))?;
-    let mut parser = parse_file(job, GcodeOptions { first_seq: 1, ..GcodeOptions::default() }).map_err(|e| e.to_string())?;
+    let mut parser = parse_file(job, GcodeOptions { first_seq: 1, ..GcodeOptions::for_path(job) }).map_err(|e| e.to_string())?;
     let mut out = Vec::new();
     for g in parser.by_ref() {
         out.push(bed.segment(&g.map_err(|e| e.to_string())?.segment));
