@@ -26,7 +26,7 @@ pub const MAX_SEGMENTS: usize = 200;
 /// Longest dwell run through the path engine (s); longer ones are shortened to this.
 pub const MAX_DWELL_S: f64 = 2.0;
 /// Most ticks a program may be given; programs whose bound is larger are not run.
-pub const MAX_TICKS: u64 = 1_000_000;
+pub const MAX_TICKS: u64 = 200_000;
 /// Control period (s).
 pub const DT: f64 = 1e-3;
 
@@ -136,8 +136,9 @@ fn check_segment(g: &GcodeSegment, lines: usize) {
 }
 
 /// Runs `data` through the parser, then its segments through the path engine, checking both.
-/// Returns the ticks run, or None when the program was not run (no segment, or a bound above
-/// [`MAX_TICKS`]).
+/// Every segment is pushed (and must be accepted) before the first tick; the program is then run
+/// unless its tick bound is above [`MAX_TICKS`]. Returns the ticks run, or None when the program was
+/// not run (no segment, or too long).
 pub fn check_path(data: &[u8]) -> Option<u64> {
     let parsed = check_parser(data);
     let mut segments: Vec<Segment> = parsed.segments.iter().take(MAX_SEGMENTS).map(|g| g.segment).collect();
@@ -149,27 +150,24 @@ pub fn check_path(data: &[u8]) -> Option<u64> {
         }
     }
     let config = PathConfig::default();
-    let bound = tick_bound(&segments, &GcodeOptions::default().start, &config)?;
     let options = GcodeOptions::default();
     let mut engine = PathEngine::new(&config, DT, options.start, options.orientation).expect("default path config");
-    let mut next = 0;
+    assert!(engine.free_space() >= segments.len(), "the intake queue holds fewer than {MAX_SEGMENTS} segments");
+    for (k, s) in segments.iter().enumerate() {
+        if let Err(e) = engine.push(s) {
+            panic!("the engine refuses parser output (segment {k}, line {}): {e}: {s:?}", s.source_line);
+        }
+    }
+    let bound = tick_bound(&segments, &options.start, &config)?;
     let mut previous: Option<PathSample> = None;
     for tick in 0..bound {
-        while next < segments.len() && engine.free_space() > 0 {
-            let s = &segments[next];
-            if let Err(e) = engine.push(s) {
-                panic!("the engine refuses parser output (segment {next}, line {}): {e}: {s:?}", s.source_line);
-            }
-            next += 1;
-        }
         let sample = engine.step(1.0);
         check_sample(&sample, previous.as_ref(), &config, tick);
         previous = Some(sample);
-        if sample.motion == Motion::Finished && next == segments.len() {
-            return Some(tick + 1);
-        }
-        if next == segments.len() && sample.motion == Motion::Starved {
-            panic!("tick {tick}: starved with the whole program queued (LAST not reached); engine {:?}", engine.stats());
+        match sample.motion {
+            Motion::Finished => return Some(tick + 1),
+            Motion::Starved => panic!("tick {tick}: starved with the whole program queued (LAST not reached); engine {:?}", engine.stats()),
+            _ => {}
         }
     }
     let s = previous.expect("at least one tick");
