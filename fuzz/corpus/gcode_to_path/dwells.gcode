@@ -1,0 +1,8 @@
+; dwells in both dialects
+G21 G90
+G1 X10 Y0 F1200
+G4 P500
+G4 S0.25
+G1 X10 Y10
+G4 P0
+M2

@@ -1,0 +1,12 @@
+; slicer retraction and its undo, relative extrusion
+M83
+G92 E0
+G1 Z0.2 F600
+G1 X5 Y5 E0.5 F1800
+G1 E-1 F2100
+G0 X20 Y5 F9000
+G1 E1 F2100
+G1 X20 Y20 E0.6 F1500
+G10
+G11
+G1 X5 Y20 E-0.2 F3000

@@ -1,0 +1,3 @@
+//! Support for the fuzz targets: the checks, shared with `tests/fuzz_regressions.rs`.
+
+pub mod checks;
