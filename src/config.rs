@@ -4,6 +4,11 @@
 //! Layout: `config/default.toml` names a robot file (`robot = "robots/iiwa7.toml"`, relative to the
 //! config file) and holds the controller sections; a robot file names its URDF (relative to itself),
 //! the chain's root and tip links, the tool transform and the limits URDF does not carry.
+//!
+//! Which file a tool reads when none (or only a name) is given: [`locate`] (the search order, and
+//! the copy of `config/` built into the binary).
+
+pub mod locate;
 
 use std::path::{Path, PathBuf};
 
@@ -22,7 +27,7 @@ use crate::io::runner::ServiceConfig;
 use crate::log::LogConfig;
 
 /// A configuration problem, naming the file and what in it is wrong.
-#[derive(Debug, Error)]
+#[derive(Clone, Debug, Error)]
 #[error("{file}: {message}")]
 pub struct ConfigError {
     /// The file (config, robot file or URDF).

@@ -65,6 +65,11 @@ fn open_all(files: &[PathBuf]) -> Result<Vec<LogFile>, String> {
 }
 
 fn main() -> ExitCode {
+    // A closed pipe (`… | head`) ends the process quietly instead of a panic in println!.
+    // SAFETY: setting a signal's disposition to the default before any thread starts.
+    unsafe {
+        libc::signal(libc::SIGPIPE, libc::SIG_DFL);
+    }
     let fail = |e: String| {
         eprintln!("strand-replay: {e}");
         ExitCode::from(2)

@@ -188,11 +188,12 @@ pub struct SimConfigError {
 
 impl SimConfig {
     /// The plant that goes with a service config: `sim/free-flyer.toml` for a tracked base, else
-    /// `sim/default.toml`, in the service config's folder.
-    pub fn default_path(service: &strand::config::Config) -> PathBuf {
-        let dir = service.file.parent().unwrap_or(Path::new("."));
+    /// `sim/default.toml`, in the service config's folder if it is there, else by the search order
+    /// of [`strand::config::locate`]. The error names the files tried.
+    pub fn default_path(service: &strand::config::Config) -> Result<PathBuf, String> {
         let tracked = service.base.mode == strand::core::base::BaseMode::Tracked;
-        dir.join("sim").join(if tracked { "free-flyer.toml" } else { "default.toml" })
+        let name = if tracked { "sim/free-flyer.toml" } else { "sim/default.toml" };
+        strand::config::locate::beside_or_find(&service.file, name).map_err(|e| e.to_string())
     }
 
     /// Reads and checks a sim config; the flyer's trajectory path is resolved against the file.
