@@ -42,8 +42,18 @@ impl ConfigError {
     }
 }
 
+/// Reads a text file; text that is not UTF-8 is an error naming the line.
+pub fn read_text(path: &Path) -> Result<String, ConfigError> {
+    let bytes = std::fs::read(path).map_err(|e| ConfigError::new(path, format!("cannot read: {e}")))?;
+    String::from_utf8(bytes).map_err(|e| {
+        let valid = e.utf8_error().valid_up_to();
+        let line = e.as_bytes()[..valid].iter().filter(|b| **b == b'\n').count() + 1;
+        ConfigError::new(path, format!("line {line}: not UTF-8 text"))
+    })
+}
+
 fn read_toml<T: for<'de> Deserialize<'de>>(path: &Path) -> Result<T, ConfigError> {
-    let text = std::fs::read_to_string(path).map_err(|e| ConfigError::new(path, format!("cannot read: {e}")))?;
+    let text = read_text(path)?;
     toml::from_str(&text).map_err(|e| ConfigError::new(path, e.to_string().trim_end().to_string()))
 }
 

@@ -7,9 +7,9 @@
 //! The search order:
 //!
 //! 1. a path given by the user (`--config FILE`, `strand check-config FILE`, `strand-kin check
-//!    FILE`): used as it is; an error naming it if it does not exist. (A bare word such as `iiwa7`,
-//!    one path component without an extension, is a NAME, not a path: `iiwa7.toml`, or
-//!    `robots/iiwa7.toml` where a robot file is asked for.)
+//!    FILE`): used as it is; an error naming it if it does not exist. (A bare word such as `iiwa7`
+//!    — one path component without an extension, and no such file in the working directory — is
+//!    a NAME, not a path: `iiwa7.toml`, or `robots/iiwa7.toml` where a robot file is asked for.)
 //! 2. `$STRAND_CONFIG_DIR/NAME` (when set it must be a directory);
 //! 3. `./config/NAME` in the working directory (the repository root);
 //! 4. `<executable's dir>/../share/strand/config/NAME` (an installed prefix);
@@ -47,7 +47,8 @@ pub fn bundled_configs() -> Vec<&'static str> {
 }
 
 /// True for a bare word (`iiwa7`): one normal path component without an extension. Such an argument
-/// is a NAME to search for; anything else is a path.
+/// is a NAME to search for unless a file or folder of that name is in the working directory;
+/// anything else is a path.
 pub fn is_name(arg: &Path) -> bool {
     let mut parts = arg.components();
     matches!((parts.next(), parts.next()), (Some(Component::Normal(_)), None))
@@ -61,7 +62,8 @@ pub fn explicit(path: &Path) -> Result<PathBuf, ConfigError> {
 }
 
 /// The service config for a `--config` argument: the default ([`DEFAULT`]) when absent, `NAME.toml`
-/// for a bare NAME (`iiwa7`, `free-flyer`), else the path as given (which must exist).
+/// for a bare NAME (`iiwa7`, `free-flyer`; see [`is_name`]), else the path as given (which must
+/// exist).
 pub fn service_config(arg: Option<&Path>) -> Result<PathBuf, ConfigError> {
     service_config_or(arg, DEFAULT)
 }
@@ -70,7 +72,7 @@ pub fn service_config(arg: Option<&Path>) -> Result<PathBuf, ConfigError> {
 pub fn service_config_or(arg: Option<&Path>, default: &str) -> Result<PathBuf, ConfigError> {
     match arg {
         None => find(default),
-        Some(a) if is_name(a) => find(&format!("{}.toml", a.display())),
+        Some(a) if is_name(a) && !a.exists() => find(&format!("{}.toml", a.display())),
         Some(a) => explicit(a),
     }
 }
@@ -78,7 +80,7 @@ pub fn service_config_or(arg: Option<&Path>, default: &str) -> Result<PathBuf, C
 /// A robot file for an argument: `robots/NAME.toml` for a bare NAME (`iiwa7`), else the path as
 /// given (a robot file or a URDF, which must exist).
 pub fn robot_file(arg: &Path) -> Result<PathBuf, ConfigError> {
-    if is_name(arg) { find(&format!("robots/{}.toml", arg.display())) } else { explicit(arg) }
+    if is_name(arg) && !arg.exists() { find(&format!("robots/{}.toml", arg.display())) } else { explicit(arg) }
 }
 
 /// `name` beside `file`'s folder (`sim/default.toml` next to the service config the user chose) if

@@ -169,7 +169,13 @@ fn main() -> ExitCode {
         }
     };
     let name = file.display().to_string();
-    let result = time_program(parser.by_ref(), &name, &path, &config.extruder, &bed, config.controller.rate_hz, |_| {});
+    let mut program = parser.by_ref().peekable();
+    // time_program never ends on a program without a segment (strand::plan): refuse it here.
+    if program.peek().is_none() {
+        eprintln!("strand-plan: {name}: no motion in the program");
+        return ExitCode::from(2);
+    }
+    let result = time_program(program, &name, &path, &config.extruder, &bed, config.controller.rate_hz, |_| {});
     let mut report = match result {
         Ok(r) => r,
         Err(e) => {

@@ -82,7 +82,11 @@ pub fn sample_job(job: &Path, timing: Timing, dt: f64, config: &Config) -> Resul
         return Err(format!("--dt {dt}: must be positive"));
     }
     let name = job.display().to_string();
-    let parser = parse_file(job, GcodeOptions::default()).map_err(|e| e.to_string())?;
+    let mut parser = parse_file(job, GcodeOptions::default()).map_err(|e| e.to_string())?.peekable();
+    // strand::plan::time_program never ends on a program without a segment.
+    if parser.peek().is_none() {
+        return Err(format!("{name}: no motion in the program"));
+    }
     let mut series = TcpSeries { dt, ..TcpSeries::default() };
     match timing {
         Timing::Controller => {

@@ -199,7 +199,7 @@ impl SimConfig {
     /// Reads and checks a sim config; the flyer's trajectory path is resolved against the file.
     pub fn load(path: &Path) -> Result<Self, SimConfigError> {
         let err = |message: String| SimConfigError { file: path.display().to_string(), message };
-        let text = std::fs::read_to_string(path).map_err(|e| err(format!("cannot read: {e}")))?;
+        let text = strand::config::read_text(path).map_err(|e| err(e.message))?;
         let mut cfg: SimConfig = toml::from_str(&text).map_err(|e| err(e.to_string().trim_end().to_string()))?;
         if let Some(f) = cfg.flyer.as_mut() {
             if !f.trajectory.as_os_str().is_empty() {
