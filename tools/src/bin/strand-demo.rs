@@ -4,7 +4,11 @@
 //! the sim's truth and prints a summary: job time, segments, TCP error (mean, p99, max), flow
 //! error, tick cost, round trip, overruns, faults, the log's path — and whether
 //! `strand-replay verify` reproduces the log to the bit. Exit 0 only if the job finished and the
-//! replay is identical.
+//! replay is identical. A child that fails (the feeder refusing the job, the sim its plant, the
+//! service its config) stops the demo at once: the others are stopped, the child's name, exit code
+//! and last lines of output are printed, a log that holds only idle ticks is removed, and the exit
+//! code is 1 (2 for a problem the demo finds itself). Configs and the default jobs are found as
+//! `strand::config::locate` says, so it runs from any folder.
 
 use std::fs::File;
 use std::path::{Path, PathBuf};

@@ -663,7 +663,7 @@ pub fn plan(job: &Job, spec: &StripSpec) -> Result<Plan, String> {
     let widths: Vec<f64> = match &spec.widths {
         Widths::Uniform(w) => {
             let n = (((hi - origin) - BOUNDARY_EPS) / w).ceil().max(1.0);
-            if !(n <= MAX_STRIPS as f64) {
+            if n.is_nan() || n > MAX_STRIPS as f64 {
                 return Err(format!(
                     "--width {w} m: the job extrudes from {a} = {origin} m to {a} = {hi} m ({}:{hi_line}), {n} strips; at most {MAX_STRIPS}",
                     job.name

@@ -201,10 +201,10 @@ impl SimConfig {
         let err = |message: String| SimConfigError { file: path.display().to_string(), message };
         let text = strand::config::read_text(path).map_err(|e| err(e.message))?;
         let mut cfg: SimConfig = toml::from_str(&text).map_err(|e| err(e.to_string().trim_end().to_string()))?;
-        if let Some(f) = cfg.flyer.as_mut() {
-            if !f.trajectory.as_os_str().is_empty() {
-                f.trajectory = path.parent().unwrap_or(Path::new(".")).join(&f.trajectory);
-            }
+        if let Some(f) = cfg.flyer.as_mut()
+            && !f.trajectory.as_os_str().is_empty()
+        {
+            f.trajectory = path.parent().unwrap_or(Path::new(".")).join(&f.trajectory);
         }
         cfg.validate().map_err(err)?;
         Ok(cfg)
