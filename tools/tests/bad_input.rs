@@ -55,6 +55,7 @@ fn junk(n: usize) -> Vec<u8> {
 fn inputs() -> &'static Inputs {
     static INPUTS: OnceLock<Inputs> = OnceLock::new();
     INPUTS.get_or_init(|| {
+        remove_stale_inputs();
         let dir = temp_dir("bad-input", "inputs");
         let b = |label, path, line| Bad { label, path, line };
         // Each program's bad line comes after a good one, so the line number is checked.
@@ -109,6 +110,19 @@ fn inputs() -> &'static Inputs {
         logs.push(b("an MCAP cut inside its first chunk", write(&dir, "cut.mcap", &full[..first_chunk_middle(&full)]), None));
         Inputs { dir, programs, configs, logs }
     })
+}
+
+/// Removes the inputs (50 MB each) of earlier runs whose process has ended.
+fn remove_stale_inputs() {
+    let Ok(entries) = std::fs::read_dir(std::env::temp_dir()) else { return };
+    for e in entries.flatten() {
+        let name = e.file_name().to_string_lossy().to_string();
+        if let Some(pid) = name.strip_prefix("strand-bad-input-test-").and_then(|r| r.strip_suffix("-inputs"))
+            && !Path::new("/proc").join(pid).exists()
+        {
+            let _ = std::fs::remove_dir_all(e.path());
+        }
+    }
 }
 
 /// A real log: the service in free-run, echoing its commands, for 300 ticks.
