@@ -4,6 +4,11 @@
 //! Layout: `config/default.toml` names a robot file (`robot = "robots/iiwa7.toml"`, relative to the
 //! config file) and holds the controller sections; a robot file names its URDF (relative to itself),
 //! the chain's root and tip links, the tool transform and the limits URDF does not carry.
+//!
+//! Which file a tool reads when none (or only a name) is given: [`locate`] (the search order, and
+//! the copy of `config/` built into the binary).
+
+pub mod locate;
 
 use std::path::{Path, PathBuf};
 
@@ -22,7 +27,7 @@ use crate::io::runner::ServiceConfig;
 use crate::log::LogConfig;
 
 /// A configuration problem, naming the file and what in it is wrong.
-#[derive(Debug, Error)]
+#[derive(Clone, Debug, Error)]
 #[error("{file}: {message}")]
 pub struct ConfigError {
     /// The file (config, robot file or URDF).
@@ -37,8 +42,18 @@ impl ConfigError {
     }
 }
 
+/// Reads a text file; text that is not UTF-8 is an error naming the line.
+pub fn read_text(path: &Path) -> Result<String, ConfigError> {
+    let bytes = std::fs::read(path).map_err(|e| ConfigError::new(path, format!("cannot read: {e}")))?;
+    String::from_utf8(bytes).map_err(|e| {
+        let valid = e.utf8_error().valid_up_to();
+        let line = e.as_bytes()[..valid].iter().filter(|b| **b == b'\n').count() + 1;
+        ConfigError::new(path, format!("line {line}: not UTF-8 text"))
+    })
+}
+
 fn read_toml<T: for<'de> Deserialize<'de>>(path: &Path) -> Result<T, ConfigError> {
-    let text = std::fs::read_to_string(path).map_err(|e| ConfigError::new(path, format!("cannot read: {e}")))?;
+    let text = read_text(path)?;
     toml::from_str(&text).map_err(|e| ConfigError::new(path, e.to_string().trim_end().to_string()))
 }
 

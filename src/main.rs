@@ -7,7 +7,7 @@ use std::process::ExitCode;
 use std::sync::atomic::{AtomicBool, Ordering};
 
 use clap::{Parser, Subcommand};
-use strand::config::Config;
+use strand::config::{Config, locate};
 use strand::core::controller::Controller;
 use strand::io::clock::ClockMode;
 use strand::io::runner::{JointFeedback, NullSink, Runner, StopWhen};
@@ -24,9 +24,11 @@ struct Cli {
 enum Command {
     /// Run the controller service until Ctrl-C (or until a job ends, with --exit-when-done).
     Run {
-        /// The service configuration file.
-        #[arg(long, default_value = "config/default.toml")]
-        config: PathBuf,
+        /// The service configuration: a file, or a NAME (`iiwa7`, `free-flyer`) found like the
+        /// default (default.toml: $STRAND_CONFIG_DIR, ./config, <prefix>/share/strand/config, then
+        /// the built-in copy).
+        #[arg(long)]
+        config: Option<PathBuf>,
         /// Override `[service] prefix` (service names).
         #[arg(long)]
         prefix: Option<String>,
@@ -55,9 +57,10 @@ enum Command {
     },
     /// Load and validate a configuration and the robot it names; print what it describes.
     CheckConfig {
-        /// The service configuration file.
-        #[arg(default_value = "config/default.toml")]
-        config: PathBuf,
+        /// The service configuration: a file, or a NAME (`iiwa7`, `free-flyer`) found like the
+        /// default (default.toml: $STRAND_CONFIG_DIR, ./config, <prefix>/share/strand/config, then
+        /// the built-in copy).
+        config: Option<PathBuf>,
     },
 }
 
@@ -83,7 +86,7 @@ fn main() -> ExitCode {
                 .with_env_filter(tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info".into()))
                 .with_writer(std::io::stderr)
                 .init();
-            let mut cfg = match Config::load_with(&config, &set) {
+            let mut cfg = match locate::service_config(config.as_deref()).and_then(|c| Config::load_with(&c, &set)) {
                 Ok(c) => c,
                 Err(e) => {
                     eprintln!("strand: {e}");
@@ -107,29 +110,40 @@ fn main() -> ExitCode {
             }
             run(&cfg, log.as_deref(), StopWhen { max_ticks: ticks, job_done: exit_when_done })
         }
-        Command::CheckConfig { config } => match Config::load(&config).and_then(|c| c.robot.build_model().map(|m| (c, m))) {
-            Ok((cfg, model)) => {
-                println!("{}: ok", cfg.file.display());
-                println!(
-                    "robot {} from {}: {} → {}, {} joints",
-                    model.name(),
-                    model.source(),
-                    model.root_link(),
-                    model.tip_link(),
-                    model.dof()
-                );
-                println!("clik: task {:?}, gains {:?} 1/s, damping below σ = {}", cfg.clik.task, cfg.clik.gains, cfg.clik.sigma_threshold);
-                println!(
-                    "service: prefix {}, clock {:?}, {} Hz, base {:?}",
-                    cfg.service.prefix, cfg.service.clock, cfg.controller.rate_hz, cfg.base.mode
-                );
-                ExitCode::SUCCESS
+        Command::CheckConfig { config } => {
+            // A closed pipe (`strand check-config | head`) ends it quietly instead of a panic.
+            // SAFETY: setting a signal's disposition to the default; no other thread runs yet.
+            unsafe {
+                libc::signal(libc::SIGPIPE, libc::SIG_DFL);
             }
-            Err(e) => {
-                eprintln!("strand: {e}");
-                ExitCode::from(2)
-            }
-        },
+            check_config(config.as_deref())
+        }
+    }
+}
+
+fn check_config(config: Option<&Path>) -> ExitCode {
+    match locate::service_config(config).and_then(|c| Config::load(&c)).and_then(|c| c.robot.build_model().map(|m| (c, m))) {
+        Ok((cfg, model)) => {
+            println!("{}: ok", cfg.file.display());
+            println!(
+                "robot {} from {}: {} → {}, {} joints",
+                model.name(),
+                model.source(),
+                model.root_link(),
+                model.tip_link(),
+                model.dof()
+            );
+            println!("clik: task {:?}, gains {:?} 1/s, damping below σ = {}", cfg.clik.task, cfg.clik.gains, cfg.clik.sigma_threshold);
+            println!(
+                "service: prefix {}, clock {:?}, {} Hz, base {:?}",
+                cfg.service.prefix, cfg.service.clock, cfg.controller.rate_hz, cfg.base.mode
+            );
+            ExitCode::SUCCESS
+        }
+        Err(e) => {
+            eprintln!("strand: {e}");
+            ExitCode::from(2)
+        }
     }
 }
 

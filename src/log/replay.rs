@@ -50,9 +50,12 @@ pub enum ReplayError {
         /// What to do about it.
         hint: &'static str,
     },
-    /// No ticks.
-    #[error("no ticks in the log")]
-    Empty,
+    /// No ticks (`file`: the log, or empty when no file was given).
+    #[error("{file}: no ticks in the log (cut short before its first chunk was closed?)")]
+    Empty {
+        /// The file (the last part, for rotated parts).
+        file: String,
+    },
 }
 
 /// Replays `files` (one log, or the rotated parts of one in order) with the logged configuration.
@@ -62,7 +65,7 @@ pub fn verify(files: &[LogFile]) -> Result<Verdict, ReplayError> {
 
 /// As [`verify`], after `change` has altered the configuration (to show that a replay notices).
 pub fn verify_with(files: &[LogFile], change: impl FnOnce(&mut Config)) -> Result<Verdict, ReplayError> {
-    let first = files.first().ok_or(ReplayError::Empty)?;
+    let first = files.first().ok_or(ReplayError::Empty { file: String::new() })?;
     let mut cfg = first.config()?;
     change(&mut cfg);
     let model = cfg.robot.build_model().map_err(|e| ReplayError::Build(e.to_string()))?;
@@ -94,7 +97,7 @@ pub fn verify_with(files: &[LogFile], change: impl FnOnce(&mut Config)) -> Resul
         }
     }
     if expected == 0 {
-        return Err(ReplayError::Empty);
+        return Err(ReplayError::Empty { file: files.last().map_or(String::new(), |f| f.path.display().to_string()) });
     }
     Ok(Verdict::Identical { ticks: expected })
 }

@@ -146,14 +146,14 @@ impl Job {
         let mut seen: Vec<i32> = Vec::new();
         let mut keep = self.segments.len();
         for (k, layer) in self.layers.iter().enumerate() {
-            if let Some(l) = layer {
-                if !seen.contains(l) {
-                    if seen.len() == n {
-                        keep = k;
-                        break;
-                    }
-                    seen.push(*l);
+            if let Some(l) = layer
+                && !seen.contains(l)
+            {
+                if seen.len() == n {
+                    keep = k;
+                    break;
                 }
+                seen.push(*l);
             }
         }
         if keep == 0 || keep == self.segments.len() {

@@ -3,6 +3,7 @@
 pub mod bench;
 pub mod demo;
 pub mod feed;
+pub mod jobs;
 pub mod plan;
 pub mod replay;
 pub mod replay_plot;

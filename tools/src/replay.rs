@@ -284,16 +284,16 @@ pub fn export_csv(files: &[LogFile], dir: &Path) -> Result<Vec<(PathBuf, u64)>, 
         for m in f.messages() {
             let topic = &m.channel.topic;
             if !channels.contains_key(topic) {
-                let schema = m.channel.schema.as_ref().ok_or(format!("{topic}: no schema"))?;
+                let schema = m.channel.schema.as_ref().ok_or(format!("{}: {topic}: no schema", f.path.display()))?;
                 let text = String::from_utf8_lossy(&schema.data);
-                let schema = Schema::parse(&schema.name, &text).map_err(|e| e.to_string())?;
+                let schema = Schema::parse(&schema.name, &text).map_err(|e| format!("{}: {topic}: {e}", f.path.display()))?;
                 let name = topic.trim_start_matches('/').replace('/', "_");
                 let path = dir.join(format!("{name}.csv"));
                 channels
                     .insert(topic.clone(), Channel { schema, columns: Vec::new(), index: BTreeMap::new(), path, writer: None, rows: 0 });
             }
             let c = channels.get_mut(topic).expect("inserted above");
-            for (k, _) in c.schema.decode(&m.data).map_err(|e| format!("{topic}: {e}"))? {
+            for (k, _) in c.schema.decode(&m.data).map_err(|e| format!("{}: {topic}: {e}", f.path.display()))? {
                 if !c.index.contains_key(&k) {
                     c.index.insert(k.clone(), c.columns.len());
                     c.columns.push(k);
@@ -316,7 +316,7 @@ pub fn export_csv(files: &[LogFile], dir: &Path) -> Result<Vec<(PathBuf, u64)>, 
             record.truncate(c.columns.len() + 1);
             record.iter_mut().for_each(String::clear);
             record[0] = m.log_time.to_string();
-            for (k, v) in c.schema.decode(&m.data).map_err(|e| format!("{}: {e}", m.channel.topic))? {
+            for (k, v) in c.schema.decode(&m.data).map_err(|e| format!("{}: {}: {e}", f.path.display(), m.channel.topic))? {
                 record[c.index[&k] + 1] = v.to_string();
             }
             c.writer.as_mut().expect("opened above").write_record(&record).map_err(|e| e.to_string())?;

@@ -1,9 +1,11 @@
-//! How a tool is told which robot to use: a robot file (`config/robots/NAME.toml`: URDF, chain, tool,
-//! limits) or a bare URDF with `--root` and `--tip` (flange as TCP, no acceleration or jerk limits).
+//! How a tool is told which robot to use: a robot by NAME (`iiwa7`: `robots/iiwa7.toml` found by
+//! `strand::config::locate`'s search order), a robot file (`config/robots/NAME.toml`: URDF, chain,
+//! tool, limits) or a bare URDF with `--root` and `--tip` (flange as TCP, no acceleration or jerk
+//! limits).
 
 use std::path::Path;
 
-use strand::config::RobotConfig;
+use strand::config::{RobotConfig, locate};
 use strand::core::kin::RobotModel;
 
 /// A loaded robot and what the tool should warn about how it was given.
@@ -14,8 +16,9 @@ pub struct LoadedRobot {
     pub from_config: bool,
 }
 
-/// Loads `path`: a `.toml` robot file, or a URDF with `root` and `tip`.
-pub fn load_robot(path: &Path, root: Option<&str>, tip: Option<&str>) -> Result<LoadedRobot, String> {
+/// Loads `arg`: a robot NAME, a `.toml` robot file, or a URDF with `root` and `tip`.
+pub fn load_robot(arg: &Path, root: Option<&str>, tip: Option<&str>) -> Result<LoadedRobot, String> {
+    let path = &locate::robot_file(arg).map_err(|e| e.to_string())?;
     if path.extension().is_some_and(|e| e == "toml") {
         if root.is_some() || tip.is_some() {
             return Err(format!("{}: a robot file names its own root and tip links; drop --root/--tip", path.display()));

@@ -6,7 +6,9 @@
 //!   the path; the MCAP log replays identically; nothing was dropped or rejected;
 //! - the feeder killed mid-job → a controlled stop on the path, no fault;
 //! - the sim killed mid-job → the service faults (JointStateLost);
-//! - the free flyer prints a small truss on its drifting, tracked base within a stated bound.
+//! - the free flyer prints a small truss on its drifting, tracked base within a stated bound;
+//! - a child that fails (the feeder refusing the job, the sim refusing its plant) stops the demo at
+//!   once with that child's own message, and no log of idle ticks is left behind.
 
 mod common;
 
@@ -181,4 +183,55 @@ fn a_killed_sim_faults_the_service() {
     let s = wait_for(&m, 10, "a fault", |s| s.run_state == RunState::Fault as u32);
     assert_eq!(s.fault, FaultCode::JointStateLost as u32, "{s:?}");
     assert_eq!(s.job_outcome, JobOutcome::Faulted as u32);
+}
+
+/// strand-demo run from a scratch folder outside the repository (the built-in config).
+fn demo_elsewhere(dir: &Path, args: &[&str]) -> (std::process::Output, Duration) {
+    let work = dir.join("work");
+    std::fs::create_dir_all(&work).unwrap();
+    let started = Instant::now();
+    let out = Command::new(env!("CARGO_BIN_EXE_strand-demo"))
+        .args(args)
+        .arg("--out")
+        .arg(dir.join("demo"))
+        .current_dir(&work)
+        .env_remove("STRAND_CONFIG_DIR")
+        .env("XDG_CACHE_HOME", dir.join("cache"))
+        .env("RUST_BACKTRACE", "0")
+        .output()
+        .unwrap();
+    (out, started.elapsed())
+}
+
+#[test]
+fn the_demo_stops_at_once_when_the_feeder_refuses_the_job() {
+    let dir = temp_dir("sim", "demo-bad-job");
+    let job = dir.join("bad.gcode");
+    std::fs::write(&job, "G21\nG1 X1 Y1 F1200\nG1 X nan\n").unwrap();
+    let (out, took) = demo_elsewhere(&dir, &["--gcode", job.to_str().unwrap()]);
+    let (stdout, stderr) = (String::from_utf8_lossy(&out.stdout), String::from_utf8_lossy(&out.stderr));
+    assert_eq!(out.status.code(), Some(1), "stdout: {stdout}\nstderr: {stderr}");
+    assert!(took < Duration::from_secs(20), "took {took:?}: the demo waited for something");
+    assert!(stderr.contains("the feed (strand-feed) exited with 2"), "{stderr}");
+    assert!(stderr.contains(&format!("{}:3:", job.display())), "the feeder's own message, with file and line: {stderr}");
+    assert!(!stderr.contains("panicked"), "{stderr}");
+    assert!(!stdout.contains("TCP error"), "no summary of an empty run: {stdout}");
+    // Nothing ran: no log of idle ticks, no truth.
+    assert!(!dir.join("demo/run.mcap").exists());
+    assert!(!dir.join("demo/truth.csv").exists());
+    assert!(dir.join("demo/feed.log").is_file());
+}
+
+#[test]
+fn the_demo_stops_at_once_when_the_sim_refuses_its_plant() {
+    let dir = temp_dir("sim", "demo-bad-plant");
+    let plant = dir.join("plant.toml");
+    std::fs::write(&plant, "[joints]\nlag = nan\n").unwrap();
+    let (out, took) = demo_elsewhere(&dir, &["--sim", plant.to_str().unwrap()]);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success(), "{stderr}");
+    assert!(took < Duration::from_secs(20), "took {took:?}");
+    assert!(stderr.contains("the sim (strand-sim) exited with 2"), "{stderr}");
+    assert!(stderr.contains("plant.toml: joints.lag = NaN"), "the sim's own message: {stderr}");
+    assert!(!dir.join("demo/run.mcap").exists());
 }

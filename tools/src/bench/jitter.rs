@@ -88,7 +88,10 @@ fn realtime(opts: &JitterOptions) -> RealtimeConfig {
 
 /// Runs the cycle runner, then the empty-loop baseline, then cyclictest.
 pub fn run(opts: &JitterOptions) -> Result<JitterReport, String> {
-    let config = opts.with_controller.clone().unwrap_or_else(|| opts.root.join("config/default.toml"));
+    let config = match &opts.with_controller {
+        Some(c) => c.clone(),
+        None => strand::config::locate::find(strand::config::locate::DEFAULT).map_err(|e| e.to_string())?,
+    };
     let mut cfg = Config::load(&config).map_err(|e| e.to_string())?;
     cfg.controller.rate_hz = opts.rate_hz;
     cfg.controller.validate().map_err(|e| e.to_string())?;

@@ -31,11 +31,10 @@ pub fn bench_job(root: &Path, cfg: &Config) -> Result<Job, String> {
 /// [`bench_job`]'s program, relative to the repository root.
 pub const BENCH_JOB: &str = "tests/data/gcode/prusaslicer/box35.gcode";
 
-/// The repository root (where `config/` and `tests/data/` are): the working directory if it has
-/// them, else the one this binary was built from.
-pub fn repo_root() -> PathBuf {
-    let here = PathBuf::from(".");
-    if here.join("config/default.toml").is_file() { here } else { PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/..")) }
+/// The folder [`BENCH_JOB`] is relative to: the repository root when the working directory is
+/// one, else the built-in copy ([`crate::jobs::root`]).
+pub fn repo_root() -> Result<PathBuf, String> {
+    crate::jobs::root()
 }
 
 /// Streams `job` to the service under `prefix` within its Status credit (a feeder, as strand-feed

@@ -10,11 +10,11 @@
 //! `Logger::push` to the writer thread. It reports the enqueue cost per record (p50 … max), drops
 //! (the aim is 0), the writer thread's CPU share and the bytes written per second.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
-use strand::config::Config;
+use strand::config::{Config, locate};
 use strand::core::controller::{Controller, MAX_SEGMENTS_PER_TICK, TickInput};
 use strand::io::alloc_count::{self, Counting};
 use strand::io::clock::{TimerClock, monotonic_ns};
@@ -120,9 +120,11 @@ enum Mode {
         /// Duration (s).
         #[arg(long, default_value_t = 60.0)]
         seconds: f64,
-        /// Service configuration (robot, controller, `[log]`).
-        #[arg(long, default_value = "config/default.toml")]
-        config: PathBuf,
+        /// Service configuration (robot, controller, `[log]`): a file or a NAME; default:
+        /// default.toml by the search order ($STRAND_CONFIG_DIR, ./config,
+        /// <prefix>/share/strand/config, the built-in copy).
+        #[arg(long)]
+        config: Option<PathBuf>,
         /// Log file (default: a temporary file, removed afterwards).
         #[arg(long)]
         out: Option<PathBuf>,
@@ -135,10 +137,10 @@ enum Mode {
     },
 }
 
-/// A robot name under config/ (`iiwa7` → config/iiwa7.toml), or a config file as it is.
-fn robot_config(root: &std::path::Path, robot: &str) -> PathBuf {
-    let p = PathBuf::from(robot);
-    if p.extension().is_some() || p.exists() { p } else { root.join("config").join(format!("{robot}.toml")) }
+/// A robot by NAME (`iiwa7` → iiwa7.toml by the search order of `strand::config::locate`), or a
+/// config file as it is (which must exist).
+fn robot_config(robot: &str) -> Result<PathBuf, String> {
+    locate::service_config(Some(Path::new(robot))).map_err(|e| e.to_string())
 }
 
 fn emit<T: serde::Serialize>(json: bool, report: &T, table: impl Fn(&T)) -> Result<(), String> {
@@ -168,8 +170,15 @@ fn square_segment(k: u64) -> ipc::Segment {
     ipc::Segment { seq: k + 1, kind: ipc::SegmentKind::Line as u32, flags, end, orientation: DOWN, feed, filament, ..Default::default() }
 }
 
-fn log_mode(rate: f64, seconds: f64, config: PathBuf, out: Option<PathBuf>, json: bool, png: Option<PathBuf>) -> Result<(), String> {
-    let mut cfg = Config::load(&config).map_err(|e| e.to_string())?;
+fn log_mode(
+    rate: f64,
+    seconds: f64,
+    config: Option<PathBuf>,
+    out: Option<PathBuf>,
+    json: bool,
+    png: Option<PathBuf>,
+) -> Result<(), String> {
+    let mut cfg = locate::service_config(config.as_deref()).and_then(|c| Config::load(&c)).map_err(|e| e.to_string())?;
     cfg.controller.rate_hz = rate;
     cfg.controller.validate().map_err(|e| e.to_string())?;
     let model = cfg.robot.build_model().map_err(|e| e.to_string())?;
@@ -303,8 +312,12 @@ fn log_mode(rate: f64, seconds: f64, config: PathBuf, out: Option<PathBuf>, json
 }
 
 fn main() -> ExitCode {
-    let root = bench::repo_root();
-    let result = match Cli::parse().command {
+    // A closed pipe (`… | head`) ends the process quietly instead of a panic in println!.
+    // SAFETY: setting a signal's disposition to the default before any thread starts.
+    unsafe {
+        libc::signal(libc::SIGPIPE, libc::SIG_DFL);
+    }
+    let result = (|| match Cli::parse().command {
         Mode::Log { rate, seconds, config, out, json, png } => log_mode(rate, seconds, config, out, json, png),
         Mode::Jitter { rate, seconds, rt, priority, with_controller, cyclictest, json, png } => {
             let opts = jitter::JitterOptions {
@@ -312,9 +325,9 @@ fn main() -> ExitCode {
                 seconds,
                 rt,
                 priority,
-                with_controller: with_controller.map(|r| robot_config(&root, &r)),
+                with_controller: with_controller.map(|r| robot_config(&r)).transpose()?,
                 cyclictest,
-                root: root.clone(),
+                root: bench::repo_root()?,
             };
             jitter::run(&opts).and_then(|r| {
                 emit(json, &r, jitter::print)?;
@@ -327,7 +340,8 @@ fn main() -> ExitCode {
         }
         Mode::Latency { rate, seconds, robot, json, png } => {
             let bin_dir = std::env::current_exe().ok().and_then(|p| p.parent().map(PathBuf::from)).unwrap_or_default();
-            let opts = latency::LatencyOptions { rate_hz: rate, seconds, config: robot_config(&root, &robot), root: root.clone(), bin_dir };
+            let opts =
+                latency::LatencyOptions { rate_hz: rate, seconds, config: robot_config(&robot)?, root: bench::repo_root()?, bin_dir };
             latency::run(&opts).and_then(|r| {
                 emit(json, &r, latency::print)?;
                 if let Some(p) = png {
@@ -338,7 +352,7 @@ fn main() -> ExitCode {
             })
         }
         Mode::Tick { robot, iterations, json, png } => {
-            let opts = tick::TickOptions { config: robot_config(&root, &robot), iterations, root: root.clone(), allocations };
+            let opts = tick::TickOptions { config: robot_config(&robot)?, iterations, root: bench::repo_root()?, allocations };
             tick::run(&opts).and_then(|r| {
                 emit(json, &r, tick::print)?;
                 if let Some(p) = png {
@@ -353,7 +367,7 @@ fn main() -> ExitCode {
             })
         }
         Mode::Pong { prefix, seconds } => latency::pong(&prefix, seconds),
-    };
+    })();
     match result {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {

@@ -4,7 +4,11 @@
 //! the sim's truth and prints a summary: job time, segments, TCP error (mean, p99, max), flow
 //! error, tick cost, round trip, overruns, faults, the log's path — and whether
 //! `strand-replay verify` reproduces the log to the bit. Exit 0 only if the job finished and the
-//! replay is identical.
+//! replay is identical. A child that fails (the feeder refusing the job, the sim its plant, the
+//! service its config) stops the demo at once: the others are stopped, the child's name, exit code
+//! and last lines of output are printed, a log that holds only idle ticks is removed, and the exit
+//! code is 1 (2 for a problem the demo finds itself). Configs and the default jobs are found as
+//! `strand::config::locate` says, so it runs from any folder.
 
 use std::fs::File;
 use std::path::{Path, PathBuf};
@@ -12,20 +16,23 @@ use std::process::{Child, Command, ExitCode, Stdio};
 use std::time::{Duration, Instant};
 
 use clap::Parser;
-use strand::config::Config;
+use strand::config::{Config, locate};
 use strand::core::base::BaseMode;
 use strand::io::ports::{ClientPorts, ClientRoles};
 use strand_ipc::ServiceNames;
 use strand_tools::demo::{Report, Spread, read_truth, report};
+use strand_tools::jobs;
 use strand_tools::sim::config::SimConfig;
 
 #[derive(Parser)]
 #[command(name = "strand-demo", version, about = "Service + simulated robot + feeder on a bundled job, with a summary and a replay check")]
 struct Cli {
-    /// Service configuration (default: config/default.toml, or config/<robot>.toml with --robot).
+    /// Service configuration: a file or a NAME (default: default.toml, or <robot>.toml with --robot,
+    /// by the search order: $STRAND_CONFIG_DIR, ./config, <prefix>/share/strand/config, the
+    /// built-in copy).
     #[arg(long)]
     config: Option<PathBuf>,
-    /// A robot by name: iiwa7, iiwa14, vp6242, meca500, irb140 (uses config/<robot>.toml).
+    /// A robot by name: iiwa7, iiwa14, vp6242, meca500, irb140 (uses <robot>.toml, found as above).
     #[arg(long, conflicts_with = "config")]
     robot: Option<String>,
     /// The job (default: the first layers of the 35 mm box; the 200 mm 1D truss for a tracked base).
@@ -34,8 +41,8 @@ struct Cli {
     /// Stream only the first N layers (default: 3 of the box; all of any other job).
     #[arg(long)]
     layers: Option<usize>,
-    /// Plant configuration for strand-sim (default: config/sim/default.toml, or
-    /// config/sim/free-flyer.toml for a tracked base).
+    /// Plant configuration for strand-sim (default: sim/default.toml, or sim/free-flyer.toml for a
+    /// tracked base, beside the service config or else found as above).
     #[arg(long)]
     sim: Option<PathBuf>,
     /// Seed of the plant's noise.
@@ -44,7 +51,8 @@ struct Cli {
     /// Override a service config key (repeatable), e.g. `--set base.estimator=moving-average`.
     #[arg(long = "set", value_name = "SECTION.KEY=VALUE")]
     set: Vec<String>,
-    /// Folder for this run's files (log, truth, process output); default logs/demo-<UTC time>.
+    /// Folder for this run's files (log, truth, process output); default logs/demo-<UTC time> in the
+    /// working directory.
     #[arg(long)]
     out: Option<PathBuf>,
     /// Print the summary as one JSON object instead of a table.
@@ -53,11 +61,6 @@ struct Cli {
     /// Give up after this many seconds (wall).
     #[arg(long, default_value_t = 600.0)]
     timeout: f64,
-}
-
-/// The repository root: the working directory if it holds config/, else where this was built.
-fn root() -> PathBuf {
-    if Path::new("config/default.toml").is_file() { PathBuf::from(".") } else { Path::new(env!("CARGO_MANIFEST_DIR")).join("..") }
 }
 
 fn sibling(name: &str) -> Result<PathBuf, String> {
@@ -87,6 +90,14 @@ impl Proc {
         Ok(Proc { name, child })
     }
 
+    /// Its exit code if it has exited (-1: killed by a signal).
+    fn exited(&mut self) -> Option<i32> {
+        match self.child.try_wait() {
+            Ok(Some(s)) => Some(s.code().unwrap_or(-1)),
+            _ => None,
+        }
+    }
+
     fn wait_until(&mut self, deadline: Instant) -> Option<i32> {
         loop {
             if let Ok(Some(s)) = self.child.try_wait() {
@@ -99,8 +110,11 @@ impl Proc {
         }
     }
 
-    /// SIGTERM, then SIGKILL after `grace`.
+    /// SIGTERM, then SIGKILL after `grace`; its exit code (-9 if it had to be killed).
     fn stop(&mut self, grace: Duration) -> i32 {
+        if let Some(c) = self.exited() {
+            return c;
+        }
         // SAFETY: kill(2) on our own child's pid.
         unsafe {
             libc::kill(self.child.id() as libc::pid_t, libc::SIGTERM);
@@ -142,24 +156,53 @@ fn main() -> ExitCode {
     }
 }
 
+/// The program a child runs, for messages.
+fn program(name: &str) -> &'static str {
+    match name {
+        "service" => "strand",
+        "sim" => "strand-sim",
+        _ => "strand-feed",
+    }
+}
+
+/// The last `n` lines a child wrote (its stdout and stderr go to `<out>/<name>.log`).
+fn tail(out: &Path, name: &str, n: usize) -> Vec<String> {
+    let text = std::fs::read(out.join(format!("{name}.log"))).map(|b| String::from_utf8_lossy(&b).to_string()).unwrap_or_default();
+    let lines: Vec<&str> = text.lines().filter(|l| !l.trim().is_empty()).collect();
+    lines[lines.len().saturating_sub(n)..].iter().map(|l| l.to_string()).collect()
+}
+
+/// A child that failed: its name, program, exit code and its own last words, on stderr.
+fn report_child(out: &Path, name: &str, code: i32) {
+    let how = if code < 0 { "was killed".to_string() } else { format!("exited with {code}") };
+    eprintln!("strand-demo: the {name} ({}) {how}:", program(name));
+    for l in tail(out, name, 20) {
+        eprintln!("  {l}");
+    }
+    eprintln!("strand-demo: its whole output: {}", out.join(format!("{name}.log")).display());
+}
+
 fn run(cli: &Cli) -> Result<bool, String> {
-    let root = root();
     let config = match (&cli.config, &cli.robot) {
-        (Some(c), _) => c.clone(),
-        (None, Some(r)) => root.join("config").join(format!("{r}.toml")),
-        (None, None) => root.join("config/default.toml"),
-    };
+        (Some(c), _) => locate::service_config(Some(c)),
+        (None, Some(r)) => locate::find(&format!("{r}.toml")),
+        (None, None) => locate::find(locate::DEFAULT),
+    }
+    .map_err(|e| e.to_string())?;
     let cfg = Config::load_with(&config, &cli.set).map_err(|e| e.to_string())?;
     let tracked = cfg.base.mode == BaseMode::Tracked;
     let (gcode, layers) = match &cli.gcode {
-        Some(g) => (g.clone(), cli.layers),
-        None if tracked => (root.join("tests/data/gcode/truss/truss_200mm.gcode"), cli.layers),
-        None => (root.join("tests/data/gcode/slic3r/box35.gcode"), Some(cli.layers.unwrap_or(3))),
+        Some(g) => (locate::explicit(g).map_err(|e| e.to_string())?, cli.layers),
+        None if tracked => (jobs::root()?.join(jobs::DEMO_TRUSS), cli.layers),
+        None => (jobs::root()?.join(jobs::DEMO_BOX), Some(cli.layers.unwrap_or(3))),
     };
-    let sim_cfg = cli.sim.clone().unwrap_or_else(|| SimConfig::default_path(&cfg));
+    let sim_cfg = match &cli.sim {
+        Some(s) => locate::explicit(s).map_err(|e| e.to_string())?,
+        None => SimConfig::default_path(&cfg)?,
+    };
     let out = match &cli.out {
         Some(o) => o.clone(),
-        None => root.join("logs").join(format!("demo-{}", strand::log::utc_stamp(strand::log::unix_now_ns()))),
+        None => PathBuf::from("logs").join(format!("demo-{}", strand::log::utc_stamp(strand::log::unix_now_ns()))),
     };
     std::fs::create_dir_all(&out).map_err(|e| format!("{}: {e}", out.display()))?;
     let (strand_bin, sim_bin, feed_bin) = (sibling("strand")?, sibling("strand-sim")?, sibling("strand-feed")?);
@@ -206,7 +249,12 @@ fn run(cli: &Cli) -> Result<bool, String> {
     }
     let mut sim = Proc::spawn("sim", sim, &out)?;
     // Start the job once the sim clocks the service (and tracking has arrived): 200 ticks.
-    wait_for_ticks(&prefix, 200, deadline.min(Instant::now() + Duration::from_secs(60)), &mut [&mut service, &mut sim], &out)?;
+    let ports = ClientPorts::open(&ServiceNames::new(&prefix), "strand-demo", ClientRoles { monitor: true, ..Default::default() })
+        .map_err(|e| e.to_string())?;
+    let begin = deadline.min(Instant::now() + Duration::from_secs(60));
+    if let Err(e) = wait_for_ticks(&ports, &prefix, 200, begin, &mut [&mut service, &mut sim], &out) {
+        return fail(e, &mut [&mut service, &mut sim], &[&log, &truth]);
+    }
     let mut feed = Command::new(&feed_bin);
     feed.arg(&gcode).arg("--config").arg(&config).args(["--prefix", &prefix, "--quiet", "--wait-service", "20"]);
     if let Some(n) = layers {
@@ -214,10 +262,43 @@ fn run(cli: &Cli) -> Result<bool, String> {
     }
     let mut feeder = Proc::spawn("feed", feed, &out)?;
 
-    let feed_code = feeder.wait_until(deadline);
-    if feed_code.is_none() {
-        eprintln!("strand-demo: the job did not end within {} s; stopping", cli.timeout);
+    // Watch all three until the feeder ends: a child that fails stops the demo at once.
+    let mut job_began = false;
+    let watched = loop {
+        job_began |= ports.latest_status().is_some_and(|s| s.segments_accepted > 0);
+        if let Some(c) = feeder.exited() {
+            break if c == 0 { Ok(()) } else { Err(("feed", c)) };
+        }
+        // The service leaves by itself (exit 0) once the job has ended, maybe just before the
+        // feeder sees it; any other exit is a failure.
+        if let Some(c) = service.exited().filter(|c| *c != 0) {
+            break Err(("service", c));
+        }
+        if let Some(c) = sim.exited() {
+            break Err(("sim", c));
+        }
+        if Instant::now() >= deadline {
+            eprintln!("strand-demo: the job did not end within {} s; stopping", cli.timeout);
+            break Err(("feed", feeder.stop(Duration::from_secs(5))));
+        }
+        let _ = ports.wait_status(20_000_000);
+    };
+    if let Err((name, code)) = watched {
+        // Stop the others: the feeder first (a controlled stop of a job in progress), then the
+        // service (it closes its log), then the sim.
         feeder.stop(Duration::from_secs(5));
+        service.stop(Duration::from_secs(10));
+        sim.stop(Duration::from_secs(5));
+        job_began |= ports.latest_status().is_some_and(|s| s.segments_accepted > 0);
+        report_child(&out, name, code);
+        if job_began {
+            eprintln!("strand-demo: the run's log: {} (strand-replay info/plot read it)", log.display());
+        } else {
+            // Nothing ran: the log and the truth only hold idle ticks.
+            let _ = std::fs::remove_file(&log);
+            let _ = std::fs::remove_file(&truth);
+        }
+        return Ok(false);
     }
     // The service exits by itself once the job has ended; give it time to close the log.
     let service_code = match service.wait_until(Instant::now() + Duration::from_secs(30)) {
@@ -226,11 +307,9 @@ fn run(cli: &Cli) -> Result<bool, String> {
     };
     let sim_code = sim.stop(Duration::from_secs(10));
     let wall = started.elapsed().as_secs_f64();
-    for (p, code) in [(&feeder, feed_code), (&service, Some(service_code)), (&sim, Some(sim_code))] {
-        if let Some(c) = code
-            && c != 0
-        {
-            eprintln!("strand-demo: {} exited with {c}; see {}", p.name, out.join(format!("{}.log", p.name)).display());
+    for (p, code) in [(&service, service_code), (&sim, sim_code)] {
+        if code != 0 {
+            report_child(&out, p.name, code);
         }
     }
     let truth_rows = read_truth(&truth)?;
@@ -255,25 +334,48 @@ fn run(cli: &Cli) -> Result<bool, String> {
     Ok(ok)
 }
 
+/// A failure before the job began: stops the children, removes the idle files and returns the
+/// error (the child's own message is in it).
+fn fail(e: String, children: &mut [&mut Proc], idle: &[&Path]) -> Result<bool, String> {
+    for c in children.iter_mut() {
+        c.stop(Duration::from_secs(5));
+    }
+    for f in idle {
+        let _ = std::fs::remove_file(f);
+    }
+    Err(e)
+}
+
 /// Waits until the service's Status reports `ticks` ticks. A child that exits meanwhile ends the wait
-/// at once, with the last line of its log (a bad config, a missing binary...).
-fn wait_for_ticks(prefix: &str, ticks: u64, deadline: Instant, children: &mut [&mut Proc], out: &Path) -> Result<(), String> {
-    let ports = ClientPorts::open(&ServiceNames::new(prefix), "strand-demo", ClientRoles { monitor: true, ..Default::default() })
-        .map_err(|e| e.to_string())?;
+/// at once, with its last lines (a bad config, a missing binary...).
+fn wait_for_ticks(
+    ports: &ClientPorts,
+    prefix: &str,
+    ticks: u64,
+    deadline: Instant,
+    children: &mut [&mut Proc],
+    out: &Path,
+) -> Result<(), String> {
     loop {
         if ports.latest_status().is_some_and(|s| s.tick >= ticks) {
             return Ok(());
         }
         for c in children.iter_mut() {
-            if let Ok(Some(status)) = c.child.try_wait() {
-                let log = out.join(format!("{}.log", c.name));
-                let last = std::fs::read_to_string(&log).unwrap_or_default().lines().last().unwrap_or("").to_string();
-                return Err(format!("the {} exited ({status}) before the job began: {last} (see {})", c.name, log.display()));
+            if let Some(code) = c.exited() {
+                let how = if code < 0 { "was killed".to_string() } else { format!("exited with {code}") };
+                return Err(format!(
+                    "the {} ({}) {how} before the job began:\n  {}\nstrand-demo: its whole output: {}",
+                    c.name,
+                    program(c.name),
+                    tail(out, c.name, 20).join("\n  "),
+                    out.join(format!("{}.log", c.name)).display()
+                ));
             }
         }
         if Instant::now() >= deadline {
             return Err(format!(
-                "the service under {prefix} was not clocked by the sim ({ticks} ticks) in time; see the service and sim logs"
+                "the service under {prefix} was not clocked by the sim ({ticks} ticks) in time; see the service and sim logs in {}",
+                out.display()
             ));
         }
         let _ = ports.wait_status(20_000_000);

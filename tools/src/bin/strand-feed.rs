@@ -12,7 +12,7 @@ use std::time::{Duration, Instant};
 
 use clap::Parser;
 use indicatif::{ProgressBar, ProgressStyle};
-use strand::config::Config;
+use strand::config::{Config, locate};
 use strand::io::ports::{ClientPorts, ClientRoles};
 use strand_ipc as ipc;
 use strand_ipc::{Command, JobOutcome, RunState, SEGMENT_BATCH_CAPACITY, ServiceNames};
@@ -28,9 +28,10 @@ struct Cli {
     /// The job: a G-code program, or a segment file (JSON lines, see strand::segfile).
     file: PathBuf,
     /// Service configuration: its `[bed]` places the program in the world, its `[service] prefix`
-    /// names the services.
-    #[arg(long, default_value = "config/default.toml")]
-    config: PathBuf,
+    /// names the services. A file or a NAME (`iiwa7`); default: default.toml by the search order
+    /// ($STRAND_CONFIG_DIR, ./config, <prefix>/share/strand/config, the built-in copy).
+    #[arg(long)]
+    config: Option<PathBuf>,
     /// Override the service prefix.
     #[arg(long)]
     prefix: Option<String>,
@@ -57,7 +58,7 @@ extern "C" fn on_interrupt(_: libc::c_int) {
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
-    let cfg = match Config::load(&cli.config) {
+    let cfg = match locate::service_config(cli.config.as_deref()).and_then(|c| Config::load(&c)) {
         Ok(c) => c,
         Err(e) => {
             eprintln!("strand-feed: {e}");

@@ -22,7 +22,9 @@ struct Cli {
 enum Command {
     /// Print the chain, its joint limits, its reach and any warning.
     Check {
-        /// A robot file (config/robots/NAME.toml) or a URDF (then --root and --tip).
+        /// A robot by NAME (`iiwa7`: robots/iiwa7.toml by the search order — $STRAND_CONFIG_DIR,
+        /// ./config, <prefix>/share/strand/config, the built-in copy), a robot file, or a URDF
+        /// (then --root and --tip).
         robot: PathBuf,
         /// Root link (the base frame), for a URDF.
         #[arg(long)]
@@ -36,7 +38,7 @@ enum Command {
         /// A URDF (with --root and --tip).
         #[arg(long, conflicts_with = "config", required_unless_present = "config")]
         urdf: Option<PathBuf>,
-        /// A robot file (config/robots/NAME.toml) instead of --urdf/--root/--tip.
+        /// A robot by NAME (`iiwa7`) or a robot file, instead of --urdf/--root/--tip.
         #[arg(long)]
         config: Option<PathBuf>,
         /// Root link (the base frame).
@@ -49,13 +51,18 @@ enum Command {
 }
 
 fn main() -> ExitCode {
+    // A closed pipe (`… | head`) ends the process quietly instead of a panic in println!.
+    // SAFETY: setting a signal's disposition to the default before any thread starts.
+    unsafe {
+        libc::signal(libc::SIGPIPE, libc::SIG_DFL);
+    }
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Check { robot, root, tip } => load_robot(&robot, root.as_deref(), tip.as_deref()).map(|r| check(&r)),
-        Command::Eval { urdf, config, root, tip } => {
-            let path = config.or(urdf).expect("clap requires one of them");
-            load_robot(&path, root.as_deref(), tip.as_deref()).map(|r| eval(&r.model))
-        }
+        Command::Eval { urdf, config, root, tip } => match config.or(urdf) {
+            Some(path) => load_robot(&path, root.as_deref(), tip.as_deref()).map(|r| eval(&r.model)),
+            None => Err("give --config ROBOT or --urdf FILE".to_string()),
+        },
     };
     match result {
         Ok(code) => code,

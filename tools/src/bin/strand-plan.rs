@@ -9,7 +9,7 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 use clap::{Parser, Subcommand, ValueEnum};
-use strand::config::Config;
+use strand::config::{Config, locate};
 use strand::core::path::{BedTransform, PlanningMode};
 use strand::gcode::{GcodeOptions, parse_file};
 use strand::plan::time_program;
@@ -42,9 +42,11 @@ enum Command {
         /// Junction planning mode (default: the config's, normally lookahead).
         #[arg(long, value_enum)]
         mode: Option<Mode>,
-        /// Service config (path limits, extruder, bed, tick rate).
-        #[arg(long, default_value = "config/default.toml")]
-        config: PathBuf,
+        /// Service config (path limits, extruder, bed, tick rate): a file or a NAME (`iiwa7`);
+        /// default: default.toml by the search order ($STRAND_CONFIG_DIR, ./config,
+        /// <prefix>/share/strand/config, the built-in copy).
+        #[arg(long)]
+        config: Option<PathBuf>,
         /// Print one JSON object instead of the summary.
         #[arg(long)]
         json: bool,
@@ -143,7 +145,7 @@ fn main() -> ExitCode {
             };
         }
     };
-    let config = match Config::load(&config) {
+    let config = match locate::service_config(config.as_deref()).and_then(|c| Config::load(&c)) {
         Ok(c) => c,
         Err(e) => {
             eprintln!("strand-plan: {e}");
@@ -167,7 +169,13 @@ fn main() -> ExitCode {
         }
     };
     let name = file.display().to_string();
-    let result = time_program(parser.by_ref(), &name, &path, &config.extruder, &bed, config.controller.rate_hz, |_| {});
+    let mut program = parser.by_ref().peekable();
+    // time_program never ends on a program without a segment (strand::plan): refuse it here.
+    if program.peek().is_none() {
+        eprintln!("strand-plan: {name}: no motion in the program");
+        return ExitCode::from(2);
+    }
+    let result = time_program(program, &name, &path, &config.extruder, &bed, config.controller.rate_hz, |_| {});
     let mut report = match result {
         Ok(r) => r,
         Err(e) => {

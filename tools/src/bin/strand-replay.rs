@@ -60,11 +60,34 @@ enum Command {
     },
 }
 
+/// Opens the logs; an error for one without a tick (cut short before its first chunk was closed,
+/// or not a strand log), a note on stderr for one cut short (only its closed chunks are read).
 fn open_all(files: &[PathBuf]) -> Result<Vec<LogFile>, String> {
-    files.iter().map(|f| LogFile::open(f).map_err(|e| e.to_string())).collect()
+    let logs: Vec<LogFile> = files.iter().map(|f| LogFile::open(f).map_err(|e| e.to_string())).collect::<Result<_, _>>()?;
+    for l in &logs {
+        if l.channel(strand::log::topics::TICK).next().is_none() {
+            return Err(format!(
+                "{}: no ticks in the log ({})",
+                l.path.display(),
+                if l.finished { "not a strand log, or a run of no tick" } else { "cut short before its first chunk was closed?" }
+            ));
+        }
+        if !l.finished {
+            eprintln!(
+                "strand-replay: note: {}: cut short (no footer): only its closed chunks are read; `strand-replay recover` rewrites it",
+                l.path.display()
+            );
+        }
+    }
+    Ok(logs)
 }
 
 fn main() -> ExitCode {
+    // A closed pipe (`… | head`) ends the process quietly instead of a panic in println!.
+    // SAFETY: setting a signal's disposition to the default before any thread starts.
+    unsafe {
+        libc::signal(libc::SIGPIPE, libc::SIG_DFL);
+    }
     let fail = |e: String| {
         eprintln!("strand-replay: {e}");
         ExitCode::from(2)

@@ -13,7 +13,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
 use clap::Parser;
-use strand::config::Config;
+use strand::config::{Config, locate};
 use strand::io::clock::{TimerClock, monotonic_ns};
 use strand::io::histogram::Histogram;
 use strand::io::ports::{ClientPorts, ClientRoles};
@@ -24,11 +24,14 @@ use strand_tools::sim::{Sim, Truth};
 #[derive(Parser)]
 #[command(name = "strand-sim", version, about = "Simulated robot, free-flying base, tracker and extruder for the strand service")]
 struct Cli {
-    /// Service configuration: robot, rate, base mode and mount, prefix.
-    #[arg(long, default_value = "config/default.toml")]
-    config: PathBuf,
-    /// Plant configuration (lags, noise, tracker, flyer); default: config/sim/free-flyer.toml for a
-    /// tracked base, config/sim/default.toml otherwise (next to --config's folder).
+    /// Service configuration: robot, rate, base mode and mount, prefix. A file or a NAME (`iiwa7`);
+    /// default: default.toml by the search order ($STRAND_CONFIG_DIR, ./config,
+    /// <prefix>/share/strand/config, the built-in copy).
+    #[arg(long)]
+    config: Option<PathBuf>,
+    /// Plant configuration (lags, noise, tracker, flyer); default: sim/free-flyer.toml for a
+    /// tracked base, sim/default.toml otherwise, next to --config's folder or else by the search
+    /// order.
     #[arg(long)]
     sim: Option<PathBuf>,
     /// Override the service prefix.
@@ -63,15 +66,18 @@ extern "C" fn on_signal(_: libc::c_int) {
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
-    let cfg = match Config::load(&cli.config) {
+    let cfg = match locate::service_config(cli.config.as_deref()).and_then(|c| Config::load(&c)) {
         Ok(c) => c,
         Err(e) => {
             eprintln!("strand-sim: {e}");
             return ExitCode::from(2);
         }
     };
-    let sim_path = cli.sim.clone().unwrap_or_else(|| SimConfig::default_path(&cfg));
-    let mut sim_cfg = match SimConfig::load(&sim_path) {
+    let sim_path = match &cli.sim {
+        Some(p) => locate::explicit(p).map_err(|e| e.to_string()),
+        None => SimConfig::default_path(&cfg),
+    };
+    let mut sim_cfg = match sim_path.and_then(|p| SimConfig::load(&p).map_err(|e| e.to_string())) {
         Ok(c) => c,
         Err(e) => {
             eprintln!("strand-sim: {e}");

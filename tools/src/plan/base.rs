@@ -28,7 +28,7 @@ use std::path::{Path, PathBuf};
 use nalgebra::{Vector2, Vector3};
 use plotters::prelude::*;
 use serde::Serialize;
-use strand::config::Config;
+use strand::config::{Config, locate};
 use strand::core::path::engine::arc_geometry;
 use strand::core::path::geometry::Geometry;
 use strand::core::path::{BedTransform, Segment, SegmentKind};
@@ -82,7 +82,11 @@ pub fn sample_job(job: &Path, timing: Timing, dt: f64, config: &Config) -> Resul
         return Err(format!("--dt {dt}: must be positive"));
     }
     let name = job.display().to_string();
-    let parser = parse_file(job, GcodeOptions::for_path(job)).map_err(|e| e.to_string())?;
+    let mut parser = parse_file(job, GcodeOptions::for_path(job)).map_err(|e| e.to_string())?.peekable();
+    // strand::plan::time_program never ends on a program without a segment.
+    if parser.peek().is_none() {
+        return Err(format!("{name}: no motion in the program"));
+    }
     let mut series = TcpSeries { dt, ..TcpSeries::default() };
     match timing {
         Timing::Controller => {
@@ -443,9 +447,11 @@ pub struct BaseArgs {
     /// How the path becomes a time series.
     #[arg(long, value_enum, default_value_t = Timing::Controller)]
     pub timing: Timing,
-    /// Service config whose [path] limits and rate time the job (`--timing controller`).
-    #[arg(long, default_value = "config/free-flyer.toml")]
-    pub config: PathBuf,
+    /// Service config whose [path] limits and rate time the job (`--timing controller`): a file or
+    /// a NAME; default: free-flyer.toml by the search order ($STRAND_CONFIG_DIR, ./config,
+    /// <prefix>/share/strand/config, the built-in copy).
+    #[arg(long)]
+    pub config: Option<PathBuf>,
     /// Print one JSON object.
     #[arg(long)]
     pub json: bool,
@@ -492,7 +498,8 @@ pub fn run(args: &BaseArgs) -> Result<(), String> {
     if args.reach_limit < args.r_nom {
         return Err(format!("--reach-limit {} m is below --r-nom {} m", args.reach_limit, args.r_nom));
     }
-    let config = Config::load(&args.config).map_err(|e| e.to_string())?;
+    let config =
+        locate::service_config_or(args.config.as_deref(), "free-flyer.toml").and_then(|c| Config::load(&c)).map_err(|e| e.to_string())?;
     let tcp = sample_job(&args.job, args.timing, args.dt, &config)?;
     let reach = Reach { r_nom_m: args.r_nom, reach_limit_m: args.reach_limit, direction_rad: args.direction_deg.to_radians() };
     let found = search(&tcp, &reach, args.mass, args.fc_start, args.fc_step)?;

@@ -480,11 +480,15 @@ impl Grid {
         let side = (x1 - x0).max(y1 - y0);
         // About two endpoints per cell, at most 1024 cells a side, never finer than the tolerance.
         let mut cell = (2.0 * area / points.len() as f64).sqrt().max(side / 1024.0).max(tolerance).max(1e-9);
-        if !cell.is_finite() || cell <= 0.0 {
-            cell = 1.0;
+        if !cell.is_finite() {
+            // The area overflowed (coordinates far apart): 1024 cells a side, or one cell.
+            cell = side / 1024.0;
+            if !(cell.is_finite() && cell > 0.0) {
+                cell = f64::MAX;
+            }
         }
-        let nx = ((x1 - x0) / cell).floor() as i64 + 1;
-        let ny = ((y1 - y0) / cell).floor() as i64 + 1;
+        let count = |span: f64| (span / cell).floor().clamp(0.0, 1023.0) as i64 + 1;
+        let (nx, ny) = (count(x1 - x0), count(y1 - y0));
         let mut cells = vec![Vec::new(); (nx * ny) as usize];
         let mut grid = Grid { x0, y0, cell, nx, ny, cells: Vec::new() };
         for (id, p) in points.iter().enumerate() {
@@ -495,8 +499,11 @@ impl Grid {
         grid
     }
 
+    /// The cell of `p`, or for a point outside the grid the grid's cell nearest it (the ring search
+    /// from there still ends with the nearest point: it stops early only once its square holds `p`).
     fn cell_of(&self, p: &[f64; 2]) -> (i64, i64) {
-        (((p[0] - self.x0) / self.cell).floor() as i64, ((p[1] - self.y0) / self.cell).floor() as i64)
+        let index = |v: f64, n: i64| if v.is_nan() { 0 } else { v.floor().clamp(0.0, (n - 1) as f64) as i64 };
+        (index((p[0] - self.x0) / self.cell, self.nx), index((p[1] - self.y0) / self.cell, self.ny))
     }
 
     /// The live endpoint nearest `p` in x-y: (id, distance). Ties: the smaller id (earlier line, its
@@ -630,6 +637,9 @@ pub struct Plan {
     pub cuts: usize,
 }
 
+/// Most strips a plan may have (a job far wider than the strips is a mistake, not a plan).
+pub const MAX_STRIPS: usize = 10_000;
+
 /// Splits `job` per `spec`: nominal strips, Eqs. 2-4, the staggered boundaries, cutting, chaining.
 /// Errors name the flag.
 pub fn plan(job: &Job, spec: &StripSpec) -> Result<Plan, String> {
@@ -652,8 +662,14 @@ pub fn plan(job: &Job, spec: &StripSpec) -> Result<Plan, String> {
     }
     let widths: Vec<f64> = match &spec.widths {
         Widths::Uniform(w) => {
-            let n = (((hi - origin) - BOUNDARY_EPS) / w).ceil().max(1.0) as usize;
-            vec![*w; n]
+            let n = (((hi - origin) - BOUNDARY_EPS) / w).ceil().max(1.0);
+            if n.is_nan() || n > MAX_STRIPS as f64 {
+                return Err(format!(
+                    "--width {w} m: the job extrudes from {a} = {origin} m to {a} = {hi} m ({}:{hi_line}), {n} strips; at most {MAX_STRIPS}",
+                    job.name
+                ));
+            }
+            vec![*w; n as usize]
         }
         Widths::List(ws) => ws.clone(),
     };

@@ -188,22 +188,23 @@ pub struct SimConfigError {
 
 impl SimConfig {
     /// The plant that goes with a service config: `sim/free-flyer.toml` for a tracked base, else
-    /// `sim/default.toml`, in the service config's folder.
-    pub fn default_path(service: &strand::config::Config) -> PathBuf {
-        let dir = service.file.parent().unwrap_or(Path::new("."));
+    /// `sim/default.toml`, in the service config's folder if it is there, else by the search order
+    /// of [`strand::config::locate`]. The error names the files tried.
+    pub fn default_path(service: &strand::config::Config) -> Result<PathBuf, String> {
         let tracked = service.base.mode == strand::core::base::BaseMode::Tracked;
-        dir.join("sim").join(if tracked { "free-flyer.toml" } else { "default.toml" })
+        let name = if tracked { "sim/free-flyer.toml" } else { "sim/default.toml" };
+        strand::config::locate::beside_or_find(&service.file, name).map_err(|e| e.to_string())
     }
 
     /// Reads and checks a sim config; the flyer's trajectory path is resolved against the file.
     pub fn load(path: &Path) -> Result<Self, SimConfigError> {
         let err = |message: String| SimConfigError { file: path.display().to_string(), message };
-        let text = std::fs::read_to_string(path).map_err(|e| err(format!("cannot read: {e}")))?;
+        let text = strand::config::read_text(path).map_err(|e| err(e.message))?;
         let mut cfg: SimConfig = toml::from_str(&text).map_err(|e| err(e.to_string().trim_end().to_string()))?;
-        if let Some(f) = cfg.flyer.as_mut() {
-            if !f.trajectory.as_os_str().is_empty() {
-                f.trajectory = path.parent().unwrap_or(Path::new(".")).join(&f.trajectory);
-            }
+        if let Some(f) = cfg.flyer.as_mut()
+            && !f.trajectory.as_os_str().is_empty()
+        {
+            f.trajectory = path.parent().unwrap_or(Path::new(".")).join(&f.trajectory);
         }
         cfg.validate().map_err(err)?;
         Ok(cfg)
