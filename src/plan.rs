@@ -55,6 +55,9 @@ pub struct TimingReport {
     pub forced_brakes: u64,
 }
 
+/// Longest a single segment may take in an offline run (s): ten days.
+pub const MAX_SEGMENT_SECONDS: f64 = 864_000.0;
+
 /// A run failed: bad G-code, or a segment the engine refused.
 #[derive(Debug, thiserror::Error)]
 pub enum TimingError {
@@ -127,6 +130,8 @@ pub fn time_program(
             };
             let Some(next) = next else {
                 finished_feeding = true;
+                // A program without a segment (or whose last one was already fed): bound the run.
+                tick_cap = tick_cap.min(tick.saturating_add(1000));
                 break;
             };
             let (mut segment, line) = next?;
@@ -143,15 +148,30 @@ pub fn time_program(
             report.segments += 1;
             report.path_length_m += length;
             report.program_filament_m += segment.filament;
-            report.lower_bound_s += match segment.kind {
+            let seconds = match segment.kind {
                 SegmentKind::Dwell => segment.duration,
                 _ => length / segment.feed.min(path.max_speed),
             };
+            // Ticking through a month of one move is not a timing, it is a typo (F in the wrong
+            // unit, a coordinate in the wrong place): say where instead of running for ever.
+            if seconds > MAX_SEGMENT_SECONDS {
+                return Err(TimingError::Segment {
+                    file: file.to_string(),
+                    line,
+                    message: format!(
+                        "segment {} would take {seconds:.3e} s (more than {MAX_SEGMENT_SECONDS} s): check its feed and end point",
+                        segment.seq
+                    ),
+                });
+            }
+            report.lower_bound_s += seconds;
             window.push_back(Programmed { seq: segment.seq, start: last_end, segment, length });
             last_end = segment.end;
             if program.peek().is_none() {
                 finished_feeding = true;
-                tick_cap = tick + 1000 + (20.0 * report.lower_bound_s / dt) as u64 + 100 * report.segments;
+                // Saturating: a move that would take 1e15 s must time out, not overflow.
+                let lower_bound_ticks = (20.0 * report.lower_bound_s / dt).min(1e18) as u64;
+                tick_cap = tick.saturating_add(1000).saturating_add(lower_bound_ticks).saturating_add(report.segments.saturating_mul(100));
             }
         }
         let sample = engine.step(1.0);

@@ -106,6 +106,15 @@ impl PathConfig {
         positive("max_jerk", self.max_jerk)?;
         positive("centripetal_acceleration", self.centripetal_acceleration)?;
         positive("deviation_tolerance", self.deviation_tolerance)?;
+        // Physical ranges: beyond them the planner's arithmetic (w(v), braking distances, rsruckig)
+        // leaves floating point, and a job could never end.
+        let within =
+            |key, v: f64, lo: f64, hi: f64, message| if (lo..=hi).contains(&v) { Ok(()) } else { Err(InvalidPathConfig { key, message }) };
+        within("max_speed", self.max_speed, 1e-4, 10.0, "must be in [1e-4, 10] m/s")?;
+        within("max_acceleration", self.max_acceleration, 1e-3, 1e3, "must be in [1e-3, 1000] m/s²")?;
+        within("max_jerk", self.max_jerk, 1e-2, 1e6, "must be in [0.01, 1e6] m/s³")?;
+        within("centripetal_acceleration", self.centripetal_acceleration, 1e-3, 1e3, "must be in [1e-3, 1000] m/s²")?;
+        within("deviation_tolerance", self.deviation_tolerance, 1e-9, 0.1, "must be in [1e-9, 0.1] m")?;
         positive("max_kink", self.max_kink)?;
         if !(self.corner_cosine.is_finite() && (-1.0..=1.0).contains(&self.corner_cosine)) {
             return Err(InvalidPathConfig { key: "corner_cosine", message: "must be in [-1, 1]" });
