@@ -142,6 +142,11 @@ impl Limits {
                     return Ok(Outcome::NothingToDo(name, format!("{name} without {}: nothing to do", letter as char)));
                 };
                 let what = format!("{name} {} (pressure advance, s)", letter as char);
+                // Prusa's MK3 firmware runs Linear Advance 1.0, whose K (typically 20-200) is not in
+                // seconds: PrusaSlicer's MK3S profiles write `M900 K30`. Reported, not recorded.
+                if code == LimitM::LinearAdvance && k.is_finite() && k > ADVANCE_RANGE.1 && k <= 1000.0 {
+                    return Ok(Outcome::NothingToDo(name, format!("{name} K{k}: Linear Advance 1.0 units (not seconds), not recorded")));
+                }
                 let advance = in_range(k, ADVANCE_RANGE, block.column(letter), &what)?;
                 recorded.pressure_advance = Some(ProgramSetting { value: advance, line, source: name });
                 name

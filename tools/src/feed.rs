@@ -136,7 +136,8 @@ pub fn load_gcode(path: &Path, cfg: &Config, resume_from: Option<u64>) -> Result
 }
 
 impl Job {
-    /// Keeps the segments up to the end of the program's first `n` layers (by the slicer's layer
+    /// Keeps the segments up to the end of the program's first `n` layers, then the program's end
+    /// code (see inside), renumbered to follow on (by the slicer's layer
     /// comments; moves before the first layer stay) and flags the new last one LAST. A program
     /// without layer comments, or with at most `n` layers, is kept whole.
     pub fn first_layers(mut self, n: usize) -> Job {
@@ -159,9 +160,34 @@ impl Job {
         if keep == 0 || keep == self.segments.len() {
             return self;
         }
+        // The program's end code — everything after its last extrusion (retract, lift, park) — still
+        // runs, so a job cut to its first layers ends the way the whole one would. It starts from
+        // where the cut leaves the tool (one travel there), so it is kept only without arcs, whose
+        // geometry depends on their start.
+        let end_code = self.segments.iter().rposition(|s| s.flags & ipc::segment_flags::EXTRUDE != 0).map_or(self.segments.len(), |k| k + 1);
+        let tail: Vec<(ipc::Segment, Option<i32>)> = if end_code > keep
+            && self.segments[end_code..].iter().all(|s| s.kind != ipc::SegmentKind::Arc as u32)
+        {
+            self.segments[end_code..].iter().copied().zip(self.layers[end_code..].iter().copied()).collect()
+        } else {
+            Vec::new()
+        };
         self.segments.truncate(keep);
         self.layers.truncate(keep);
         self.lengths.truncate(keep);
+        for (mut segment, layer) in tail {
+            let previous = self.segments.last().expect("kept at least one");
+            let start = nalgebra::Vector3::from(previous.end);
+            segment.seq = previous.seq + 1;
+            segment.flags &= !ipc::segment_flags::LAST;
+            let length = if segment.kind == ipc::SegmentKind::Line as u32 { (nalgebra::Vector3::from(segment.end) - start).norm() } else { 0.0 };
+            if segment.kind == ipc::SegmentKind::Dwell as u32 {
+                segment.end = previous.end;
+            }
+            self.segments.push(segment);
+            self.layers.push(layer);
+            self.lengths.push(length);
+        }
         let last = self.segments.last_mut().expect("kept at least one");
         last.flags |= ipc::segment_flags::LAST;
         self
@@ -236,15 +262,24 @@ mod tests {
         let path = Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../tests/data/gcode/slic3r/box35.gcode"));
         let whole = load_gcode(path, &cfg, None).unwrap();
         let two = whole.clone().first_layers(2);
-        let whole = Job { layers: layers_from_heights(&whole.segments), ..whole };
         assert!(two.segments.len() < whole.segments.len());
-        let layers: Vec<i32> = two.layers.iter().flatten().copied().collect();
-        let mut distinct = layers.clone();
+        // Two layers of extrusion…
+        let mut distinct: Vec<i32> = two
+            .segments
+            .iter()
+            .zip(&two.layers)
+            .filter(|(s, _)| s.flags & ipc::segment_flags::EXTRUDE != 0)
+            .filter_map(|(_, l)| *l)
+            .collect();
         distinct.dedup();
         assert_eq!(distinct.len(), 2, "{distinct:?}");
-        assert_eq!(whole.layers[two.segments.len()].map(|l| distinct.contains(&l)), Some(false));
+        // …then the program's end code, renumbered to follow on, ending where the program ends.
+        let (last, whole_last) = (two.segments.last().unwrap(), whole.segments.last().unwrap());
+        assert_eq!((last.kind, last.source_line, last.filament), (whole_last.kind, whole_last.source_line, whole_last.filament));
+        assert!(two.segments.windows(2).all(|w| w[1].seq == w[0].seq + 1));
         assert_eq!(two.segments.iter().filter(|s| s.flags & ipc::segment_flags::LAST != 0).count(), 1);
         assert!(two.segments.last().unwrap().flags & ipc::segment_flags::LAST != 0);
+        assert_eq!(two.lengths.len(), two.segments.len());
         assert_eq!(whole.clone().first_layers(10_000).segments.len(), whole.segments.len());
     }
 
