@@ -236,6 +236,30 @@ fn consecutive_dwells_and_retractions_finish_without_a_stall_fault() {
     assert!((out.extruder.filament_position - 0.02 * FLOW).abs() < 1e-6, "{}", out.extruder.filament_position);
 }
 
+/// A job may open with a standstill (Orca's `G10` before the first move): it stands where the tool
+/// is, whatever point the program had in mind.
+#[test]
+fn a_job_that_opens_with_a_retraction_runs() {
+    let mut cell = Cell::iiwa();
+    let opening = strand_ipc::Segment {
+        seq: 1,
+        kind: strand_ipc::SegmentKind::Dwell as u32,
+        end: [0.0, 0.0, 0.0],
+        orientation: DOWN,
+        duration: 0.05,
+        filament: -1e-3,
+        ..Default::default()
+    };
+    let mut job = vec![opening];
+    job.extend(square_job(2, ORIGIN, 0.02, 1, 0.03));
+    cell.send(&job);
+    cell.control(Command::Start, 0.0);
+    run(&mut cell, 60_000, |c| c.state() == RunState::Idle);
+    let out = cell.last.unwrap();
+    assert_eq!(out.status.rejected, 0);
+    assert_eq!(out.status.job_outcome, JobOutcome::Finished as u32);
+}
+
 #[test]
 fn bad_segments_are_rejected_with_a_reason_and_nothing_accepted_is_lost() {
     let mut cell = Cell::iiwa();

@@ -820,7 +820,7 @@ impl Controller {
         {
             return Err((RejectReason::SequenceGap, "seq"));
         }
-        let segment = self.validate_segment(w)?;
+        let mut segment = self.validate_segment(w)?;
         if self.engine.free_space() == 0 {
             return Err((RejectReason::QueueFull, ""));
         }
@@ -836,6 +836,11 @@ impl Controller {
             };
             self.engine.reset_at(first.0, first.1);
             self.first_point = Some(first);
+            // A job may open with a standstill (a slicer's first retraction, `G10`, a `G4`): it
+            // stands wherever the tool is, whatever point the program had in mind.
+            if segment.kind == SegmentKind::Dwell {
+                segment.end = first.0;
+            }
         }
         match self.engine.push(&segment) {
             Ok(()) => {

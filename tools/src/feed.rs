@@ -164,14 +164,14 @@ impl Job {
         // runs, so a job cut to its first layers ends the way the whole one would. It starts from
         // where the cut leaves the tool (one travel there), so it is kept only without arcs, whose
         // geometry depends on their start.
-        let end_code = self.segments.iter().rposition(|s| s.flags & ipc::segment_flags::EXTRUDE != 0).map_or(self.segments.len(), |k| k + 1);
-        let tail: Vec<(ipc::Segment, Option<i32>)> = if end_code > keep
-            && self.segments[end_code..].iter().all(|s| s.kind != ipc::SegmentKind::Arc as u32)
-        {
-            self.segments[end_code..].iter().copied().zip(self.layers[end_code..].iter().copied()).collect()
-        } else {
-            Vec::new()
-        };
+        let end_code =
+            self.segments.iter().rposition(|s| s.flags & ipc::segment_flags::EXTRUDE != 0).map_or(self.segments.len(), |k| k + 1);
+        let tail: Vec<(ipc::Segment, Option<i32>)> =
+            if end_code > keep && self.segments[end_code..].iter().all(|s| s.kind != ipc::SegmentKind::Arc as u32) {
+                self.segments[end_code..].iter().copied().zip(self.layers[end_code..].iter().copied()).collect()
+            } else {
+                Vec::new()
+            };
         self.segments.truncate(keep);
         self.layers.truncate(keep);
         self.lengths.truncate(keep);
@@ -180,7 +180,8 @@ impl Job {
             let start = nalgebra::Vector3::from(previous.end);
             segment.seq = previous.seq + 1;
             segment.flags &= !ipc::segment_flags::LAST;
-            let length = if segment.kind == ipc::SegmentKind::Line as u32 { (nalgebra::Vector3::from(segment.end) - start).norm() } else { 0.0 };
+            let length =
+                if segment.kind == ipc::SegmentKind::Line as u32 { (nalgebra::Vector3::from(segment.end) - start).norm() } else { 0.0 };
             if segment.kind == ipc::SegmentKind::Dwell as u32 {
                 segment.end = previous.end;
             }
