@@ -254,8 +254,9 @@ fn a_job_that_opens_with_a_retraction_runs() {
     job.extend(square_job(2, ORIGIN, 0.02, 1, 0.03));
     cell.send(&job);
     cell.control(Command::Start, 0.0);
-    run(&mut cell, 60_000, |c| c.state() == RunState::Idle);
+    run(&mut cell, 60_000, |c| matches!(c.state(), RunState::Idle | RunState::Fault));
     let out = cell.last.unwrap();
+    assert_eq!(out.status.fault, 0, "fault {:?}", FaultCode::from_u32(out.status.fault));
     assert_eq!(out.status.rejected, 0);
     assert_eq!(out.status.job_outcome, JobOutcome::Finished as u32);
 }

@@ -474,7 +474,7 @@ pub struct Controller {
     out_seq: u64,
     /// The path's progress measure when it last changed, and when (ns): the stall watchdog.
     progress_mark: (f64, f64),
-    progress_ns: u64,
+    progress_ns: Option<u64>,
 }
 
 impl Controller {
@@ -548,7 +548,7 @@ impl Controller {
             last_clik: None,
             out_seq: 0,
             progress_mark: (0.0, 0.0),
-            progress_ns: 0,
+            progress_ns: None,
             model,
         })
     }
@@ -1226,12 +1226,13 @@ impl Controller {
             matches!(self.state, RunState::Running | RunState::Pausing | RunState::Stopping) && !self.settling && !self.stop_by_brake;
         let progress = self.engine.progress();
         let waiting = !running || self.engine.is_held() || !self.engine.has_work();
-        if waiting || progress != self.progress_mark {
+        let Some(since) = self.progress_ns.filter(|_| !waiting && progress == self.progress_mark) else {
+            // Waiting, moving on, or the first look: the clock starts now.
             self.progress_mark = progress;
-            self.progress_ns = now_ns;
+            self.progress_ns = Some(now_ns);
             return false;
-        }
-        timeout > 0.0 && now_ns.saturating_sub(self.progress_ns) as f64 * 1e-9 > timeout
+        };
+        timeout > 0.0 && now_ns.saturating_sub(since) as f64 * 1e-9 > timeout
     }
 
     /// Ends the job at rest and readies the engine for the next one, where the tool is.
