@@ -380,3 +380,56 @@ fn an_inclined_bed_maps_points_and_keeps_the_nozzle_normal_to_it() {
     assert!((mapped.orientation * Vector3::z() + bed.normal()).norm() < 1e-15);
     assert!(BedTransform::new(&BedConfig { tilt: 2.0, offset: [0.0; 3] }).is_err());
 }
+
+/// Slic3r 1.3's cyl20 perimeter (short chords of an 8 mm circle, blended into large arcs) ending in
+/// a travel that nearly reverses and another near-reversal (tests/data/gcode/slic3r13/
+/// default_cyl20.gcode, lines 1185-1222), then three sub-0.2 mm moves that turn back and a travel.
+/// The corners between them get blends of a few µm radius, capped at a few mm/s. The engine used to
+/// reach them too fast: a chained brake aimed at a boundary's speed the braking bound did not
+/// cover, the position plan then failed, and the forced brake (velocity interface, blind to
+/// positions) entered the blend over its centripetal cap (52 m/s² of 3 here, 3.7 in the file).
+#[test]
+fn short_segments_into_a_near_reversal_keep_the_centripetal_limit_without_forced_brakes() {
+    const MM: f64 = 1e-3;
+    let (extrude, travel) = (4733.28 * MM / 60.0, 7800.0 * MM / 60.0);
+    #[rustfmt::skip]
+    let points: [(f64, f64, f64); 40] = [
+        (94.161, 94.161, extrude), (94.738, 93.639, extrude), (95.363, 93.175, extrude), (96.030, 92.775, extrude),
+        (96.733, 92.443, extrude), (97.466, 92.181, extrude), (98.221, 91.992, extrude), (98.990, 91.877, extrude),
+        (99.772, 91.839, extrude), (100.544, 91.877, extrude), (101.314, 91.992, extrude), (102.069, 92.181, extrude),
+        (102.801, 92.443, extrude), (103.505, 92.775, extrude), (104.172, 93.175, extrude), (104.797, 93.639, extrude),
+        (105.373, 94.161, extrude), (105.896, 94.738, extrude), (106.359, 95.363, extrude), (106.759, 96.030, extrude),
+        (107.092, 96.733, extrude), (107.354, 97.466, extrude), (107.543, 98.221, extrude), (107.657, 98.990, extrude),
+        (107.696, 99.767, extrude), (107.657, 100.544, extrude), (107.543, 101.314, extrude), (107.354, 102.069, extrude),
+        (107.092, 102.801, extrude), (106.759, 103.505, extrude), (106.359, 104.172, extrude), (105.896, 104.797, extrude),
+        (105.373, 105.373, extrude), (107.897, 102.237, travel), (94.288, 105.883, extrude), (97.865, 107.968, travel),
+        (98.012, 108.101, extrude), (97.950, 108.010, extrude), (97.951, 108.012, extrude), (90.0, 100.0, travel),
+    ];
+    let config = PathConfig::default();
+    let start = Vector3::new(105.839 * MM, 105.839 * MM, 0.2 * MM);
+    let mut e = PathEngine::new(&config, DT, start, UnitQuaternion::identity()).unwrap();
+    for (i, &(x, y, feed)) in points.iter().enumerate() {
+        let mut s = line(i as u64 + 1, [x * MM, y * MM, 0.2 * MM], feed);
+        if i + 1 == points.len() {
+            s.flags = SegmentFlags::LAST;
+        }
+        e.push(&s).unwrap();
+    }
+    let samples = run(&mut e, 200_000);
+    assert_eq!(samples.last().unwrap().motion, Motion::Finished);
+    check_limits(&samples, &config, true);
+    for (i, s) in samples.iter().enumerate() {
+        if s.speed > 1e-9 {
+            // As strand-plan time measures it: the acceleration normal to the velocity.
+            let t = s.velocity / s.speed;
+            let normal = (s.acceleration - t * s.acceleration.dot(&t)).norm();
+            assert!(
+                normal <= config.centripetal_acceleration * (1.0 + 1e-6),
+                "tick {i} (line {}): centripetal {normal} m/s² at {} m/s",
+                s.source_line,
+                s.speed
+            );
+        }
+    }
+    assert!(e.stats().forced_brakes <= 1, "{} forced brakes", e.stats().forced_brakes);
+}

@@ -202,7 +202,20 @@ fn run_case(ops: &[Op], schedule: &[(usize, u32)], overrides: &[(u64, f64)], mod
     let program = build(ops, start, &config);
     let mut engine = PathEngine::new(&config, dt, start, UnitQuaternion::identity()).map_err(|e| e.to_string())?;
     let slowest_override = overrides.iter().map(|o| o.1).fold(1.0f64, f64::min).clamp(0.01, 1.0);
-    let waits: u64 = schedule.iter().map(|s| s.1 as u64).sum::<u64>() * (1 + program.len() as u64 / 20);
+    // The feeder's pauses before the last batch goes out (a batch then its pause, cycling).
+    let feeder_waits = {
+        let (mut sent, mut waits, mut batch) = (0usize, 0u64, 0usize);
+        while sent < program.len() {
+            let (size, pause) = schedule[batch % schedule.len()];
+            sent += size;
+            batch += 1;
+            if sent < program.len() {
+                waits += pause as u64 + 1;
+            }
+        }
+        waits
+    };
+    let waits: u64 = (schedule.iter().map(|s| s.1 as u64).sum::<u64>() * (1 + program.len() as u64 / 20)).max(feeder_waits);
     let bound = tick_bound(&program, &config, dt, slowest_override, waits);
     if bound > MAX_TICKS {
         return Ok(Run { ticks: 0, bound: 0 });

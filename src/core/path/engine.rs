@@ -6,12 +6,20 @@
 //! one tick along the pieces and samples position, velocity and acceleration.
 //!
 //! Speed limits (lookahead mode). Every boundary k between pieces has a cap `vcap_k` (the corner's
-//! centripetal limit, the feeds on both sides, zero before a dwell) and a *potential*
-//! `g_k = S_k + vcap_k²/(2a)`; the end of what has arrived is a boundary with cap 0. With
-//! `G_k = min_{m>k} g_m`, the speed `vb_k = min(vcap_k, w⁻¹(G_k − S_k))` at boundary k still lets
-//! the tool meet every later cap, and stop at the end, within the acceleration *and* jerk limits
-//! (see [`Braking`]). The backward pass keeps `G_k` and the boundary that attains it; a new segment
-//! changes only the boundaries within one braking distance of the old end, so the pass stops there.
+//! centripetal limit, the feeds on both sides, zero before a dwell), a speed `vb_k ≤ vcap_k` and a
+//! *potential* `g_k = S_k + vb_k²/(2a)`; the end of what has arrived is a boundary with speed 0.
+//! With `G_k = min_{m>k} g_m` attained at M, the speed `w⁻¹(G_k − S_k)` at boundary k lets one
+//! continuous jerk-limited brake (see [`Braking`]) arrive at M at `vb_M` with zero acceleration, and
+//! every profile that does so stays under `vb_m` at every boundary m in between (their potentials
+//! are higher), hence under the caps of the pieces in between; `vb_k` is that or, if higher, the
+//! speed that slows to `vb_{k+1}` within piece k exactly (with a hair of length in hand, see
+//! [`hop_margin`]), at most `vcap_k`. So from boundary k at `vb_k` a plan to the next binding
+//! boundary at its `vb` always exists. (The potential used to be `S_k + vcap_k²/(2a)`: that bounds
+//! arrivals at M's *cap*, and where `vb_M < vcap_M` — the `v·a/j` term of `w` — the executor
+//! arrived at M too fast to meet what follows M, failed to plan, braked blindly and entered small
+//! blends over their centripetal cap.) The backward pass keeps `G_k` and the boundary that attains
+//! it; a new segment changes only the boundaries within one braking distance of the old end, so the
+//! pass stops there.
 //!
 //! Execution (lookahead mode) is one jerk-limited rsruckig trajectory on the path parameter at a
 //! time, from the current state to the next *binding* boundary (the first whose `vb` is below the
@@ -139,7 +147,8 @@ pub struct PathStats {
     /// Trajectory computations.
     pub replans: u64,
     /// Times a limit could not be met from the current state (after a sudden override or speed
-    /// scale drop) and the engine braked as hard as allowed instead.
+    /// scale drop) and the engine braked as hard as allowed instead, towards the lowest boundary
+    /// speed within its stopping distance, until a position plan fit again (one count per episode).
     pub forced_brakes: u64,
     /// Junction updates done by the backward pass.
     pub plan_work: u64,
@@ -291,8 +300,9 @@ enum Plan {
     Rest,
     /// A rsruckig trajectory to boundary `target` at path position `position`, arriving at speed
     /// `speed` with zero acceleration (`target == u64::MAX`: a braking trajectory with no target);
-    /// `cap` is the speed cap it was planned under.
-    Ruckig { target: u64, position: f64, speed: f64, cap: f64 },
+    /// `cap` is the speed cap it was planned under; `forced` marks a forced brake (see
+    /// [`PathStats::forced_brakes`]), which the executor tries to leave for a position plan every tick.
+    Ruckig { target: u64, position: f64, speed: f64, cap: f64, forced: bool },
     /// A trapezoid over one piece (stop-and-go and rules-004).
     Trapezoid { piece: u64, profile: Trapezoid },
     /// Standing still on the hold under the cursor for `duration` seconds (a dwell, or a slicer's
@@ -462,6 +472,30 @@ impl PathEngine {
     /// Counters.
     pub fn stats(&self) -> &PathStats {
         &self.stats
+    }
+
+    /// Diagnostics: the executor's current plan in words (`rest`, `dwell`, `trapezoid`,
+    /// `ruckig→k` with the target boundary, or `brake` for a velocity-interface stop/slow-down with
+    /// no position target), and the current piece's speed cap (m/s) and blend radius (m; infinite
+    /// on lines and holds).
+    #[doc(hidden)]
+    pub fn debug_plan(&self) -> (String, f64, f64) {
+        let plan = match self.plan {
+            Plan::Rest => "rest".to_string(),
+            Plan::Dwell { .. } => "dwell".to_string(),
+            Plan::Trapezoid { piece, .. } => format!("trapezoid {piece}"),
+            Plan::Ruckig { target: u64::MAX, speed, forced, .. } => format!("{}→{speed:.4}", if forced { "forced brake" } else { "brake" }),
+            Plan::Ruckig { target, position, speed, .. } => format!("ruckig→{target} @{position:.6} v{speed:.4}"),
+        };
+        if self.pieces.len() == 0 || self.piece >= self.pieces.tail {
+            return (plan, 0.0, f64::INFINITY);
+        }
+        let p = self.pieces.get(self.piece);
+        let radius = match p.geometry {
+            Geometry::Arc { radius, .. } => radius,
+            _ => f64::INFINITY,
+        };
+        (format!("{plan} piece {} len {:.3e}", self.piece, p.length), self.cap_of(self.piece), radius)
     }
 
     /// Segments the intake queue can take now (the back-pressure figure for `Status`).
@@ -637,13 +671,13 @@ impl PathEngine {
             // do; the executor follows the one that allows more.
             let next_vb = if k + 1 < end { self.pieces.get(k + 1).vb } else { 0.0 };
             let p = self.pieces.get(k);
-            let hop = braking.reach(p.length, next_vb, p.vcap);
+            let hop = braking.reach(p.length - hop_margin(p.length), next_vb, p.vcap);
             let chain = braking.w_inverse(later_min - p.start);
             let vb = p.vcap.min(hop.max(chain));
             let via_chain = chain > hop;
             let p = self.pieces.get_mut(k);
             p.via_chain = via_chain;
-            let potential = braking.potential(p.start, p.vcap);
+            let potential = braking.potential(p.start, vb);
             // Below a boundary whose speed did not change, sits at its cap, and whose later
             // minimum only rose, every stored value is still safe (at worst slower than it could
             // be), so the pass can stop there: this keeps appending to a long run of tiny segments
@@ -1018,7 +1052,7 @@ impl PathEngine {
                 // The time-optimal stop from here: the shortest distance any jerk-limited stop needs.
                 self.ruckig_velocity(state, 0.0);
                 std::mem::swap(&mut self.trajectory, &mut self.candidate);
-                self.plan = Plan::Ruckig { target: u64::MAX, position: f64::NAN, speed: 0.0, cap: 0.0 };
+                self.plan = Plan::Ruckig { target: u64::MAX, position: f64::NAN, speed: 0.0, cap: 0.0, forced: false };
             }
             return;
         }
@@ -1063,7 +1097,7 @@ impl PathEngine {
             // Standing on a hold while still creeping (within rounding of it): come to rest.
             self.ruckig_velocity(state, 0.0);
             std::mem::swap(&mut self.trajectory, &mut self.candidate);
-            self.plan = Plan::Ruckig { target: u64::MAX, position: f64::NAN, speed: 0.0, cap: 0.0 };
+            self.plan = Plan::Ruckig { target: u64::MAX, position: f64::NAN, speed: 0.0, cap: 0.0, forced: false };
             return;
         }
         let end = self.pieces.tail;
@@ -1121,7 +1155,7 @@ impl PathEngine {
         match planned {
             Some(speed) => {
                 std::mem::swap(&mut self.trajectory, &mut self.candidate);
-                self.plan = Plan::Ruckig { target, position, speed, cap: vrun };
+                self.plan = Plan::Ruckig { target, position, speed, cap: vrun, forced: false };
             }
             None if event && matches!(self.plan, Plan::Ruckig { target, cap, .. } if target != u64::MAX && cap <= vrun * (1.0 + 1e-9)) => {
                 // A re-plan mid-trajectory found nothing better (numerically at the edge of
@@ -1132,13 +1166,38 @@ impl PathEngine {
             }
             None => {
                 // The limits cannot be met from here (override or speed-scale drop): brake along
-                // the path as hard as allowed, then plan again.
-                self.stats.forced_brakes += 1;
-                self.ruckig_velocity(state, speed.min(vrun));
+                // the path as hard as allowed. Braking hardest reaches any speed at the earliest
+                // point any plan could, so aiming at the lowest boundary speed within the stopping
+                // distance meets every cap that can still be met; the executor tries a position
+                // plan again every tick and leaves the brake as soon as one fits.
+                let floor = self.brake_floor(state, speed.min(vrun));
+                let braking = matches!(self.plan, Plan::Ruckig { forced: true, .. });
+                if event && matches!(self.plan, Plan::Ruckig { forced: true, speed, .. } if speed <= floor * (1.0 + 1e-9) + 1e-12) {
+                    // Already braking at least that far: keep the brake.
+                    self.plan_time = previous_time;
+                    return;
+                }
+                if !braking {
+                    self.stats.forced_brakes += 1;
+                }
+                self.ruckig_velocity(state, floor);
                 std::mem::swap(&mut self.trajectory, &mut self.candidate);
-                self.plan = Plan::Ruckig { target: u64::MAX, position: f64::NAN, speed, cap: vrun };
+                self.plan = Plan::Ruckig { target: u64::MAX, position: f64::NAN, speed: floor, cap: vrun, forced: true };
             }
         }
+    }
+
+    /// The speed a forced brake aims at from `state`: `speed`, lowered to the boundary speed of
+    /// every boundary the tool could reach before coming to rest.
+    fn brake_floor(&self, state: PathState, speed: f64) -> f64 {
+        let reach = state.s + self.braking.stopping_distance(state.v, state.a) + 1e-9;
+        let mut floor = speed;
+        let mut k = self.piece + 1;
+        while k <= self.pieces.tail && k <= self.piece + TARGET_WALK as u64 && self.boundary_position(k) <= reach {
+            floor = floor.min(self.boundary_speed(k));
+            k += 1;
+        }
+        floor.max(0.0)
     }
 
     /// A position-interface trajectory to (`position`, `speed`, 0) that neither overshoots nor
@@ -1150,28 +1209,42 @@ impl PathEngine {
         match self.ruckig_check(state, position, speed, vmax) {
             Ok(()) => Some(speed),
             Err(too_fast) => {
+                // The reachable arrival speeds form an interval; too fast, the answer is its lower
+                // end above `speed`, too slow, its upper end below.
                 let (mut lo, mut hi) = if too_fast { (speed, speed_cap) } else { (0.0, speed) };
-                if too_fast && self.ruckig_check(state, position, speed_cap, vmax).is_err() {
-                    return None;
+                let mut found = None;
+                if too_fast {
+                    match self.ruckig_check(state, position, speed_cap, vmax) {
+                        Ok(()) => found = Some(speed_cap),
+                        // Even the boundary's own cap is too slow to arrive at.
+                        Err(true) => return None,
+                        // The cap needs more run-up than there is: the answer lies below it.
+                        Err(false) => {}
+                    }
                 }
-                let mut found = if too_fast { speed_cap } else { 0.0 };
                 // Holding the current speed is the usual answer over a very short piece.
-                let hold = state.v.min(speed);
-                if !too_fast && state.a.abs() < 1e-9 && self.ruckig_check(state, position, hold, vmax).is_ok() {
-                    lo = hold;
-                    found = hold;
+                let hold = state.v.clamp(lo, hi);
+                if state.a.abs() < 1e-9 && self.ruckig_check(state, position, hold, vmax).is_ok() {
+                    if too_fast { hi = hold } else { lo = hold }
+                    found = Some(hold);
                 }
-                for _ in 0..20 {
+                // To a fraction of a ppm: arriving too fast by the bisection's last step would
+                // carry the tool into the next piece over its cap by as much.
+                for _ in 0..48 {
+                    if hi - lo <= 1e-12 + 1e-10 * hi {
+                        break;
+                    }
                     let mid = 0.5 * (lo + hi);
                     match self.ruckig_check(state, position, mid, vmax) {
                         Ok(()) => {
-                            found = mid;
+                            found = Some(mid);
                             if too_fast { hi = mid } else { lo = mid }
                         }
                         Err(true) => lo = mid,
                         Err(false) => hi = mid,
                     }
                 }
+                let found = found?;
                 self.ruckig_check(state, position, found, vmax).ok().map(|_| found)
             }
         }
@@ -1293,7 +1366,7 @@ impl PathEngine {
                     self.start_plan(self.state, self.dt - rest);
                     t = rest;
                 }
-                Plan::Ruckig { target, position, speed, .. } => {
+                Plan::Ruckig { target, position, speed, forced, .. } => {
                     let duration = self.trajectory.get_duration();
                     if t < duration {
                         self.plan_time = t;
@@ -1301,6 +1374,8 @@ impl PathEngine {
                         self.motion = Motion::Moving;
                         self.locate(self.state.s);
                         self.check_cap_raise();
+                        // A forced brake lasts only until a position plan fits again.
+                        self.replan |= forced;
                         return;
                     }
                     let rest = t - duration;
@@ -1452,6 +1527,14 @@ fn phase_min_velocity(v: f64, a: f64, j: f64, t: f64) -> f64 {
         }
     }
     lowest
+}
+
+/// Length (m) the backward pass keeps in hand when it slows from one boundary to the next within a
+/// piece. Without it the boundary speed sits exactly on the edge of feasibility (the bisection of
+/// [`Braking::reach`] finds it to the last ulp), and the executor's position-interface plan over
+/// the piece, a degenerate problem there, comes out a hair too long or not at all.
+fn hop_margin(length: f64) -> f64 {
+    1e-9 + 1e-6 * length
 }
 
 /// The speed cap inside a piece (m/s): feed × override, the geometric cap.
