@@ -32,10 +32,7 @@ fn main() {
             files.push(PathBuf::from(a));
         }
     }
-    println!(
-        "{:<40} {:>6} {:>8} {:>8} {:>6} {:>6} {:>7} {:>6}",
-        "file", "segs", "time s", "bound s", "ratio", "brakes", "max ac", "over"
-    );
+    println!("{:<40} {:>6} {:>8} {:>8} {:>6} {:>6} {:>7} {:>6}", "file", "segs", "time s", "bound s", "ratio", "brakes", "max ac", "over");
     for file in files {
         probe(&config, &file, window);
     }

@@ -306,7 +306,7 @@ fn accelerations_jerk_and_pressure_advance_are_recorded() {
     assert_eq!(find(&parsed.notes, "M204").count, 2);
     assert!(parsed.segments.is_empty());
     for (program, column) in
-        [("M204 P0", 6), ("M201 X-5", 6), ("M900 K11", 6), ("SET_PRESSURE_ADVANCE SMOOTH_TIME=0.5", 34), ("M205 J-1", 6)]
+        [("M204 P0", 6), ("M201 X-5", 6), ("M900 K-1", 6), ("M900 K2000", 6), ("SET_PRESSURE_ADVANCE SMOOTH_TIME=0.5", 34), ("M205 J-1", 6)]
     {
         let err = error(program);
         assert_eq!((err.line, err.column), (1, column), "{program}: {err}");

@@ -26,8 +26,10 @@ const DIRS: [&str; 5] = ["cura", "prusaslicer25", "slic3r13", "orca", "simplify3
 /// that ran (PrusaSlicer and Slic3r defaults; the MK3S files with the two lines the parser refused
 /// taken out): 1.06 to 1.15, from the parts' short perimeter and infill segments at 3 m/s² and
 /// 100 m/s³. Stop-and-go reaches 1.53 on slic3r13/default_cyl20, so 1.3 still tells a planner that
-/// keeps its speed through junctions from one that stops at them.
-const MAX_RATIO: f64 = 1.3;
+/// keeps its speed through junctions from one that stops at them. The hand-made Klipper square
+/// (20 mm sides, firmware retraction at every travel) reaches 1.31: its moves are a few millimetres
+/// long, so ramps dominate. 1.35 keeps both apart.
+const MAX_RATIO: f64 = 1.35;
 
 /// Flow error bound (relative), as tests/path_corpus.rs.
 const MAX_FLOW_ERROR: f64 = 0.005;

@@ -1225,7 +1225,11 @@ impl PathEngine {
                 // Holding the current speed is the usual answer over a very short piece.
                 let hold = state.v.clamp(lo, hi);
                 if state.a.abs() < 1e-9 && self.ruckig_check(state, position, hold, vmax).is_ok() {
-                    if too_fast { hi = hold } else { lo = hold }
+                    if too_fast {
+                        hi = hold
+                    } else {
+                        lo = hold
+                    }
                     found = Some(hold);
                 }
                 // To a fraction of a ppm: arriving too fast by the bisection's last step would
