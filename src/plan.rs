@@ -86,14 +86,20 @@ struct Programmed {
 
 impl Programmed {
     fn distance(&self, p: &Vector3<f64>) -> f64 {
-        match self.segment.kind {
-            SegmentKind::Line => geometry::distance_to_segment(p, &self.start, &self.segment.end),
-            SegmentKind::Arc => match arc_geometry(&self.start, &self.segment) {
-                Some(g @ Geometry::Arc { .. }) => geometry::distance_to_arc(p, &g, self.length),
-                _ => (p - self.start).norm(),
-            },
-            SegmentKind::Dwell => (p - self.start).norm(),
-        }
+        distance_from_programmed(p, &self.start, &self.segment, self.length)
+    }
+}
+
+/// Distance (m) of `p` from the line or arc `segment` programs when it starts at `start` (m) and
+/// is `length` (m) long; from its point for a dwell. The deviation every planner check measures.
+pub fn distance_from_programmed(p: &Vector3<f64>, start: &Vector3<f64>, segment: &Segment, length: f64) -> f64 {
+    match segment.kind {
+        SegmentKind::Line => geometry::distance_to_segment(p, start, &segment.end),
+        SegmentKind::Arc => match arc_geometry(start, segment) {
+            Some(g @ Geometry::Arc { .. }) => geometry::distance_to_arc(p, &g, length),
+            _ => (p - start).norm(),
+        },
+        SegmentKind::Dwell => (p - start).norm(),
     }
 }
 

@@ -13,7 +13,6 @@ use nalgebra::{UnitQuaternion, Vector3};
 use proptest::prelude::*;
 use proptest::test_runner::{Config, TestRunner};
 use strand::core::path::engine::arc_geometry;
-use strand::core::path::geometry::{self, Geometry};
 use strand::core::path::{Motion, PathConfig, PathEngine, PlanningMode, Segment, SegmentFlags, SegmentKind};
 
 /// One thing a slicer or planner may send.
@@ -35,19 +34,19 @@ fn length_strategy() -> impl Strategy<Value = f64> {
     prop_oneof![
         2 => Just(0.0),
         2 => Just(1e-10),
-        2 => (1e-9..1e-6f64),
-        3 => (1e-6..1e-4f64),
-        6 => (1e-4..5e-3f64),
-        3 => (5e-3..3e-2f64),
+        2 => 1e-9..1e-6f64,
+        3 => 1e-6..1e-4f64,
+        6 => 1e-4..5e-3f64,
+        3 => 5e-3..3e-2f64,
     ]
 }
 
 fn feed_strategy() -> impl Strategy<Value = f64> {
-    prop_oneof![3 => (0.005..0.3f64), 1 => Just(0.25), 1 => (1e-4..5e-3f64)]
+    prop_oneof![3 => 0.005..0.3f64, 1 => Just(0.25), 1 => 1e-4..5e-3f64]
 }
 
 fn filament_strategy() -> impl Strategy<Value = f64> {
-    prop_oneof![3 => Just(0.0), 3 => (0.0..2e-3f64), 1 => (-3e-3..0.0f64)]
+    prop_oneof![3 => Just(0.0), 3 => 0.0..2e-3f64, 1 => -3e-3..0.0f64]
 }
 
 fn op_strategy() -> impl Strategy<Value = Op> {
@@ -60,16 +59,16 @@ fn op_strategy() -> impl Strategy<Value = Op> {
         }),
         1 => (0.1..1.5f64, feed_strategy()).prop_map(|(fraction, feed)| Op::Reverse { fraction, feed }),
         1 => feed_strategy().prop_map(|feed| Op::Repeat { feed }),
-        3 => ((-2e-2..2e-2f64, -2e-2..2e-2f64), 0..3usize, any::<bool>(), 1e-3..(4.0 * std::f64::consts::PI), prop_oneof![2 => Just(0.0), 1 => (-2e-3..2e-3f64)], feed_strategy(), filament_strategy())
+        3 => ((-2e-2..2e-2f64, -2e-2..2e-2f64), 0..3usize, any::<bool>(), 1e-3..(4.0 * std::f64::consts::PI), prop_oneof![2 => Just(0.0), 1 => -2e-3..2e-3f64], feed_strategy(), filament_strategy())
             .prop_map(|((ox, oy), normal, ccw, sweep, rise, feed, filament)| Op::Arc { offset: [ox, oy], normal, ccw, sweep, rise, feed, filament }),
-        3 => (prop_oneof![1 => Just(0.0), 2 => (1e-5..0.05f64), 1 => (0.05..0.3f64)], prop_oneof![1 => Just(0.0), 2 => (-2e-3..2e-3f64)])
+        3 => (prop_oneof![1 => Just(0.0), 2 => 1e-5..0.05f64, 1 => 0.05..0.3f64], prop_oneof![1 => Just(0.0), 2 => -2e-3..2e-3f64])
             .prop_map(|(duration, filament)| Op::Dwell { duration, filament }),
     ]
 }
 
 /// How the stream arrives: batch sizes and the ticks the feeder then stays away (underruns).
 fn schedule_strategy() -> impl Strategy<Value = Vec<(usize, u32)>> {
-    prop::collection::vec((1..40usize, prop_oneof![3 => Just(0u32), 1 => (1..400u32)]), 1..40)
+    prop::collection::vec((1..40usize, prop_oneof![3 => Just(0u32), 1 => 1..400u32]), 1..40)
 }
 
 /// The programmed primitive a segment is, kept to check the samples against it.
@@ -84,14 +83,7 @@ struct Programmed {
 
 impl Programmed {
     fn distance(&self, p: &Vector3<f64>) -> f64 {
-        match self.segment.kind {
-            SegmentKind::Line => geometry::distance_to_segment(p, &self.start, &self.segment.end),
-            SegmentKind::Arc => match arc_geometry(&self.start, &self.segment) {
-                Some(g @ Geometry::Arc { .. }) => geometry::distance_to_arc(p, &g, self.length),
-                _ => (p - self.start).norm(),
-            },
-            SegmentKind::Dwell => (p - self.start).norm(),
-        }
+        strand::plan::distance_from_programmed(p, &self.start, &self.segment, self.length)
     }
 }
 
@@ -341,7 +333,7 @@ fn every_stream_finishes_within_its_bound_and_keeps_every_limit() {
     let strategy = (
         prop::collection::vec(op_strategy(), 0..200),
         schedule_strategy(),
-        prop::collection::vec((0..20_000u64, prop_oneof![1 => (0.2..1.0f64), 1 => (1.0..2.0f64)]), 0..4),
+        prop::collection::vec((0..20_000u64, prop_oneof![1 => 0.2..1.0f64, 1 => 1.0..2.0f64]), 0..4),
         prop_oneof![6 => Just(PlanningMode::Lookahead), 1 => Just(PlanningMode::StopAndGo), 1 => Just(PlanningMode::Rules004)],
         prop_oneof![1 => Just(1.0 / 250.0), 2 => Just(1.0 / 1000.0)],
     );

@@ -1225,8 +1225,9 @@ impl Controller {
         let running =
             matches!(self.state, RunState::Running | RunState::Pausing | RunState::Stopping) && !self.settling && !self.stop_by_brake;
         let progress = self.engine.progress();
-        let waiting = !running || self.engine.is_held() || !self.engine.has_work();
-        let Some(since) = self.progress_ns.filter(|_| !waiting && progress == self.progress_mark) else {
+        // `has_work` walks the window, so it is asked only on a tick without progress.
+        let stalled = running && progress == self.progress_mark && !self.engine.is_held() && self.engine.has_work();
+        let Some(since) = self.progress_ns.filter(|_| stalled) else {
             // Waiting, moving on, or the first look: the clock starts now.
             self.progress_mark = progress;
             self.progress_ns = Some(now_ns);
