@@ -15,6 +15,7 @@ use std::path::{Path, PathBuf};
 use serde::{Deserialize, Serialize};
 use thiserror::Error;
 
+use crate::check::CheckConfig;
 use crate::core::base::BaseConfig;
 pub use crate::core::controller::ControllerConfig;
 use crate::core::controller::ControllerSettings;
@@ -204,6 +205,8 @@ pub struct Config {
     pub realtime: RealtimeConfig,
     /// The MCAP log.
     pub log: LogConfig,
+    /// `strand check-job` thresholds.
+    pub check: CheckConfig,
 }
 
 #[derive(Deserialize, Serialize)]
@@ -228,6 +231,8 @@ struct ConfigFile<R> {
     realtime: RealtimeConfig,
     #[serde(default)]
     log: LogConfig,
+    #[serde(default)]
+    check: CheckConfig,
 }
 
 impl<R> ConfigFile<R> {
@@ -240,6 +245,7 @@ impl<R> ConfigFile<R> {
         self.path.validate().map_err(|m| ConfigError::new(path, m.to_string()))?;
         self.extruder.validate().map_err(|m| ConfigError::new(path, m))?;
         self.log.validate().map_err(|m| ConfigError::new(path, m))?;
+        self.check.validate().map_err(|m| ConfigError::new(path, m))?;
         BedTransform::new(&self.bed).map_err(|m| ConfigError::new(path, m))?;
         Ok(())
     }
@@ -257,6 +263,7 @@ impl<R> ConfigFile<R> {
             service: self.service,
             realtime: self.realtime,
             log: self.log,
+            check: self.check,
         }
     }
 }
@@ -306,6 +313,7 @@ impl Config {
             service: self.service.clone(),
             realtime: self.realtime.clone(),
             log: self.log.clone(),
+            check: self.check.clone(),
         };
         toml::to_string(&file).expect("every config value is representable in TOML")
     }

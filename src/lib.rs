@@ -6,10 +6,12 @@
 // Index loops read like the matrix formulas they implement; iterator chains would hide the indices.
 #![allow(clippy::needless_range_loop)]
 
+pub mod check;
 pub mod config;
 pub mod core;
 pub mod gcode;
 pub mod io;
+pub mod job;
 pub mod log;
 pub mod plan;
 pub mod segfile;

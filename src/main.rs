@@ -55,6 +55,29 @@ enum Command {
         #[arg(long = "set", value_name = "SECTION.KEY=VALUE")]
         set: Vec<String>,
     },
+    /// Check a job (G-code or segment file) against the robot before printing: the whole job
+    /// through the controller in virtual time. Exit 0: clean; 3: it would fault, leave its path or
+    /// hit a limit; 2: bad input.
+    CheckJob {
+        /// The job: G-code or a segment file.
+        file: PathBuf,
+        /// The service configuration (a file or a NAME, found like `run`'s).
+        #[arg(long)]
+        config: Option<PathBuf>,
+        /// One JSON object on stdout instead of the summary.
+        #[arg(long)]
+        json: bool,
+        /// Write joints.png (positions against limits) and tcp_error.png into this folder.
+        #[arg(long, value_name = "DIR")]
+        png: Option<PathBuf>,
+        /// The planned base trajectory (CSV with t, base_x, base_y[, base_theta], as `strand-plan
+        /// base --trajectory` writes it) for a tracked base; without it the base is assumed still.
+        #[arg(long, value_name = "CSV")]
+        base_trajectory: Option<PathBuf>,
+        /// Override one config key (repeatable), as `run --set`.
+        #[arg(long = "set", value_name = "SECTION.KEY=VALUE")]
+        set: Vec<String>,
+    },
     /// Load and validate a configuration and the robot it names; print what it describes.
     CheckConfig {
         /// The service configuration: a file, or a NAME (`iiwa7`, `free-flyer`) found like the
@@ -110,6 +133,13 @@ fn main() -> ExitCode {
             }
             run(&cfg, log.as_deref(), StopWhen { max_ticks: ticks, job_done: exit_when_done })
         }
+        Command::CheckJob { file, config, json, png, base_trajectory, set } => {
+            // SAFETY: as for check-config.
+            unsafe {
+                libc::signal(libc::SIGPIPE, libc::SIG_DFL);
+            }
+            check_job(&file, config.as_deref(), &set, json, png.as_deref(), base_trajectory.as_deref())
+        }
         Command::CheckConfig { config } => {
             // A closed pipe (`strand check-config | head`) ends it quietly instead of a panic.
             // SAFETY: setting a signal's disposition to the default; no other thread runs yet.
@@ -145,6 +175,67 @@ fn check_config(config: Option<&Path>) -> ExitCode {
             ExitCode::from(2)
         }
     }
+}
+
+fn check_job(file: &Path, config: Option<&Path>, set: &[String], json: bool, png: Option<&Path>, trajectory: Option<&Path>) -> ExitCode {
+    let started = std::time::Instant::now();
+    let bad = |e: String| {
+        eprintln!("strand check-job: {e}");
+        ExitCode::from(2)
+    };
+    let cfg = match locate::service_config(config).and_then(|c| Config::load_with(&c, set)) {
+        Ok(c) => c,
+        Err(e) => return bad(e.to_string()),
+    };
+    let (all, warnings) = match strand::job::load_segments(file, &cfg) {
+        Ok(j) => j,
+        Err(e) => return bad(e),
+    };
+    let traj = match trajectory {
+        Some(p) => match strand::job::BaseTrajectory::load(p, cfg.base.mount_rpy[2]) {
+            Ok(t) => Some((t, p.display().to_string())),
+            Err(e) => return bad(e),
+        },
+        None => None,
+    };
+    let (segments, layers) = strand::job::wire_job(&all);
+    let name = file.display().to_string();
+    let job = strand::check::CheckJob { file: &name, segments: &segments, layers: &layers };
+    let mut series = png.map(|_| strand::check::CheckSeries::default());
+    let report = match strand::check::check_job(&job, &cfg, traj.as_ref().map(|(t, n)| (t, n.as_str())), series.as_mut()) {
+        Ok(r) => r,
+        Err(e) => return bad(e.to_string()),
+    };
+    let wall = started.elapsed().as_secs_f64();
+    if json {
+        let mut value = serde_json::to_value(&report).expect("the report serialises");
+        value["wall_s"] = serde_json::json!(wall);
+        value["warnings"] = serde_json::json!(warnings);
+        println!("{value}");
+    } else {
+        for w in &warnings {
+            eprintln!("{w}");
+        }
+        println!("{}", report.summary());
+        println!("  checked in {wall:.1} s");
+    }
+    if let (Some(dir), Some(series)) = (png, &series) {
+        let model = match cfg.robot.build_model() {
+            Ok(m) => m,
+            Err(e) => return bad(e.to_string()),
+        };
+        let limits: Vec<_> = (0..model.dof()).map(|i| *model.limits(i)).collect();
+        let names: Vec<String> = model.joints().iter().map(|j| j.name.clone()).collect();
+        match strand::check::plot::write(dir, &report, series, &limits, &names, cfg.controller.tcp_error_limit) {
+            Ok(files) => {
+                for f in files {
+                    eprintln!("wrote {}", f.display());
+                }
+            }
+            Err(e) => return bad(e),
+        }
+    }
+    if report.clean { ExitCode::SUCCESS } else { ExitCode::from(3) }
 }
 
 fn run(cfg: &Config, log_path: Option<&Path>, when: StopWhen) -> ExitCode {

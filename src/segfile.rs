@@ -31,6 +31,7 @@
 //! | `duration` | s | dwell | standing time, ≥ 0 (required) |
 //! | `flags` | | all | any of `"extrude"`, `"travel"`, `"layer_start"`, `"last"`; default: `extrude` for a move with filament > 0, `travel` for any other move, none for a dwell |
 //! | `layer` | | all | slicer layer index (optional; otherwise counted from `layer_start` flags) |
+//! | `pressure_advance` | s | all | the program's pressure advance for this segment, ≥ 0 (optional; the controller clamps it to `[extruder] max_pressure_advance`; absent keeps the config's) |
 //!
 //! An orientation is accepted if its norm is within 1e-6 of 1, and normalised unless it is unit to
 //! rounding (1e-12). An arc's start
@@ -48,7 +49,7 @@ use nalgebra::{Quaternion, UnitQuaternion, Vector3};
 use serde::Deserialize;
 use thiserror::Error;
 
-use crate::core::path::{Segment, SegmentFlags, SegmentKind};
+use crate::core::path::{MAX_ARC_SWEEP, Segment, SegmentFlags, SegmentKind};
 
 /// The header's `format` value.
 pub const FORMAT: &str = "strand-segments";
@@ -118,6 +119,8 @@ struct Record {
     flags: Option<Vec<String>>,
     #[serde(default)]
     layer: Option<i32>,
+    #[serde(default)]
+    pressure_advance: Option<f64>,
 }
 
 /// The tool orientation that points the nozzle (tool z) along `nozzle` (any length > 0), reached
@@ -251,6 +254,12 @@ fn segment(
         return Err(format!("filament: {filament} is not finite"));
     }
     s.filament = filament;
+    if let Some(k) = r.pressure_advance
+        && !(k.is_finite() && k >= 0.0)
+    {
+        return Err(format!("pressure_advance: {k} s must be finite and ≥ 0"));
+    }
+    s.pressure_advance = r.pressure_advance;
     match kind {
         SegmentKind::Dwell => {
             absent("end", kind_name, &r.end)?;
@@ -280,8 +289,8 @@ fn segment(
         if (normal.norm() - 1.0).abs() > 1e-6 {
             return Err(format!("normal: norm {:.9} is not 1", normal.norm()));
         }
-        if !(sweep.is_finite() && sweep > 0.0) {
-            return Err(format!("sweep: {sweep} rad must be finite and > 0"));
+        if !(sweep.is_finite() && sweep > 0.0 && sweep <= MAX_ARC_SWEEP) {
+            return Err(format!("sweep: {sweep} rad must be finite, > 0 and at most 1000 turns (2000π)"));
         }
         let start = position.ok_or("kind: an arc cannot be the first segment (its start point is not in the file)")?;
         let radius_at = |p: &Vector3<f64>| {
@@ -379,6 +388,9 @@ fn record(out: &mut String, s: &Segment) {
     }
     let _ = write!(out, ",\"orientation\":[{:?},{:?},{:?},{:?}]", q.w, q.i, q.j, q.k);
     let _ = write!(out, ",\"filament\":{:?}", s.filament);
+    if let Some(k) = s.pressure_advance {
+        let _ = write!(out, ",\"pressure_advance\":{k:?}");
+    }
     let flags: Vec<String> = FLAG_NAMES.iter().filter(|(f, _)| s.flags.contains(*f)).map(|(_, n)| format!("\"{n}\"")).collect();
     let _ = write!(out, ",\"flags\":[{}]}}", flags.join(","));
 }
@@ -412,6 +424,7 @@ mod tests {
                 filament: 3.3e-4,
                 flags: SegmentFlags::EXTRUDE.with(SegmentFlags::LAYER_START),
                 orientation: tilt,
+                pressure_advance: Some(0.045),
                 ..Segment::default()
             },
             Segment {

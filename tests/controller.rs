@@ -168,6 +168,56 @@ fn emergency_stop_brakes_at_the_limits_cuts_extrusion_and_faults() {
 }
 
 #[test]
+fn a_path_out_of_reach_faults_within_tcp_error_time_and_stops_extruding() {
+    // The job: a line that runs 0.65 m past the iiwa7's reach, extruding.
+    let mut cell = Cell::iiwa();
+    let settings = config(|_| {}).controller;
+    assert_eq!((settings.tcp_error_limit, settings.tcp_error_time), (2e-3, 0.05), "the documented defaults");
+    let far = [1.45, -0.02, 0.2];
+    let mut job = vec![line(1, ORIGIN, 0.1, 0.0), line(2, [0.47, -0.02, 0.2], 0.03, 0.02 * FLOW), line(3, far, 0.03, 1.0 * FLOW)];
+    job[2].source_line = 42;
+    job[2].flags |= strand_ipc::segment_flags::LAST;
+    cell.send(&job);
+    cell.control(Command::Start, 0.0);
+    run(&mut cell, 60_000, |c| c.state() == RunState::Running);
+    let mut above_since = None;
+    let mut fault = None;
+    for _ in 0..200_000 {
+        let out = cell.step();
+        check_limits(cell.ctl.model(), &out);
+        let error = out.diagnostics.tcp_error;
+        if error > settings.tcp_error_limit {
+            above_since.get_or_insert(out.status.tick);
+        } else if fault.is_none() {
+            above_since = None;
+        }
+        if let Some(&Event::Fault { code, seq, line, value }) = out.events().iter().find(|e| matches!(e, Event::Fault { .. })) {
+            assert_eq!(code, FaultCode::TcpErrorLimit);
+            assert_eq!((seq, line), (3, 42), "the fault names the segment and its source line");
+            // At most what the path gains at its feed (30 mm/s) in tcp_error_time past the limit.
+            let bound = settings.tcp_error_limit + 0.03 * settings.tcp_error_time + 0.1e-3;
+            assert!(value > settings.tcp_error_limit && value < bound, "error at the fault {value} m (bound {bound})");
+            assert_eq!(out.extruder.motor_speed, 0.0, "extrusion off in the same tick");
+            assert_eq!(out.status.fault, FaultCode::TcpErrorLimit as u32);
+            assert_eq!(out.status.job_outcome, JobOutcome::Faulted as u32);
+            let ticks_above = out.status.tick - above_since.expect("above the limit before the fault");
+            let dt = config(|_| {}).controller.dt();
+            assert!(
+                (ticks_above as f64 * dt - settings.tcp_error_time).abs() <= 1.5 * dt,
+                "faulted after {ticks_above} ticks above the limit"
+            );
+            fault = Some(out);
+            break;
+        }
+    }
+    assert!(fault.is_some(), "no fault: the job left its path silently");
+    // Then it brakes within the limits to a latched Fault, with the extruder off all the way.
+    let r = run(&mut cell, 5_000, |c| c.state() == RunState::Fault);
+    assert!(r.ticks < 2_000, "braked in {} ticks", r.ticks);
+    assert_eq!(cell.last.unwrap().extruder.filament_rate, 0.0);
+}
+
+#[test]
 fn underrun_waits_on_the_path_and_resumes() {
     let mut cell = Cell::iiwa();
     let job = square_job(1, ORIGIN, 0.04, 2, 0.03);

@@ -863,6 +863,7 @@ fn errors_name_line_column_and_cause() {
         ("F60\nG2 X1 I1 K1".into(), 2, 10, "K word given for an arc in the XY plane (G17)"),
         ("F60\nG2 X1 R1 I1".into(), 2, 10, "both R and I"),
         ("F60\nG2 X0 I1 P1.5".into(), 2, 10, "number of turns"),
+        ("F60\nG2 X0 I1 P1001".into(), 2, 10, "more than 1000 turns"),
         ("G5 X1 Y1 I1 J1 P1 Q1".into(), 1, 1, "unsupported motion G5"),
         ("F60\nG41 G1 X1".into(), 2, 1, "unsupported motion G41 (cutter radius compensation)"),
         ("F60\nG1 X1 A5".into(), 2, 7, "unsupported axis word A"),

@@ -305,6 +305,10 @@ fn accelerations_jerk_and_pressure_advance_are_recorded() {
     }
     assert_eq!(find(&parsed.notes, "M204").count, 2);
     assert!(parsed.segments.is_empty());
+    // Acted on: every segment from the command on carries the program's pressure advance.
+    let parsed = parse("G1 X1 E1 F600\nSET_PRESSURE_ADVANCE ADVANCE=0.04\nG1 X2 E2\nG1 E1\nM900 K0.02\nG1 X3 E3\nM900 K30\nG1 X4 E4\n");
+    let advances: Vec<Option<f64>> = parsed.segments.iter().map(|s| s.segment.pressure_advance).collect();
+    assert_eq!(advances, [None, Some(0.04), Some(0.04), Some(0.02), Some(0.02)], "M900 K30 (Linear Advance 1.0 units) changes nothing");
     for (program, column) in
         [("M204 P0", 6), ("M201 X-5", 6), ("M900 K-1", 6), ("M900 K2000", 6), ("SET_PRESSURE_ADVANCE SMOOTH_TIME=0.5", 34), ("M205 J-1", 6)]
     {

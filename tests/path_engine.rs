@@ -364,6 +364,45 @@ fn extrusion_follows_the_path_speed_and_retracts_on_an_underrun() {
 }
 
 #[test]
+fn a_programs_pressure_advance_replaces_the_configs_from_its_segment_on_clamped_to_the_maximum() {
+    // Three extruding lines: the first with the config's K (0.05 s), the second with the program's
+    // 0.1 s, the third asking 0.5 s, above max_pressure_advance (0.2 s).
+    let mut e = engine(PlanningMode::StopAndGo);
+    let flow = 0.8e-3 / 0.02;
+    for (k, (x, advance)) in [(0.02, None), (0.04, Some(0.1)), (0.06, Some(0.5))].into_iter().enumerate() {
+        let mut s = line(k as u64 + 1, [x, 0.0, 0.0], 0.04);
+        s.filament = 0.8e-3;
+        s.flags = if k == 2 { SegmentFlags::EXTRUDE.with(SegmentFlags::LAST) } else { SegmentFlags::EXTRUDE };
+        s.pressure_advance = advance;
+        e.push(&s).unwrap();
+    }
+    let config = ExtruderConfig { pressure_advance: 0.05, max_pressure_advance: 0.2, retract_length: 0.0, ..ExtruderConfig::default() };
+    let mut x = Extruder::new(&config, DT).unwrap();
+    let mut seen = [0usize; 3];
+    for _ in 0..5000 {
+        let sample = e.step(1.0);
+        let c = x.step(&sample);
+        if sample.motion == Motion::Finished {
+            break;
+        }
+        if sample.motion != Motion::Moving || sample.path_acceleration == 0.0 {
+            continue;
+        }
+        let k = [0.05, 0.1, 0.2][sample.seq as usize - 1];
+        let expected = flow * sample.speed + k * flow * sample.path_acceleration;
+        assert!((c.filament_rate - expected).abs() < 1e-15, "seq {}: K = {k} s", sample.seq);
+        seen[sample.seq as usize - 1] += 1;
+    }
+    assert!(seen.iter().all(|&n| n > 10), "every segment accelerated and braked: {seen:?}");
+    // max_pressure_advance = 0 ignores the program.
+    let ignore = ExtruderConfig { max_pressure_advance: 0.0, ..config };
+    let mut x = Extruder::new(&ignore, DT).unwrap();
+    let sample =
+        PathSample { pressure_advance: Some(0.1), flow, speed: 0.01, path_acceleration: 1.0, motion: Motion::Moving, ..e.step(1.0) };
+    assert_eq!(x.step(&sample).filament_rate, flow * 0.01);
+}
+
+#[test]
 fn an_inclined_bed_maps_points_and_keeps_the_nozzle_normal_to_it() {
     let alpha = 45f64.to_radians();
     let bed = BedTransform::new(&BedConfig { tilt: alpha, offset: [0.5, 0.0, 0.1] }).unwrap();

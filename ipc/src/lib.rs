@@ -5,7 +5,7 @@
 //! gap is a named `_reserved` field, always zero), so a Python `ctypes.Structure` or a C++ struct with
 //! the same fields in the same order has the same layout, and the bytes of a message are fully
 //! defined (the logger can store them bit for bit). Each type carries an explicit iceoryx2 type name
-//! that includes the contract version ("strand.v1.Segment"): a client built against another version
+//! that includes the contract version ("strand.v2.Segment"): a client built against another version
 //! fails to open the service with `IncompatibleTypes` instead of misreading bytes. [`CONTRACT_VERSION`]
 //! is also published in every [`Status`].
 //!
@@ -22,7 +22,7 @@ use iceoryx2_bb_derive_macros::ZeroCopySend;
 use iceoryx2_bb_elementary_traits::zero_copy_send::ZeroCopySend;
 
 /// Version of this contract. Bumped on any change of layout or meaning; part of every type name.
-pub const CONTRACT_VERSION: u32 = 1;
+pub const CONTRACT_VERSION: u32 = 2;
 /// Joints per message (the longest chain strand drives).
 pub const MAX_JOINTS: usize = 8;
 /// Segments per [`SegmentBatch`].
@@ -64,11 +64,13 @@ pub mod segment_flags {
     pub const LAYER_START: u32 = 4;
     /// The last segment of the job: the controller stops at its end and reports the job finished.
     pub const LAST: u32 = 8;
+    /// `Segment::pressure_advance` holds the program's pressure advance for this segment.
+    pub const PRESSURE_ADVANCE: u32 = 16;
 }
 
-/// One planned motion segment, world frame W. 168 bytes.
+/// One planned motion segment, world frame W. 176 bytes.
 #[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
-#[type_name("strand.v1.Segment")]
+#[type_name("strand.v2.Segment")]
 #[repr(C)]
 pub struct Segment {
     /// Sequence number; consecutive within a job (a gap is rejected).
@@ -99,11 +101,15 @@ pub struct Segment {
     pub source_line: u32,
     /// Always 0.
     pub _reserved: u32,
+    /// Pressure advance the program set (s; `SET_PRESSURE_ADVANCE`, `M900 K`, `M572 S`), valid when
+    /// the [`segment_flags::PRESSURE_ADVANCE`] bit is set; the controller clamps it to its config's
+    /// `[extruder] max_pressure_advance`. Without the bit the config's `pressure_advance` holds.
+    pub pressure_advance: f64,
 }
 
 /// Up to [`SEGMENT_BATCH_CAPACITY`] segments in one message, in order.
 #[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
-#[type_name("strand.v1.SegmentBatch")]
+#[type_name("strand.v2.SegmentBatch")]
 #[repr(C)]
 pub struct SegmentBatch {
     /// Batch sequence number.
@@ -172,7 +178,7 @@ impl Command {
 
 /// A command to the controller. 32 bytes.
 #[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
-#[type_name("strand.v1.Control")]
+#[type_name("strand.v2.Control")]
 #[repr(C)]
 pub struct Control {
     /// Sequence number.
@@ -189,7 +195,7 @@ pub struct Control {
 
 /// Measured joint state from the robot driver. 216 bytes.
 #[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
-#[type_name("strand.v1.JointState")]
+#[type_name("strand.v2.JointState")]
 #[repr(C)]
 pub struct JointState {
     /// Sequence number.
@@ -210,7 +216,7 @@ pub struct JointState {
 
 /// A measured pose of the robot base B in W, from tracking. 72 bytes.
 #[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
-#[type_name("strand.v1.BasePose")]
+#[type_name("strand.v2.BasePose")]
 #[repr(C)]
 pub struct BasePose {
     /// Sequence number.
@@ -225,7 +231,7 @@ pub struct BasePose {
 
 /// The joint command for the robot driver. 240 bytes.
 #[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
-#[type_name("strand.v1.JointCommand")]
+#[type_name("strand.v2.JointCommand")]
 #[repr(C)]
 pub struct JointCommand {
     /// Sequence number (one per tick).
@@ -261,7 +267,7 @@ pub mod extruder_flags {
 
 /// The extruder command for the extruder driver. 64 bytes.
 #[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
-#[type_name("strand.v1.ExtruderCommand")]
+#[type_name("strand.v2.ExtruderCommand")]
 #[repr(C)]
 pub struct ExtruderCommand {
     /// Sequence number (one per tick).
@@ -346,6 +352,10 @@ pub enum FaultCode {
     /// The path had segments to execute but made no progress (neither the path position nor a
     /// dwell advanced) for `[path] stall_timeout`: a planner fault, never a silent hang.
     PathStalled = 7,
+    /// The TCP stayed further than `[controller] tcp_error_limit` from the path target for
+    /// `tcp_error_time`: the commanded (or measured) tool left its path — out of reach, at a joint
+    /// limit, a singularity, or a base that drifted away.
+    TcpErrorLimit = 8,
 }
 
 impl FaultCode {
@@ -360,6 +370,7 @@ impl FaultCode {
             5 => FaultCode::ApproachFailed,
             6 => FaultCode::RobotDeviation,
             7 => FaultCode::PathStalled,
+            8 => FaultCode::TcpErrorLimit,
             _ => return None,
         })
     }
@@ -452,7 +463,7 @@ impl JobOutcome {
 /// last segment sequence number they may send (credit-based back-pressure: nothing is ever dropped).
 /// 192 bytes.
 #[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
-#[type_name("strand.v1.Status")]
+#[type_name("strand.v2.Status")]
 #[repr(C)]
 pub struct Status {
     /// Sequence number (one per tick).
@@ -599,8 +610,8 @@ mod tests {
     /// The sizes are part of the contract (Python and C++ mirrors check them).
     #[test]
     fn sizes_are_stable() {
-        assert_eq!(size_of::<Segment>(), 168);
-        assert_eq!(size_of::<SegmentBatch>(), 24 + 32 * 168);
+        assert_eq!(size_of::<Segment>(), 176);
+        assert_eq!(size_of::<SegmentBatch>(), 24 + 32 * 176);
         assert_eq!(size_of::<Control>(), 32);
         assert_eq!(size_of::<JointState>(), 24 + 3 * 64);
         assert_eq!(size_of::<BasePose>(), 72);

@@ -50,6 +50,12 @@ pub struct ControllerConfig {
     pub joint_state_timeout: f64,
     /// Measured joints further than this (rad or m) from the last command → fault. 0 disables.
     pub following_error_limit: f64,
+    /// Cartesian following error (m): the distance between the path target and the TCP of the
+    /// commanded joints (and, with a joint state fresh this tick, of the measured joints), in W.
+    /// Above it for `tcp_error_time` while the path runs → `TcpErrorLimit` fault. 0 disables.
+    pub tcp_error_limit: f64,
+    /// How long (s) the Cartesian following error may stay above `tcp_error_limit`.
+    pub tcp_error_time: f64,
     /// Fraction of each joint's velocity, acceleration and jerk limit the approach move uses (0, 1].
     pub approach_speed_fraction: f64,
     /// The tool counts as at the first point within this distance (m) …
@@ -68,6 +74,8 @@ impl Default for ControllerConfig {
             rate_hz: 1000.0,
             joint_state_timeout: 0.05,
             following_error_limit: 0.2,
+            tcp_error_limit: 2e-3,
+            tcp_error_time: 0.05,
             approach_speed_fraction: 0.3,
             approach_position_tolerance: 0.1e-3,
             approach_orientation_tolerance: 0.01,
@@ -92,6 +100,8 @@ impl ControllerConfig {
         for (key, v, hi) in [
             ("joint_state_timeout", self.joint_state_timeout, 10.0),
             ("following_error_limit", self.following_error_limit, 10.0),
+            ("tcp_error_limit", self.tcp_error_limit, 1.0),
+            ("tcp_error_time", self.tcp_error_time, 10.0),
             ("approach_position_tolerance", self.approach_position_tolerance, 0.1),
             ("approach_orientation_tolerance", self.approach_orientation_tolerance, 1.0),
         ] {
@@ -291,6 +301,8 @@ pub enum Event {
         seq: u64,
         /// Its source line (0 if none).
         line: u32,
+        /// The figure that tripped it: the TCP error (m) for `TcpErrorLimit`, else 0.
+        value: f64,
     },
     /// A job ended.
     JobEnded {
@@ -319,10 +331,16 @@ pub struct TickDiagnostics {
     pub base: BaseState,
     /// The CLIK's common speed scale (1 = unconstrained).
     pub clik_scale: f64,
+    /// The speed scale the CLIK puts on the path for the next tick (1 = the path runs at its
+    /// planned speed; below 1 a joint limit slows it).
+    pub path_scale: f64,
     /// Smallest task singular value.
     pub sigma_min: f64,
     /// Path speed (m/s).
     pub path_speed: f64,
+    /// Cartesian following error this tick (m): the larger of |target − TCP(commanded joints)| and,
+    /// with a fresh joint state, |target − TCP(measured joints)|, in W; 0 while no path runs.
+    pub tcp_error: f64,
 }
 
 /// Everything one tick decided.
@@ -475,6 +493,8 @@ pub struct Controller {
     /// The path's progress measure when it last changed, and when (ns): the stall watchdog.
     progress_mark: (f64, f64),
     progress_ns: Option<u64>,
+    /// Since when (ns) the Cartesian following error has been above its limit.
+    tcp_error_since: Option<u64>,
 }
 
 impl Controller {
@@ -549,6 +569,7 @@ impl Controller {
             out_seq: 0,
             progress_mark: (0.0, 0.0),
             progress_ns: None,
+            tcp_error_since: None,
             model,
         })
     }
@@ -593,8 +614,10 @@ impl Controller {
                 tcp_command_world: Vector3::zeros(),
                 base: self.base.at(input.time_ns),
                 clik_scale: 1.0,
+                path_scale: 1.0,
                 sigma_min: 0.0,
                 path_speed: 0.0,
+                tcp_error: 0.0,
             },
         };
         self.transition_count = 0;
@@ -632,6 +655,7 @@ impl Controller {
             (f.translation.vector, UnitQuaternion::from_rotation_matrix(&f.rotation))
         };
         out.diagnostics.tcp_command_world = base.base_to_world(&p_cmd_b, &q_cmd_b).0;
+        self.watch_tcp_error(input, &base, &mut out);
         self.fill_outputs(input, &mut out);
         for k in 0..self.transition_count as usize {
             let (from, to) = self.transitions[k];
@@ -652,10 +676,14 @@ impl Controller {
     }
 
     fn latch_fault(&mut self, code: FaultCode, out: &mut TickOutput) {
+        self.latch_fault_with(code, 0.0, out);
+    }
+
+    fn latch_fault_with(&mut self, code: FaultCode, value: f64, out: &mut TickOutput) {
         if self.fault == FaultCode::None {
             self.fault = code;
             let (seq, line) = self.last_sample.map_or((0, 0), |s| (s.seq, s.source_line));
-            out.push(Event::Fault { code, seq, line });
+            out.push(Event::Fault { code, seq, line, value });
         }
         if self.job_open {
             self.end_job(JobOutcome::Faulted, out);
@@ -877,6 +905,7 @@ impl Controller {
             ("feed", w.feed.is_finite()),
             ("filament", w.filament.is_finite()),
             ("duration", w.duration.is_finite()),
+            ("pressure_advance", w.pressure_advance.is_finite()),
         ] {
             if !ok {
                 return Err((RejectReason::NonFinite, field));
@@ -908,8 +937,9 @@ impl Controller {
             feed: w.feed,
             filament: w.filament,
             duration: w.duration,
-            flags: SegmentFlags(w.flags),
+            flags: SegmentFlags(w.flags & !ipc::segment_flags::PRESSURE_ADVANCE),
             source_line: w.source_line,
+            pressure_advance: (w.flags & ipc::segment_flags::PRESSURE_ADVANCE != 0).then_some(w.pressure_advance),
         })
     }
 
@@ -1030,6 +1060,7 @@ impl Controller {
                 let step = self.clik.step_on_path(&self.model, &self.q, &base.world_to_base(&target_w), &path_b, self.dt);
                 self.speed_scale = step.path_scale;
                 let d = &mut out.diagnostics;
+                d.path_scale = step.path_scale;
                 d.tcp_target_world = sample.position;
                 d.tcp_target_orientation = sample.orientation;
                 d.clik_scale = step.scale;
@@ -1236,6 +1267,42 @@ impl Controller {
         timeout > 0.0 && now_ns.saturating_sub(since) as f64 * 1e-9 > timeout
     }
 
+    /// The Cartesian following-error watchdog, after this tick's command: while the path runs, the
+    /// distance from the path target to the TCP of the commanded joints and (with a joint state
+    /// fresh this tick) of the measured joints, both through the estimated base pose, in W. Above
+    /// `tcp_error_limit` for longer than `tcp_error_time` → `TcpErrorLimit`, latched in the same
+    /// tick, so this tick's extruder command is already off. The measured TCP is compared with the
+    /// target for the same instant the commanded one is, so a robot's lag counts against it.
+    fn watch_tcp_error(&mut self, input: &TickInput, base: &BaseState, out: &mut TickOutput) {
+        let following = matches!(self.state, RunState::Running | RunState::Pausing | RunState::Paused | RunState::Stopping)
+            && !self.settling
+            && !self.stop_by_brake
+            && self.last_sample.is_some();
+        if !following {
+            self.tcp_error_since = None;
+            return;
+        }
+        let target = out.diagnostics.tcp_target_world;
+        let mut error = (out.diagnostics.tcp_command_world - target).norm();
+        if self.last_state_ns == Some(input.time_ns) {
+            let f = self.model.forward_kinematics(&self.q_measured);
+            let measured = base.base_to_world(&f.translation.vector, &UnitQuaternion::from_rotation_matrix(&f.rotation)).0;
+            error = error.max((measured - target).norm());
+        }
+        if !error.is_finite() {
+            error = f64::INFINITY;
+        }
+        out.diagnostics.tcp_error = error;
+        if self.cfg.tcp_error_limit <= 0.0 || error <= self.cfg.tcp_error_limit {
+            self.tcp_error_since = None;
+            return;
+        }
+        let since = *self.tcp_error_since.get_or_insert(input.time_ns);
+        if input.time_ns.saturating_sub(since) as f64 * 1e-9 >= self.cfg.tcp_error_time {
+            self.latch_fault_with(FaultCode::TcpErrorLimit, error, out);
+        }
+    }
+
     /// Ends the job at rest and readies the engine for the next one, where the tool is.
     fn finish_job(&mut self, outcome: JobOutcome, out: &mut TickOutput) {
         let (p, q) = match self.last_sample {
@@ -1347,6 +1414,7 @@ fn rest_sample() -> PathSample {
         flags: SegmentFlags::default(),
         flow: 0.0,
         dwell_filament_rate: 0.0,
+        pressure_advance: None,
         motion: Motion::Idle,
     }
 }
@@ -1436,7 +1504,7 @@ mod tests {
         for _ in 0..2_000 {
             let out = step(&mut ctl, &[], false);
             for e in out.events() {
-                if let Event::Fault { code, seq, line } = *e {
+                if let Event::Fault { code, seq, line, .. } = *e {
                     fault = Some((tick.get(), code, seq, line));
                 }
             }

@@ -20,6 +20,10 @@ pub struct ExtruderConfig {
     pub filament_diameter: f64,
     /// Pressure-advance constant K (s): Ė_cmd = Ė + K·Ë. 0 disables it.
     pub pressure_advance: f64,
+    /// The most pressure advance a program may set (s): `SET_PRESSURE_ADVANCE ADVANCE`, `M900 K` and
+    /// `M572 S` replace `pressure_advance` from their segment on, clamped to [0, this]. 0 ignores
+    /// the program's setting.
+    pub max_pressure_advance: f64,
     /// Filament pulled back when the motion stops unplanned (m); 0 disables retraction.
     pub retract_length: f64,
     /// Filament speed of a retraction and of the prime that undoes it (m/s).
@@ -32,6 +36,7 @@ impl Default for ExtruderConfig {
             drive_wheel_radius: 5.5e-3,
             filament_diameter: 1.75e-3,
             pressure_advance: 0.0,
+            max_pressure_advance: 0.2,
             retract_length: 1.0e-3,
             retract_speed: 0.035,
         }
@@ -49,6 +54,9 @@ impl ExtruderConfig {
         }
         if !(self.pressure_advance.is_finite() && (0.0..1.0).contains(&self.pressure_advance)) {
             return Err("[extruder] pressure_advance: must be in [0, 1) s");
+        }
+        if !(self.max_pressure_advance.is_finite() && (0.0..1.0).contains(&self.max_pressure_advance)) {
+            return Err("[extruder] max_pressure_advance: must be in [0, 1) s");
         }
         if !(self.retract_length.is_finite() && (0.0..0.05).contains(&self.retract_length)) {
             return Err("[extruder] retract_length: must be in [0, 0.05) m");
@@ -105,7 +113,8 @@ impl Extruder {
     /// The command for the path sample of this tick.
     pub fn step(&mut self, sample: &PathSample) -> ExtruderCommand {
         let path_rate = sample.flow * sample.speed + sample.dwell_filament_rate;
-        let mut rate = path_rate + self.config.pressure_advance * sample.flow * sample.path_acceleration;
+        let advance = sample.pressure_advance.map_or(self.config.pressure_advance, |k| k.clamp(0.0, self.config.max_pressure_advance));
+        let mut rate = path_rate + advance * sample.flow * sample.path_acceleration;
         let stopped_unplanned = matches!(sample.motion, Motion::Starved | Motion::Held);
         if stopped_unplanned && !self.retracted && self.config.retract_length > 0.0 {
             self.retracted = true;

@@ -10,7 +10,7 @@ use super::codes::{Motion, PlaneAxes};
 use super::interpreter::{Interpreter, bounded, finite};
 use super::lexer::Fault;
 use super::{MM, ZERO_LENGTH};
-use crate::core::path::{Segment, SegmentKind};
+use crate::core::path::{MAX_ARC_SWEEP, Segment, SegmentKind};
 
 /// Path length (m) of `segment` when it starts at `start` (m): the chord of a line, 0 for a dwell,
 /// and for an arc ∫ |p'(θ)| dθ along the helical spiral whose radius goes linearly from r₀ (at the
@@ -81,8 +81,13 @@ impl Interpreter {
         };
         let full_circle = plane.chord() < ZERO_LENGTH;
         self.check_radii(&plane, centre, column)?;
+        let turns_column = block.column(b'P');
         let turns = arc_turns(block)?;
         let sweep = finite(arc_sweep(&plane, centre, clockwise, full_circle) + TAU * (turns - 1.0), column)?;
+        if sweep > MAX_ARC_SWEEP {
+            let message = format!("P{turns}: the arc sweeps {sweep} rad, more than 1000 turns (2000π rad)");
+            return Err(Fault::new(turns_column, message));
+        }
         let mut centre3 = start;
         centre3[axes.first] = centre.0;
         centre3[axes.second] = centre.1;

@@ -518,6 +518,9 @@ impl Interpreter {
         self.next_seq = self.next_seq.wrapping_add(1);
         segment.orientation = self.options.orientation;
         segment.source_line = u32::try_from(line).unwrap_or(u32::MAX);
+        // Every segment after a pressure-advance command carries it, so a job resumed part-way
+        // still prints with the program's value.
+        segment.pressure_advance = self.firmware.limits.recorded.pressure_advance.map(|k| k.value);
         if segment.filament > 0.0 {
             self.firmware.tool_used = true;
         }

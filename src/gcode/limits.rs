@@ -192,7 +192,9 @@ pub(super) fn message(name: &str) -> &'static str {
         "M203" => "per-axis feed limits (Marlin units/s) honoured: later moves slowed so that no axis, E included, exceeds them",
         "M201" | "M204" => "acceleration recorded in program_limits() (the lowest requested), to apply as min(config, program)",
         "M205" | "M566" => "jerk / junction deviation recorded in program_limits() (the lowest requested)",
-        "M900" | "M572" | "SET_PRESSURE_ADVANCE" => "pressure advance recorded in program_limits() (the last requested)",
+        "M900" | "M572" | "SET_PRESSURE_ADVANCE" => {
+            "pressure advance applied from the next segment on (the controller clamps it to [extruder] max_pressure_advance); SMOOTH_TIME recorded"
+        }
         "SET_VELOCITY_LIMIT" => {
             "VELOCITY honoured (later feeds clamped); ACCEL and SQUARE_CORNER_VELOCITY recorded in program_limits() (the lowest requested)"
         }

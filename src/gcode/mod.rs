@@ -94,7 +94,7 @@
 //! | `SET_VELOCITY_LIMIT VELOCITY=` (mm/s) | honoured: later feeds clamped to it |
 //! | `M201 X Y Z`, `M204 P T S`, `SET_VELOCITY_LIMIT ACCEL=` | the lowest acceleration is recorded in [`Parser::program_limits`] (m/s²) |
 //! | `M205 X Y Z J`, `M566 X Y Z` (per minute), `SET_VELOCITY_LIMIT SQUARE_CORNER_VELOCITY=` | the lowest jerk, junction deviation and square-corner velocity are recorded |
-//! | `M900 K`, `M572 S`, `SET_PRESSURE_ADVANCE ADVANCE= SMOOTH_TIME=` | the last pressure advance and smooth time (s) are recorded |
+//! | `M900 K`, `M572 S`, `SET_PRESSURE_ADVANCE ADVANCE=` | pressure advance (s) carried on every later segment (`Segment::pressure_advance`); the controller applies it, clamped to `[extruder] max_pressure_advance`. `SMOOTH_TIME=` is recorded |
 //! | `T<n>` | selects the tool; once filament has been pushed, a different tool is an error ("multi-tool jobs are not supported"). `T` beside an M-code other than `M6` is that code's parameter (`M104 T0 S200`); `T255` and up are firmware special tools (Bambu's unload and nozzle-prime mode `T1000`): reported, tool unchanged |
 //! | `F` on a line with M-codes and no G-code | the M-code's parameter (Bambu's `M620.1 E F523`), as Marlin reads F only on moves; in RS274/NGC it sets the feed |
 //! | `M73`, `M117`/`M118` (free text), `M400`, temperatures, fans, motors off, any other M-code | reported once per kind, never an error |

@@ -398,7 +398,9 @@ fn log_events(out: &TickOutput) {
             Event::JointStateRejected { seq, reason } => tracing::warn!("joint state {seq} rejected: {reason:?}"),
             Event::BasePoseRejected { seq } => tracing::warn!("base pose {seq} rejected"),
             Event::StateChanged { from, to } => tracing::info!("state {from:?} -> {to:?}"),
-            Event::Fault { code, seq, line } => tracing::error!("fault: {code:?} at segment {seq} (source line {line})"),
+            Event::Fault { code, seq, line, value } => {
+                tracing::error!("fault: {code:?} at segment {seq} (source line {line}), value {value:.6}")
+            }
             Event::JobEnded { outcome, last_seq } => tracing::info!("job ended: {outcome:?} (last segment {last_seq})"),
             Event::Clamped { joint } => tracing::warn!("final stage clamped joint {joint}"),
         }

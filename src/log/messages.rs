@@ -22,7 +22,7 @@ use crate::core::controller::{
 cdr_message!(
     ipc::Segment,
     "strand_msgs/msg/Segment",
-    [seq, stamp_ns, kind, flags, end, centre, normal, sweep, orientation, feed, filament, duration, source_line]
+    [seq, stamp_ns, kind, flags, end, centre, normal, sweep, orientation, feed, filament, duration, source_line, pressure_advance]
 );
 cdr_message!(ipc::Control, "strand_msgs/msg/Control", [seq, stamp_ns, command, value]);
 cdr_message!(ipc::JointState, "strand_msgs/msg/JointState", [seq, stamp_ns, dof, position, velocity, effort]);
@@ -76,7 +76,7 @@ cdr_message!(BaseState, "strand_msgs/msg/BaseState", [position, orientation, lin
 cdr_message!(
     TickDiagnostics,
     "strand_msgs/msg/TickDiagnostics",
-    [tcp_target_world, tcp_target_orientation, tcp_command_world, base, clik_scale, sigma_min, path_speed]
+    [tcp_target_world, tcp_target_orientation, tcp_command_world, base, clik_scale, path_scale, sigma_min, path_speed, tcp_error]
 );
 
 impl CdrType for Vector3<f64> {
@@ -131,11 +131,13 @@ fn intern(s: &str) -> &'static str {
 const EVENT_DEFINITION: &str = "\
 # 1 segment rejected (seq, a = reason, field), 2 control rejected (a = command, b = reason),
 # 3 joint state rejected (seq, a = reason), 4 base pose rejected (seq), 5 state changed (a = from, b = to),
-# 6 fault (a = code, seq = segment executing, b = its source line), 7 job ended (a = outcome, seq = last segment), 8 clamped (a = joint)
+# 6 fault (a = code, seq = segment executing, b = its source line, value = the figure that tripped it, e.g. the TCP error in m),
+# 7 job ended (a = outcome, seq = last segment), 8 clamped (a = joint)
 uint8 kind
 uint64 seq
 uint32 a
 uint32 b
+float64 value
 string field
 ";
 
@@ -151,15 +153,16 @@ impl CdrType for Event {
         add_dependency(out, Self::ros_type(), || EVENT_DEFINITION.to_string());
     }
     fn write(&self, w: &mut CdrWriter) {
-        let (kind, seq, a, b, field) = self.parts();
+        let (kind, seq, a, b, value, field) = self.parts();
         w.u8(kind);
         w.u64(seq);
         w.u32(a);
         w.u32(b);
+        w.f64(value);
         w.string(field);
     }
     fn read(r: &mut CdrReader) -> Result<Self, CdrError> {
-        let (kind, seq, a, b, field) = (r.u8()?, r.u64()?, r.u32()?, r.u32()?, r.string()?);
+        let (kind, seq, a, b, value, field) = (r.u8()?, r.u64()?, r.u32()?, r.u32()?, r.f64()?, r.string()?);
         let reason = |v| RejectReason::from_u32(v).ok_or(unknown("RejectReason", v));
         let state = |v| RunState::from_u32(v).ok_or(unknown("RunState", v));
         Ok(match kind {
@@ -168,34 +171,35 @@ impl CdrType for Event {
             3 => Event::JointStateRejected { seq, reason: reason(a)? },
             4 => Event::BasePoseRejected { seq },
             5 => Event::StateChanged { from: state(a)?, to: state(b)? },
-            6 => Event::Fault { code: FaultCode::from_u32(a).ok_or(unknown("FaultCode", a))?, seq, line: b },
+            6 => Event::Fault { code: FaultCode::from_u32(a).ok_or(unknown("FaultCode", a))?, seq, line: b, value },
             7 => Event::JobEnded { outcome: JobOutcome::from_u32(a).ok_or(unknown("JobOutcome", a))?, last_seq: seq },
             8 => Event::Clamped { joint: a as u8 },
             k => return Err(unknown("event kind", k as u32)),
         })
     }
     fn flatten(&self, path: &str, out: &mut Vec<(String, Scalar)>) {
-        let (kind, seq, a, b, field) = self.parts();
+        let (kind, seq, a, b, value, field) = self.parts();
         out.push((format!("{path}.kind"), Scalar::U(kind as u64)));
         out.push((format!("{path}.seq"), Scalar::U(seq)));
         out.push((format!("{path}.a"), Scalar::U(a as u64)));
         out.push((format!("{path}.b"), Scalar::U(b as u64)));
+        out.push((format!("{path}.value"), Scalar::F(value)));
         out.push((format!("{path}.field"), Scalar::S(field)));
     }
 }
 
 impl Event {
-    /// The wire fields (kind, seq, a, b, field) of `EVENT_DEFINITION`.
-    fn parts(&self) -> (u8, u64, u32, u32, &'static str) {
+    /// The wire fields (kind, seq, a, b, value, field) of `EVENT_DEFINITION`.
+    fn parts(&self) -> (u8, u64, u32, u32, f64, &'static str) {
         match *self {
-            Event::SegmentRejected { seq, reason, field } => (1, seq, reason as u32, 0, field),
-            Event::ControlRejected { command, reason } => (2, 0, command, reason as u32, ""),
-            Event::JointStateRejected { seq, reason } => (3, seq, reason as u32, 0, ""),
-            Event::BasePoseRejected { seq } => (4, seq, 0, 0, ""),
-            Event::StateChanged { from, to } => (5, 0, from as u32, to as u32, ""),
-            Event::Fault { code, seq, line } => (6, seq, code as u32, line, ""),
-            Event::JobEnded { outcome, last_seq } => (7, last_seq, outcome as u32, 0, ""),
-            Event::Clamped { joint } => (8, 0, joint as u32, 0, ""),
+            Event::SegmentRejected { seq, reason, field } => (1, seq, reason as u32, 0, 0.0, field),
+            Event::ControlRejected { command, reason } => (2, 0, command, reason as u32, 0.0, ""),
+            Event::JointStateRejected { seq, reason } => (3, seq, reason as u32, 0, 0.0, ""),
+            Event::BasePoseRejected { seq } => (4, seq, 0, 0, 0.0, ""),
+            Event::StateChanged { from, to } => (5, 0, from as u32, to as u32, 0.0, ""),
+            Event::Fault { code, seq, line, value } => (6, seq, code as u32, line, value, ""),
+            Event::JobEnded { outcome, last_seq } => (7, last_seq, outcome as u32, 0, 0.0, ""),
+            Event::Clamped { joint } => (8, 0, joint as u32, 0, 0.0, ""),
         }
     }
 }

@@ -4,7 +4,7 @@ Every message is a fixed-size ``#[repr(C)]`` struct on the Rust side with no imp
 gap is a named ``_reserved`` field, always zero), so the ``ctypes.Structure`` below with the same
 fields in the same order has the same layout. iceoryx2 checks the type name, size and alignment
 when a service is opened, so each class has a ``type_name()`` staticmethod returning the exact
-string of the Rust ``#[type_name("strand.v1.…")]`` attribute; a mismatch gives ``IncompatibleTypes``
+string of the Rust ``#[type_name("strand.v2.…")]`` attribute; a mismatch gives ``IncompatibleTypes``
 instead of misread bytes. The sizes are asserted at import time (they are part of the contract and
 the Rust test ``sizes_are_stable`` pins the same numbers).
 
@@ -51,7 +51,7 @@ __all__ = [
 # --- constants -------------------------------------------------------------------------------------
 
 #: Version of the contract; part of every type name and published in every Status.
-CONTRACT_VERSION = 1
+CONTRACT_VERSION = 2
 #: Joints per message (the longest chain strand drives).
 MAX_JOINTS = 8
 #: Segments per SegmentBatch.
@@ -77,6 +77,8 @@ class SegmentFlags(enum.IntFlag):
     LAYER_START = 4
     #: The last segment of the job: the controller stops at its end and reports the job finished.
     LAST = 8
+    #: ``Segment.pressure_advance`` holds the program's pressure advance for this segment.
+    PRESSURE_ADVANCE = 16
 
 
 class ExtruderFlags(enum.IntFlag):
@@ -198,7 +200,7 @@ class _Message(ctypes.Structure):
 
 
 class Segment(_Message):
-    """One planned motion segment, world frame W. 168 bytes."""
+    """One planned motion segment, world frame W. 176 bytes."""
 
     _fields_ = [
         ("seq", _u64),
@@ -215,11 +217,12 @@ class Segment(_Message):
         ("duration", _f64),
         ("source_line", _u32),
         ("_reserved", _u32),
+        ("pressure_advance", _f64),
     ]
 
     @staticmethod
     def type_name() -> str:
-        return "strand.v1.Segment"
+        return "strand.v2.Segment"
 
     @classmethod
     def line(
@@ -258,7 +261,7 @@ class SegmentBatch(_Message):
 
     @staticmethod
     def type_name() -> str:
-        return "strand.v1.SegmentBatch"
+        return "strand.v2.SegmentBatch"
 
     def as_list(self) -> list[Segment]:
         """The segments in use (copies)."""
@@ -278,7 +281,7 @@ class Control(_Message):
 
     @staticmethod
     def type_name() -> str:
-        return "strand.v1.Control"
+        return "strand.v2.Control"
 
 
 class JointState(_Message):
@@ -296,7 +299,7 @@ class JointState(_Message):
 
     @staticmethod
     def type_name() -> str:
-        return "strand.v1.JointState"
+        return "strand.v2.JointState"
 
 
 class BasePose(_Message):
@@ -311,7 +314,7 @@ class BasePose(_Message):
 
     @staticmethod
     def type_name() -> str:
-        return "strand.v1.BasePose"
+        return "strand.v2.BasePose"
 
 
 class JointCommand(_Message):
@@ -332,7 +335,7 @@ class JointCommand(_Message):
 
     @staticmethod
     def type_name() -> str:
-        return "strand.v1.JointCommand"
+        return "strand.v2.JointCommand"
 
 
 class ExtruderCommand(_Message):
@@ -352,7 +355,7 @@ class ExtruderCommand(_Message):
 
     @staticmethod
     def type_name() -> str:
-        return "strand.v1.ExtruderCommand"
+        return "strand.v2.ExtruderCommand"
 
 
 class Status(_Message):
@@ -396,7 +399,7 @@ class Status(_Message):
 
     @staticmethod
     def type_name() -> str:
-        return "strand.v1.Status"
+        return "strand.v2.Status"
 
     def credit_limit(self) -> int:
         """The last segment sequence number a feeder may send now."""
@@ -453,8 +456,8 @@ MESSAGE_TYPES = (Segment, SegmentBatch, Control, JointState, BasePose, JointComm
 
 #: Sizes from the Rust test ``sizes_are_stable`` (ipc/src/lib.rs).
 EXPECTED_SIZES = {
-    Segment: 168,
-    SegmentBatch: 24 + 32 * 168,
+    Segment: 176,
+    SegmentBatch: 24 + 32 * 176,
     Control: 32,
     JointState: 24 + 3 * 64,
     BasePose: 72,
@@ -463,8 +466,8 @@ EXPECTED_SIZES = {
     Status: 192,
 }
 
-assert ctypes.sizeof(Segment) == 168
-assert ctypes.sizeof(SegmentBatch) == 24 + 32 * 168
+assert ctypes.sizeof(Segment) == 176
+assert ctypes.sizeof(SegmentBatch) == 24 + 32 * 176
 assert ctypes.sizeof(Control) == 32
 assert ctypes.sizeof(JointState) == 216
 assert ctypes.sizeof(BasePose) == 72

@@ -7,8 +7,8 @@ use std::path::Path;
 
 use strand::config::Config;
 use strand::core::path::{BedTransform, Segment, SegmentFlags, SegmentKind};
-use strand::gcode::{GcodeOptions, parse_file};
-use strand::segfile;
+use strand::gcode::GcodeOptions;
+pub use strand::job::{LayeredSegments, load_segments, to_wire};
 use strand_ipc as ipc;
 
 /// A job ready to stream.
@@ -24,59 +24,6 @@ pub struct Job {
     pub skipped: usize,
     /// Parser warnings, one line each.
     pub warnings: Vec<String>,
-}
-
-/// Core segment (W) → wire segment.
-pub fn to_wire(s: &Segment) -> ipc::Segment {
-    let q = s.orientation;
-    ipc::Segment {
-        seq: s.seq,
-        stamp_ns: 0,
-        kind: match s.kind {
-            SegmentKind::Line => ipc::SegmentKind::Line,
-            SegmentKind::Arc => ipc::SegmentKind::Arc,
-            SegmentKind::Dwell => ipc::SegmentKind::Dwell,
-        } as u32,
-        flags: s.flags.0,
-        end: s.end.into(),
-        centre: s.centre.into(),
-        normal: s.normal.into(),
-        sweep: s.sweep,
-        orientation: [q.w, q.i, q.j, q.k],
-        feed: s.feed,
-        filament: s.filament,
-        duration: s.duration,
-        source_line: s.source_line,
-        _reserved: 0,
-    }
-}
-
-/// A job's segments, each with its slicer layer (None where the job has none).
-pub type LayeredSegments = Vec<(Segment, Option<i32>)>;
-
-/// The job's segments in W (the config's `[bed]` applied), numbered from 1, each with its slicer
-/// layer, and the reader's warnings (one line each, naming the file). The job is a G-code program
-/// or a segment file ([`strand::segfile`], told apart by its header line, whatever the file is
-/// called); both are in bed coordinates. An error if it has no motion.
-pub fn load_segments(path: &Path, cfg: &Config) -> Result<(LayeredSegments, Vec<String>), String> {
-    let bed = BedTransform::new(&cfg.bed).map_err(|e| format!("{}: [bed] {e}", cfg.file.display()))?;
-    let (all, warnings) = if segfile::is_segment_file(path) {
-        let file = segfile::read_path(path, 1).map_err(|e| e.to_string())?;
-        (file.segments.iter().map(|(s, layer)| (bed.segment(s), *layer)).collect(), Vec::new())
-    } else {
-        let options = GcodeOptions { first_seq: 1, ..GcodeOptions::for_path(path) };
-        let mut parser = parse_file(path, options).map_err(|e| e.to_string())?;
-        let mut all = Vec::new();
-        for item in parser.by_ref() {
-            let g = item.map_err(|e| e.to_string())?;
-            all.push((bed.segment(&g.segment), g.tags.layer));
-        }
-        (all, parser.warnings().iter().map(|w| format!("{}: {w}", path.display())).collect())
-    };
-    if all.is_empty() {
-        return Err(format!("{}: no motion in the program", path.display()));
-    }
-    Ok((all, warnings))
 }
 
 /// `segments` (at most [`ipc::SEGMENT_BATCH_CAPACITY`]) as batch number `batch_seq`, all stamped now.

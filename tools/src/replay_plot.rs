@@ -11,26 +11,7 @@ use crate::replay::Series;
 
 type PlotResult = Result<(), Box<dyn std::error::Error>>;
 
-/// Font files tried in order (plotters draws text with ab_glyph from a TTF).
-const FONT_PATHS: &[&str] = &[
-    "/usr/share/fonts/truetype/dejavu/DejaVuSans.ttf",
-    "/usr/share/fonts/dejavu/DejaVuSans.ttf",
-    "/usr/share/fonts/TTF/DejaVuSans.ttf",
-    "/usr/share/fonts/truetype/liberation/LiberationSans-Regular.ttf",
-];
-
-pub fn register_font() -> Result<(), String> {
-    let env = std::env::var("STRAND_PLOT_FONT").ok();
-    for p in env.iter().map(String::as_str).chain(FONT_PATHS.iter().copied()) {
-        if let Ok(bytes) = std::fs::read(p) {
-            let bytes: &'static [u8] = Box::leak(bytes.into_boxed_slice());
-            if plotters::style::register_font("sans-serif", FontStyle::Normal, bytes).is_ok() {
-                return Ok(());
-            }
-        }
-    }
-    Err(format!("no TrueType font found (tried {}); install fonts-dejavu-core or set STRAND_PLOT_FONT", FONT_PATHS.join(", ")))
-}
+pub use strand::check::plot::register_font;
 
 fn range(values: impl Iterator<Item = f64>) -> (f64, f64) {
     let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);

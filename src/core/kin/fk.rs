@@ -82,6 +82,22 @@ impl RobotModel {
         t * tcp_offset
     }
 
+    /// Origins (m, B) of every joint's frame at `q` — where joint i sits, the origin of the link it
+    /// moves — followed by the TCP, written into `out`; returns how many (`dof() + 1`). For
+    /// clearance checks of the arm's links against a bed or a table.
+    pub fn frame_origins(&self, q: &JointVector, out: &mut [Vector3<f64>; MAX_JOINTS + 1]) -> usize {
+        let (origins, axes, kinds, tcp_offset) = self.hot();
+        let n = origins.len();
+        let mut t = Frame::identity();
+        for i in 0..n {
+            t *= origins[i];
+            out[i] = t.translation.vector;
+            t *= joint_motion(kinds[i], &axes[i], q[i]);
+        }
+        out[n] = (t * tcp_offset).translation.vector;
+        n + 1
+    }
+
     /// TCP pose and geometric Jacobian at `q`, written into `out` (no allocation).
     pub fn kinematics(&self, q: &JointVector, out: &mut ChainState) {
         let (origins, axes, kinds, tcp_offset) = self.hot();

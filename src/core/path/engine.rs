@@ -53,7 +53,7 @@ use rsruckig::prelude::*;
 use super::config::{InvalidPathConfig, PathConfig, PlanningMode};
 use super::geometry::Geometry;
 use super::profile::{Braking, PathState, Trapezoid};
-use super::segment::{Segment, SegmentFlags, SegmentKind};
+use super::segment::{MAX_ARC_SWEEP, Segment, SegmentFlags, SegmentKind};
 use crate::core::kin::geom;
 
 /// How many boundaries the executor looks past for a binding one before it settles for a
@@ -125,6 +125,8 @@ pub struct PathSample {
     pub flow: f64,
     /// Filament speed (m/s) pushed during a dwell that carries filament (a slicer's retraction).
     pub dwell_filament_rate: f64,
+    /// The program's pressure advance for the current segment (s), if it set one.
+    pub pressure_advance: Option<f64>,
     /// What the engine is doing.
     pub motion: Motion,
 }
@@ -183,6 +185,8 @@ struct Piece {
     /// the sample reports this segment and flow; 0 for ordinary pieces.
     split: f64,
     first: (u64, u32, SegmentFlags, f64),
+    /// The program's pressure advance for the segment (s), if it set one.
+    pressure_advance: Option<f64>,
     // Backward pass results for the start boundary.
     vcap: f64,
     vb: f64,
@@ -215,6 +219,7 @@ impl Piece {
             flags: SegmentFlags::default(),
             split: 0.0,
             first: (0, 0, SegmentFlags::default(), 0.0),
+            pressure_advance: None,
             vcap: 0.0,
             vb: 0.0,
             potential: 0.0,
@@ -587,6 +592,11 @@ impl PathEngine {
         if !s.filament.is_finite() {
             return bad("filament", "is not finite");
         }
+        if let Some(k) = s.pressure_advance
+            && !(k.is_finite() && k >= 0.0)
+        {
+            return bad("pressure_advance", "must be finite and >= 0 s");
+        }
         match s.kind {
             SegmentKind::Dwell => {
                 if !(s.duration.is_finite() && s.duration >= 0.0 && s.duration < 1e6) {
@@ -612,8 +622,8 @@ impl PathEngine {
             if !(s.normal.iter().all(|x| x.is_finite()) && (s.normal.norm() - 1.0).abs() < 1e-6) {
                 return bad("normal", "must be a unit vector");
             }
-            if !(s.sweep.is_finite() && s.sweep > 0.0 && s.sweep < 2.0 * std::f64::consts::PI * 1000.0) {
-                return bad("sweep", "must be finite and in (0, 2000π) rad");
+            if !(s.sweep.is_finite() && s.sweep > 0.0 && s.sweep <= MAX_ARC_SWEEP) {
+                return bad("sweep", "must be finite and in (0, 2000π] rad (1,000 turns)");
             }
             let Some(geometry) = arc_geometry(&self.last_end, s) else {
                 return bad("centre", "start lies on the arc's axis (zero radius)");
@@ -813,6 +823,7 @@ impl PathEngine {
             seq: s.seq,
             source_line: s.source_line,
             flags: s.flags,
+            pressure_advance: s.pressure_advance,
             ..Piece::new(geometry, s.orientation)
         }
     }
@@ -1463,6 +1474,7 @@ impl PathEngine {
         let state = self.state;
         let point = self.sample_geometry();
         self.rest_point = point.position;
+        let mut pressure_advance = None;
         let (orientation, angular_velocity, seq, source_line, flags, flow, dwell_rate) = if self.pieces.len() > 0
             && self.piece < self.pieces.tail
         {
@@ -1471,6 +1483,7 @@ impl PathEngine {
             let q = if p.rotation.norm_squared() > 0.0 { geom::quaternion_exp(&(p.rotation * u)) * p.orientation } else { p.orientation };
             let w = if p.length > 0.0 { p.rotation * (state.v / p.length) } else { Vector3::zeros() };
             let dwell_rate = if self.motion == Motion::Dwelling && p.hold_time > 0.0 { p.hold_filament / p.hold_time } else { 0.0 };
+            pressure_advance = p.pressure_advance;
             if u < p.split {
                 let (seq, line, flags, flow) = p.first;
                 (q, w, seq, line, flags, flow, dwell_rate)
@@ -1495,6 +1508,7 @@ impl PathEngine {
             flags,
             flow,
             dwell_filament_rate: dwell_rate,
+            pressure_advance,
             motion: self.motion,
         }
     }

@@ -11,4 +11,4 @@ pub mod segment;
 pub use bed::BedTransform;
 pub use config::{InvalidPathConfig, PathConfig, PlanningMode};
 pub use engine::{Motion, PathEngine, PathSample, PathStats, SegmentError};
-pub use segment::{Segment, SegmentFlags, SegmentKind};
+pub use segment::{MAX_ARC_SWEEP, Segment, SegmentFlags, SegmentKind};

@@ -19,6 +19,12 @@ pub enum SegmentKind {
     Dwell,
 }
 
+/// The most an arc may turn (rad): 1,000 full turns. A helix of more turns is a program error, not
+/// a path (at a 0.2 mm pitch it is 20 cm of spring), and the bound keeps the arc's length and its
+/// sampling finite. The G-code parser (`P` turns), the segment file and the engine's intake all
+/// check against this one number, so whatever the parser accepts the engine takes.
+pub const MAX_ARC_SWEEP: f64 = 1000.0 * std::f64::consts::TAU;
+
 /// Flags on a segment (a bit set, as on the wire).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
 pub struct SegmentFlags(pub u32);
@@ -73,6 +79,10 @@ pub struct Segment {
     pub flags: SegmentFlags,
     /// The line in the source program this segment came from (1-based; 0 if none).
     pub source_line: u32,
+    /// Pressure advance the program set for this segment (s: Klipper's `SET_PRESSURE_ADVANCE`,
+    /// Marlin's `M900 K`, RepRapFirmware's `M572 S`); None keeps the config's. The extruder clamps it
+    /// to `[extruder] max_pressure_advance`.
+    pub pressure_advance: Option<f64>,
 }
 
 impl Default for Segment {
@@ -90,6 +100,7 @@ impl Default for Segment {
             duration: 0.0,
             flags: SegmentFlags::default(),
             source_line: 0,
+            pressure_advance: None,
         }
     }
 }

@@ -4,81 +4,12 @@
 //! acceleration (a slope plus bumps at fixed places), the reaction of the moving arm and the torque
 //! of the filament tension (000 Eq. 6).
 
-use std::path::Path;
-
 use nalgebra::{Matrix3, SMatrix, Vector2, Vector3};
+
+pub use strand::job::BaseTrajectory;
 
 use super::Gaussian;
 use super::config::FlyerConfig;
-
-/// The planned robot-base trajectory: (t s, x m, y m, θ rad) samples, linearly interpolated and
-/// held at both ends.
-#[derive(Clone, Debug, PartialEq)]
-pub struct BaseTrajectory {
-    samples: Vec<[f64; 4]>,
-}
-
-impl BaseTrajectory {
-    /// Holds `pose` (x, y, θ) for ever.
-    pub fn stationary(pose: [f64; 3]) -> Self {
-        BaseTrajectory { samples: vec![[0.0, pose[0], pose[1], pose[2]]] }
-    }
-
-    /// Reads a CSV with a header naming `t`, `base_x`, `base_y` and optionally `base_theta`;
-    /// `theta` (rad) is used where the file has no angle. Errors name the file and the line.
-    pub fn load(path: &Path, theta: f64) -> Result<Self, String> {
-        let file = path.display();
-        let mut rd = csv::Reader::from_path(path).map_err(|e| format!("{file}: {e}"))?;
-        let header = rd.headers().map_err(|e| format!("{file}: {e}"))?.clone();
-        let col = |name: &str| header.iter().position(|h| h.trim() == name);
-        let (Some(ct), Some(cx), Some(cy)) = (col("t"), col("base_x"), col("base_y")) else {
-            return Err(format!("{file}: line 1: the header must name t, base_x and base_y (and optionally base_theta)"));
-        };
-        let cth = col("base_theta");
-        let mut samples: Vec<[f64; 4]> = Vec::new();
-        for (i, rec) in rd.records().enumerate() {
-            let line = i + 2;
-            let rec = rec.map_err(|e| format!("{file}: line {line}: {e}"))?;
-            let num = |c: usize, name: &str| -> Result<f64, String> {
-                let v: f64 = rec.get(c).unwrap_or("").trim().parse().map_err(|_| format!("{file}: line {line}: {name} is not a number"))?;
-                if v.is_finite() { Ok(v) } else { Err(format!("{file}: line {line}: {name} is not finite")) }
-            };
-            let s = [
-                num(ct, "t")?,
-                num(cx, "base_x")?,
-                num(cy, "base_y")?,
-                match cth {
-                    Some(c) => num(c, "base_theta")?,
-                    None => theta,
-                },
-            ];
-            if samples.last().is_some_and(|p| s[0] <= p[0]) {
-                return Err(format!("{file}: line {line}: t = {} does not increase", s[0]));
-            }
-            samples.push(s);
-        }
-        if samples.is_empty() {
-            return Err(format!("{file}: no samples"));
-        }
-        Ok(BaseTrajectory { samples })
-    }
-
-    /// The planned (x, y, θ) at `t` seconds.
-    pub fn at(&self, t: f64) -> [f64; 3] {
-        let s = &self.samples;
-        let k = s.partition_point(|p| p[0] <= t);
-        if k == 0 {
-            return [s[0][1], s[0][2], s[0][3]];
-        }
-        if k == s.len() {
-            let l = s[k - 1];
-            return [l[1], l[2], l[3]];
-        }
-        let (a, b) = (s[k - 1], s[k]);
-        let f = (t - a[0]) / (b[0] - a[0]);
-        [a[1] + f * (b[1] - a[1]), a[2] + f * (b[2] - a[2]), a[3] + f * (b[3] - a[3])]
-    }
-}
 
 /// One PID loop with a filtered derivative on the error.
 #[derive(Clone, Copy, Debug, Default)]
@@ -306,7 +237,7 @@ mod tests {
     fn thrust_saturates_at_thirty_millimetres_per_second_squared() {
         let cfg = FlyerConfig { tension: 0.0, tension_variation: 0.0, ..Default::default() };
         // A goal 10 m away: the PID asks for far more than the thrusters give.
-        let mut f = Flyer::new(&cfg, BaseTrajectory { samples: vec![[0.0, 0.0, 0.0, 0.0], [1e-3, 10.0, 0.0, 0.0]] }, 0.25);
+        let mut f = Flyer::new(&cfg, BaseTrajectory::from_samples(vec![[0.0, 0.0, 0.0, 0.0], [1e-3, 10.0, 0.0, 0.0]]).unwrap(), 0.25);
         let mut g = Gaussian::new(1);
         let (tcp, acc) = still();
         for k in 0..2000 {

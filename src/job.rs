@@ -1,0 +1,171 @@
+//! A job as the controller receives it: a G-code program or a segment file, read and put on the
+//! bed with the config's `[bed]` transform (W), and the one conversion of a core segment to the
+//! wire. strand-feed streams what this reads, and `strand check-job` runs the same segments through
+//! the controller, so the check and the print can never read a file differently.
+
+use std::path::Path;
+
+use nalgebra::{UnitQuaternion, Vector3};
+
+use strand_ipc as ipc;
+
+use crate::config::Config;
+use crate::core::path::{BedTransform, Segment, SegmentKind};
+use crate::gcode::{GcodeOptions, parse_file};
+use crate::segfile;
+
+/// Core segment (W) → wire segment.
+pub fn to_wire(s: &Segment) -> ipc::Segment {
+    let q = s.orientation;
+    ipc::Segment {
+        seq: s.seq,
+        stamp_ns: 0,
+        kind: match s.kind {
+            SegmentKind::Line => ipc::SegmentKind::Line,
+            SegmentKind::Arc => ipc::SegmentKind::Arc,
+            SegmentKind::Dwell => ipc::SegmentKind::Dwell,
+        } as u32,
+        flags: s.flags.0 | if s.pressure_advance.is_some() { ipc::segment_flags::PRESSURE_ADVANCE } else { 0 },
+        end: s.end.into(),
+        centre: s.centre.into(),
+        normal: s.normal.into(),
+        sweep: s.sweep,
+        orientation: [q.w, q.i, q.j, q.k],
+        feed: s.feed,
+        filament: s.filament,
+        duration: s.duration,
+        source_line: s.source_line,
+        _reserved: 0,
+        pressure_advance: s.pressure_advance.unwrap_or(0.0),
+    }
+}
+
+/// The wire segments of a job as strand-feed sends them — numbered as read, the last flagged
+/// LAST — and each one's slicer layer.
+pub fn wire_job(all: &LayeredSegments) -> (Vec<ipc::Segment>, Vec<Option<i32>>) {
+    let mut segments: Vec<ipc::Segment> = all.iter().map(|(s, _)| to_wire(s)).collect();
+    if let Some(last) = segments.last_mut() {
+        last.flags |= ipc::segment_flags::LAST;
+    }
+    (segments, all.iter().map(|(_, l)| *l).collect())
+}
+
+/// A job's segments, each with its slicer layer (None where the job has none).
+pub type LayeredSegments = Vec<(Segment, Option<i32>)>;
+
+/// The job's segments in W (the config's `[bed]` applied), numbered from 1, each with its slicer
+/// layer, and the reader's warnings (one line each, naming the file). The job is a G-code program
+/// or a segment file ([`strand::segfile`], told apart by its header line, whatever the file is
+/// called); both are in bed coordinates. An error if it has no motion.
+pub fn load_segments(path: &Path, cfg: &Config) -> Result<(LayeredSegments, Vec<String>), String> {
+    let bed = BedTransform::new(&cfg.bed).map_err(|e| format!("{}: [bed] {e}", cfg.file.display()))?;
+    let (all, warnings) = if segfile::is_segment_file(path) {
+        let file = segfile::read_path(path, 1).map_err(|e| e.to_string())?;
+        (file.segments.iter().map(|(s, layer)| (bed.segment(s), *layer)).collect(), Vec::new())
+    } else {
+        let options = GcodeOptions { first_seq: 1, ..GcodeOptions::for_path(path) };
+        let mut parser = parse_file(path, options).map_err(|e| e.to_string())?;
+        let mut all = Vec::new();
+        for item in parser.by_ref() {
+            let g = item.map_err(|e| e.to_string())?;
+            all.push((bed.segment(&g.segment), g.tags.layer));
+        }
+        (all, parser.warnings().iter().map(|w| format!("{}: {w}", path.display())).collect())
+    };
+    if all.is_empty() {
+        return Err(format!("{}: no motion in the program", path.display()));
+    }
+    Ok((all, warnings))
+}
+
+/// The planned robot-base trajectory: (t s, x m, y m, θ rad) samples, linearly interpolated and
+/// held at both ends.
+#[derive(Clone, Debug, PartialEq)]
+pub struct BaseTrajectory {
+    samples: Vec<[f64; 4]>,
+}
+
+impl BaseTrajectory {
+    /// From (t s, x m, y m, θ rad) samples; None unless t strictly increases and every value is
+    /// finite.
+    pub fn from_samples(samples: Vec<[f64; 4]>) -> Option<Self> {
+        let ok =
+            !samples.is_empty() && samples.iter().all(|s| s.iter().all(|v| v.is_finite())) && samples.windows(2).all(|w| w[0][0] < w[1][0]);
+        ok.then_some(BaseTrajectory { samples })
+    }
+
+    /// Holds `pose` (x, y, θ) for ever.
+    pub fn stationary(pose: [f64; 3]) -> Self {
+        BaseTrajectory { samples: vec![[0.0, pose[0], pose[1], pose[2]]] }
+    }
+
+    /// Reads a CSV with a header naming `t`, `base_x`, `base_y` and optionally `base_theta`;
+    /// `theta` (rad) is used where the file has no angle. Errors name the file and the line.
+    pub fn load(path: &Path, theta: f64) -> Result<Self, String> {
+        let file = path.display();
+        let mut rd = csv::Reader::from_path(path).map_err(|e| format!("{file}: {e}"))?;
+        let header = rd.headers().map_err(|e| format!("{file}: {e}"))?.clone();
+        let col = |name: &str| header.iter().position(|h| h.trim() == name);
+        let (Some(ct), Some(cx), Some(cy)) = (col("t"), col("base_x"), col("base_y")) else {
+            return Err(format!("{file}: line 1: the header must name t, base_x and base_y (and optionally base_theta)"));
+        };
+        let cth = col("base_theta");
+        let mut samples: Vec<[f64; 4]> = Vec::new();
+        for (i, rec) in rd.records().enumerate() {
+            let line = i + 2;
+            let rec = rec.map_err(|e| format!("{file}: line {line}: {e}"))?;
+            let num = |c: usize, name: &str| -> Result<f64, String> {
+                let v: f64 = rec.get(c).unwrap_or("").trim().parse().map_err(|_| format!("{file}: line {line}: {name} is not a number"))?;
+                if v.is_finite() { Ok(v) } else { Err(format!("{file}: line {line}: {name} is not finite")) }
+            };
+            let s = [
+                num(ct, "t")?,
+                num(cx, "base_x")?,
+                num(cy, "base_y")?,
+                match cth {
+                    Some(c) => num(c, "base_theta")?,
+                    None => theta,
+                },
+            ];
+            if samples.last().is_some_and(|p| s[0] <= p[0]) {
+                return Err(format!("{file}: line {line}: t = {} does not increase", s[0]));
+            }
+            samples.push(s);
+        }
+        if samples.is_empty() {
+            return Err(format!("{file}: no samples"));
+        }
+        Ok(BaseTrajectory { samples })
+    }
+
+    /// The planned (x, y, θ) at `t` seconds.
+    pub fn at(&self, t: f64) -> [f64; 3] {
+        let s = &self.samples;
+        let k = s.partition_point(|p| p[0] <= t);
+        if k == 0 {
+            return [s[0][1], s[0][2], s[0][3]];
+        }
+        if k == s.len() {
+            let l = s[k - 1];
+            return [l[1], l[2], l[3]];
+        }
+        let (a, b) = (s[k - 1], s[k]);
+        let f = (t - a[0]) / (b[0] - a[0]);
+        [a[1] + f * (b[1] - a[1]), a[2] + f * (b[2] - a[2]), a[3] + f * (b[3] - a[3])]
+    }
+
+    /// The planned base pose at `t` (s) as a position (m, W) and orientation: the trajectory's x, y
+    /// and yaw θ on the mount's height, roll and pitch (`mount_yaw` is the mount's own yaw, which θ
+    /// replaces).
+    pub fn pose_at(
+        &self,
+        t: f64,
+        mount_position: &Vector3<f64>,
+        mount_orientation: &UnitQuaternion<f64>,
+        mount_yaw: f64,
+    ) -> (Vector3<f64>, UnitQuaternion<f64>) {
+        let [x, y, theta] = self.at(t);
+        let yaw = UnitQuaternion::from_axis_angle(&Vector3::z_axis(), theta - mount_yaw);
+        (Vector3::new(x, y, mount_position.z), yaw * mount_orientation)
+    }
+}
