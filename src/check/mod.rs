@@ -28,6 +28,7 @@ use crate::core::controller::{Controller, Event, MAX_SEGMENTS_PER_TICK, TickInpu
 use crate::core::kin::{JointVector, MAX_JOINTS};
 use crate::core::path::BedTransform;
 use crate::job::BaseTrajectory;
+use crate::plan::MAX_SEGMENT_SECONDS;
 
 /// `[check]`: thresholds of `strand check-job` (the run-time limits come from `[controller]`).
 #[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
@@ -267,6 +268,18 @@ pub enum CheckError {
     /// The job has no segment.
     #[error("{0}: the job has no segments")]
     Empty(String),
+    /// A segment that would take longer than [`MAX_SEGMENT_SECONDS`]: a typo, not a job.
+    #[error("{file}:{line}: segment {seq} would take {seconds:.3e} s (more than {MAX_SEGMENT_SECONDS} s): check its feed and end point")]
+    Absurd {
+        /// The job file.
+        file: String,
+        /// Its source line.
+        line: u32,
+        /// Its number.
+        seq: u64,
+        /// How long it would take (s).
+        seconds: f64,
+    },
 }
 
 /// A stretch being grown.
@@ -448,14 +461,14 @@ pub fn check_job(
     let mut at = Vector3::from(job.segments[0].end);
     for s in job.segments {
         let end = Vector3::from(s.end);
-        bound_s += match s.kind {
+        let seconds = match s.kind {
             k if k == ipc::SegmentKind::Dwell as u32 => s.duration,
-            _ => {
-                20.0 * ((end - at).norm().max(s.sweep.abs() * (end - Vector3::from(s.centre)).norm())
-                    / s.feed.min(cfg.path.max_speed).max(1e-6)
-                    + 0.1)
-            }
+            _ => (end - at).norm().max(s.sweep.abs() * (end - Vector3::from(s.centre)).norm()) / s.feed.min(cfg.path.max_speed),
         };
+        if !(seconds <= MAX_SEGMENT_SECONDS) {
+            return Err(CheckError::Absurd { file: job.file.to_string(), line: s.source_line, seq: s.seq, seconds });
+        }
+        bound_s += 20.0 * (seconds + 0.1);
         at = end;
     }
     let max_ticks = (bound_s / dt).min(1e10) as u64;

@@ -28,6 +28,7 @@ use strand_ipc::{Command, FaultCode, JobOutcome, RejectReason, RunState};
 
 use super::base::{BaseConfig, BaseEstimator, BaseState};
 use super::extrude::{Extruder, ExtruderConfig};
+use super::following::FollowingWatch;
 use super::kin::{Clik, ClikConfig, ClikStep, JointVector, MAX_JOINTS, PathVelocity, RobotModel, TcpTarget};
 use super::path::{Motion, PathConfig, PathEngine, PathSample, Segment, SegmentError, SegmentFlags, SegmentKind};
 
@@ -56,6 +57,9 @@ pub struct ControllerConfig {
     pub tcp_error_limit: f64,
     /// How long (s) the Cartesian following error may stay above `tcp_error_limit`.
     pub tcp_error_time: f64,
+    /// How far behind its command (s) the measured TCP may be and still count as on its path:
+    /// the robot's command-to-motion delay, with margin (see `core::following`).
+    pub tcp_error_lag: f64,
     /// Fraction of each joint's velocity, acceleration and jerk limit the approach move uses (0, 1].
     pub approach_speed_fraction: f64,
     /// The tool counts as at the first point within this distance (m) …
@@ -76,6 +80,7 @@ impl Default for ControllerConfig {
             following_error_limit: 0.2,
             tcp_error_limit: 2e-3,
             tcp_error_time: 0.05,
+            tcp_error_lag: 0.1,
             approach_speed_fraction: 0.3,
             approach_position_tolerance: 0.1e-3,
             approach_orientation_tolerance: 0.01,
@@ -102,6 +107,7 @@ impl ControllerConfig {
             ("following_error_limit", self.following_error_limit, 10.0),
             ("tcp_error_limit", self.tcp_error_limit, 1.0),
             ("tcp_error_time", self.tcp_error_time, 10.0),
+            ("tcp_error_lag", self.tcp_error_lag, 1.0),
             ("approach_position_tolerance", self.approach_position_tolerance, 0.1),
             ("approach_orientation_tolerance", self.approach_orientation_tolerance, 1.0),
         ] {
@@ -493,8 +499,8 @@ pub struct Controller {
     /// The path's progress measure when it last changed, and when (ns): the stall watchdog.
     progress_mark: (f64, f64),
     progress_ns: Option<u64>,
-    /// Since when (ns) the Cartesian following error has been above its limit.
-    tcp_error_since: Option<u64>,
+    /// The Cartesian following-error watchdog.
+    following: FollowingWatch,
 }
 
 impl Controller {
@@ -569,7 +575,11 @@ impl Controller {
             out_seq: 0,
             progress_mark: (0.0, 0.0),
             progress_ns: None,
-            tcp_error_since: None,
+            following: FollowingWatch::new(
+                settings.controller.tcp_error_limit,
+                settings.controller.tcp_error_time,
+                settings.controller.tcp_error_lag,
+            ),
             model,
         })
     }
@@ -1267,38 +1277,27 @@ impl Controller {
         timeout > 0.0 && now_ns.saturating_sub(since) as f64 * 1e-9 > timeout
     }
 
-    /// The Cartesian following-error watchdog, after this tick's command: while the path runs, the
-    /// distance from the path target to the TCP of the commanded joints and (with a joint state
-    /// fresh this tick) of the measured joints, both through the estimated base pose, in W. Above
-    /// `tcp_error_limit` for longer than `tcp_error_time` → `TcpErrorLimit`, latched in the same
-    /// tick, so this tick's extruder command is already off. The measured TCP is compared with the
-    /// target for the same instant the commanded one is, so a robot's lag counts against it.
+    /// The Cartesian following-error watchdog (`core::following`), after this tick's command:
+    /// while the path runs, the commanded TCP against the path target and (with a joint state fresh
+    /// this tick) the measured TCP against the recent path, both through the estimated base pose.
+    /// A trip latches `TcpErrorLimit` in the same tick, so this tick's extruder command is already off.
     fn watch_tcp_error(&mut self, input: &TickInput, base: &BaseState, out: &mut TickOutput) {
         let following = matches!(self.state, RunState::Running | RunState::Pausing | RunState::Paused | RunState::Stopping)
             && !self.settling
             && !self.stop_by_brake
             && self.last_sample.is_some();
         if !following {
-            self.tcp_error_since = None;
+            self.following.reset();
             return;
         }
-        let target = out.diagnostics.tcp_target_world;
-        let mut error = (out.diagnostics.tcp_command_world - target).norm();
-        if self.last_state_ns == Some(input.time_ns) {
+        let measured = (self.last_state_ns == Some(input.time_ns)).then(|| {
             let f = self.model.forward_kinematics(&self.q_measured);
-            let measured = base.base_to_world(&f.translation.vector, &UnitQuaternion::from_rotation_matrix(&f.rotation)).0;
-            error = error.max((measured - target).norm());
-        }
-        if !error.is_finite() {
-            error = f64::INFINITY;
-        }
+            base.base_to_world(&f.translation.vector, &UnitQuaternion::from_rotation_matrix(&f.rotation)).0
+        });
+        let d = &out.diagnostics;
+        let (error, trips) = self.following.observe(input.time_ns, &d.tcp_target_world, &d.tcp_command_world, measured.as_ref());
         out.diagnostics.tcp_error = error;
-        if self.cfg.tcp_error_limit <= 0.0 || error <= self.cfg.tcp_error_limit {
-            self.tcp_error_since = None;
-            return;
-        }
-        let since = *self.tcp_error_since.get_or_insert(input.time_ns);
-        if input.time_ns.saturating_sub(since) as f64 * 1e-9 >= self.cfg.tcp_error_time {
+        if trips {
             self.latch_fault_with(FaultCode::TcpErrorLimit, error, out);
         }
     }

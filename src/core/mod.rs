@@ -5,5 +5,6 @@
 pub mod base;
 pub mod controller;
 pub mod extrude;
+pub mod following;
 pub mod kin;
 pub mod path;

@@ -78,6 +78,11 @@ pub struct Report {
     /// The controller's own view: target against FK of the measured joints through its base
     /// estimate (m).
     pub tcp_error_estimated_m: Spread,
+    /// The largest Cartesian following error the controller's `TcpErrorLimit` watchdog saw (m):
+    /// the target against the commanded and the measured TCP, on the path.
+    pub tcp_error_fault_m: f64,
+    /// `[controller] tcp_error_limit` of the run (m).
+    pub tcp_error_limit_m: f64,
     /// Melt flow error |actual − commanded| while extruding (m³/s).
     pub flow_error_m3s: Spread,
     /// Mean commanded melt flow while extruding (m³/s).
@@ -143,8 +148,13 @@ pub fn report(log: &Path, truth: &[Truth], flyer: bool) -> Result<Report, String
     let dt_ns = (1e9 / cfg.controller.rate_hz).round() as u64;
     let model = cfg.robot.build_model().map_err(|e| e.to_string())?;
     let by_time: HashMap<u64, &Truth> = truth.iter().map(|t| (t.time_ns, t)).collect();
-    let mut r =
-        Report { robot: model.name().to_string(), rate_hz: cfg.controller.rate_hz, job_outcome: "none".into(), ..Default::default() };
+    let mut r = Report {
+        robot: model.name().to_string(),
+        rate_hz: cfg.controller.rate_hz,
+        job_outcome: "none".into(),
+        tcp_error_limit_m: cfg.controller.tcp_error_limit,
+        ..Default::default()
+    };
     let (mut errors, mut estimated) = (Vec::new(), Vec::new());
     let (mut step, mut tick_cost, mut lateness) = (Histogram::new(), Histogram::new(), Histogram::new());
     let mut path_ticks = PathTicks::default();
@@ -170,6 +180,7 @@ pub fn report(log: &Path, truth: &[Truth], flyer: bool) -> Result<Report, String
             q.as_mut_slice()[..dof].copy_from_slice(&js.position[..dof]);
             measured = Some(q);
         }
+        r.tcp_error_fault_m = r.tcp_error_fault_m.max(o.diagnostics.tcp_error);
         if path_ticks.update(o) {
             let target = o.diagnostics.tcp_target_world;
             match by_time.get(&(i.time_ns + dt_ns)) {

@@ -167,8 +167,15 @@ pub enum Ending {
     Finished,
     /// A controlled stop (Ctrl-C, or a stop from elsewhere).
     Stopped,
-    /// The controller faulted (`ipc::FaultCode` as u32).
-    Faulted(u32),
+    /// The controller faulted.
+    Faulted {
+        /// `ipc::FaultCode` as u32.
+        code: u32,
+        /// The segment executing then.
+        seq: u64,
+        /// Its source line.
+        line: u32,
+    },
     /// The controller refused one of our segments.
     Rejected {
         /// Its sequence number.
@@ -179,14 +186,14 @@ pub enum Ending {
 }
 
 impl Ending {
-    /// The process exit code: 0 finished, 3 stopped, 4 faulted, 5 a segment rejected. (1 is a
-    /// service or transport error, 2 a bad program or config.)
+    /// The process exit code: 0 finished, 4 faulted, 5 a segment rejected, 6 stopped. (1 is a
+    /// service or transport error, 2 a bad program or config, 3 a job the check refused.)
     pub fn exit_code(self) -> u8 {
         match self {
             Ending::Finished => 0,
-            Ending::Stopped => 3,
-            Ending::Faulted(_) => 4,
+            Ending::Faulted { .. } => 4,
             Ending::Rejected { .. } => 5,
+            Ending::Stopped => 6,
         }
     }
 }

@@ -131,7 +131,7 @@ fn ctrl_c_is_a_controlled_stop() {
     unsafe { libc::kill(child.id() as i32, libc::SIGINT) };
     let out = child.wait_with_output().unwrap();
     let stderr = String::from_utf8_lossy(&out.stderr);
-    assert_eq!(out.status.code(), Some(3), "{stderr}");
+    assert_eq!(out.status.code(), Some(6), "{stderr}");
     assert!(stderr.contains("Stop sent") && stderr.contains("job stopped"), "{stderr}");
 }
 

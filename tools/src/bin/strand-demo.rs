@@ -4,7 +4,9 @@
 //! the sim's truth and prints a summary: job time, segments, TCP error (mean, p99, max), flow
 //! error, tick cost, round trip, overruns, faults, the log's path — and whether
 //! `strand-replay verify` reproduces the log to the bit. Exit 0 only if the job finished and the
-//! replay is identical. A child that fails (the feeder refusing the job, the sim its plant, the
+//! replay is identical; a job that faulted or was stopped still gets its summary (the job line says
+//! FAULTED, the fault and where) and exit 1. A child that fails (the feeder refusing the job — its
+//! own check, or a bad file —, the sim its plant, the
 //! service its config) stops the demo at once: the others are stopped, the child's name, exit code
 //! and last lines of output are printed, a log that holds only idle ticks is removed, and the exit
 //! code is 1 (2 for a problem the demo finds itself). Configs and the default jobs are found as
@@ -51,6 +53,10 @@ struct Cli {
     /// Override a service config key (repeatable), e.g. `--set base.estimator=moving-average`.
     #[arg(long = "set", value_name = "SECTION.KEY=VALUE")]
     set: Vec<String>,
+    /// Let the feeder stream without its job check (strand-feed --no-check): to see the run-time
+    /// faults a checked job never meets.
+    #[arg(long)]
+    no_check: bool,
     /// Folder for this run's files (log, truth, process output); default logs/demo-<UTC time> in the
     /// working directory.
     #[arg(long)]
@@ -260,6 +266,9 @@ fn run(cli: &Cli) -> Result<bool, String> {
     if let Some(n) = layers {
         feed.args(["--layers", &n.to_string()]);
     }
+    if cli.no_check {
+        feed.arg("--no-check");
+    }
     let mut feeder = Proc::spawn("feed", feed, &out)?;
 
     // Watch all three until the feeder ends: a child that fails stops the demo at once.
@@ -267,11 +276,12 @@ fn run(cli: &Cli) -> Result<bool, String> {
     let watched = loop {
         job_began |= ports.latest_status().is_some_and(|s| s.segments_accepted > 0);
         if let Some(c) = feeder.exited() {
-            break if c == 0 { Ok(()) } else { Err(("feed", c)) };
+            // 0 finished, 4 faulted, 6 stopped: the job ended, and the summary says how.
+            break if matches!(c, 0 | 4 | 6) { Ok(()) } else { Err(("feed", c)) };
         }
-        // The service leaves by itself (exit 0) once the job has ended, maybe just before the
-        // feeder sees it; any other exit is a failure.
-        if let Some(c) = service.exited().filter(|c| *c != 0) {
+        // The service leaves by itself once the job has ended (exit 0, or 3 when it ended in a
+        // fault), maybe just before the feeder sees it; any other exit is a failure.
+        if let Some(c) = service.exited().filter(|c| !matches!(c, 0 | 3)) {
             break Err(("service", c));
         }
         if let Some(c) = sim.exited() {
@@ -308,7 +318,7 @@ fn run(cli: &Cli) -> Result<bool, String> {
     let sim_code = sim.stop(Duration::from_secs(10));
     let wall = started.elapsed().as_secs_f64();
     for (p, code) in [(&service, service_code), (&sim, sim_code)] {
-        if code != 0 {
+        if code != 0 && !(p.name == "service" && code == 3) {
             report_child(&out, p.name, code);
         }
     }
@@ -395,16 +405,33 @@ fn print_table(r: &Report, wall: f64, log: &Path, log_bytes: u64, sim: Option<&s
         ("robot".into(), format!("{} at {} Hz", r.robot, r.rate_hz)),
         (
             "job".into(),
-            format!(
-                "{}, {:.1} s of robot time in {wall:.1} s wall ({:.1}× real time)",
-                r.job_outcome,
-                r.job_time_s,
-                r.job_time_s / wall.max(1e-9)
-            ),
+            match r.job_outcome.as_str() {
+                "Faulted" => format!(
+                    "FAULTED: {} after {:.1} s of robot time",
+                    r.faults.first().map_or("fault not in the log".to_string(), |(t, c)| format!("{c} at tick {t}")),
+                    r.job_time_s
+                ),
+                outcome => format!(
+                    "{}{}, {:.1} s of robot time in {wall:.1} s wall ({:.1}× real time)",
+                    if outcome == "Finished" { "" } else { "NOT FINISHED: " },
+                    outcome,
+                    r.job_time_s,
+                    r.job_time_s / wall.max(1e-9)
+                ),
+            },
         ),
         ("segments".into(), format!("{} accepted, {} rejected, {} underruns", r.segments_accepted, r.segments_rejected, r.underruns)),
         ("TCP error (sim truth)".into(), format!("{} over {} ticks", mm(&r.tcp_error_m), r.tcp_error_m.samples)),
         ("TCP error (controller's view)".into(), mm(&r.tcp_error_estimated_m)),
+        (
+            "TCP error watchdog".into(),
+            format!(
+                "max {:.3} mm = {:.0} % of tcp_error_limit {:.1} mm",
+                r.tcp_error_fault_m * 1e3,
+                100.0 * r.tcp_error_fault_m / r.tcp_error_limit_m.max(1e-12),
+                r.tcp_error_limit_m * 1e3
+            ),
+        ),
     ];
     if let Some(b) = &r.base_error_m {
         rows.push(("base vs its plan".into(), mm(b)));

@@ -3,7 +3,12 @@
 //! ever dropped; it shows a progress bar
 //! (segments, layer, ETA), turns Ctrl-C into a controlled stop (a second Ctrl-C into an emergency
 //! stop), can resume from a segment number, and exits with a code that says how the job ended:
-//! 0 finished, 3 stopped, 4 faulted, 5 a segment rejected, 2 a bad program or config, 1 no service.
+//! 0 finished, 1 no service, 2 a bad program or config, 3 refused by the job check, 4 faulted,
+//! 5 a segment rejected, 6 stopped before the end.
+//!
+//! Before it streams, it runs the job through `strand check-job`'s check (the controller in virtual
+//! time, `strand::check`) and refuses a job that would fault, leave its path or hit a limit, with
+//! the report; `--no-check` skips that, with a warning.
 
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -48,6 +53,12 @@ struct Cli {
     /// No progress bar (one line per 10 % instead).
     #[arg(long)]
     quiet: bool,
+    /// Stream without checking the job against the robot first (prints a warning).
+    #[arg(long)]
+    no_check: bool,
+    /// The planned base trajectory for the check on a tracked base (CSV: t, base_x, base_y[, base_theta]).
+    #[arg(long, value_name = "CSV")]
+    base_trajectory: Option<PathBuf>,
 }
 
 static INTERRUPTS: AtomicU32 = AtomicU32::new(0);
@@ -78,6 +89,22 @@ fn main() -> ExitCode {
     for w in &job.warnings {
         eprintln!("strand-feed: note: {w}");
     }
+    if cli.no_check {
+        eprintln!("strand-feed: WARNING: --no-check: the job was not checked against the robot (reach, joint limits, bed)");
+    } else {
+        match check(&job, &cli, &cfg) {
+            Ok(None) => {}
+            Ok(Some(report)) => {
+                eprintln!("{report}");
+                eprintln!("strand-feed: refused: the job check fails (stream it anyway with --no-check)");
+                return ExitCode::from(3);
+            }
+            Err(e) => {
+                eprintln!("strand-feed: {e}");
+                return ExitCode::from(2);
+            }
+        }
+    }
     // SAFETY: the handler only increments an atomic.
     unsafe {
         libc::signal(libc::SIGINT, on_interrupt as *const () as libc::sighandler_t);
@@ -89,7 +116,10 @@ fn main() -> ExitCode {
             let text = match ending {
                 Ending::Finished => "finished".to_string(),
                 Ending::Stopped => "stopped".to_string(),
-                Ending::Faulted(code) => format!("faulted: {:?}", ipc::FaultCode::from_u32(code)),
+                Ending::Faulted { code, seq, line } => {
+                    let code = ipc::FaultCode::from_u32(code).map_or(format!("fault {code}"), |c| format!("{c:?}"));
+                    format!("FAULTED: {code} at segment {seq} ({}:{line})", cli.file.display())
+                }
                 Ending::Rejected { seq, reason } => {
                     let line = job.segments.iter().find(|s| s.seq == seq).map_or(0, |s| s.source_line);
                     format!("segment {seq} ({}:{line}) rejected: {:?}", cli.file.display(), ipc::RejectReason::from_u32(reason))
@@ -103,6 +133,30 @@ fn main() -> ExitCode {
             ExitCode::from(1)
         }
     }
+}
+
+/// The job check before streaming: None when the job is clean, else the report to show.
+fn check(job: &Job, cli: &Cli, cfg: &Config) -> Result<Option<String>, String> {
+    let started = Instant::now();
+    let trajectory = match &cli.base_trajectory {
+        Some(p) => Some((strand::job::BaseTrajectory::load(p, cfg.base.mount_rpy[2])?, p.display().to_string())),
+        None => None,
+    };
+    let name = cli.file.display().to_string();
+    let check_job = strand::check::CheckJob { file: &name, segments: &job.segments, layers: &job.layers };
+    let report =
+        strand::check::check_job(&check_job, cfg, trajectory.as_ref().map(|(t, n)| (t, n.as_str())), None).map_err(|e| e.to_string())?;
+    if !report.clean {
+        return Ok(Some(report.summary()));
+    }
+    eprintln!(
+        "strand-feed: check-job: clean ({} segments, predicted {:.1} s, max TCP error {:.3} mm; checked in {:.1} s)",
+        report.segments,
+        report.time.total_s,
+        report.max_tcp_error_m * 1e3,
+        started.elapsed().as_secs_f64()
+    );
+    Ok(None)
 }
 
 fn stream(job: &Job, prefix: &str, cli: &Cli) -> Result<Ending, String> {
@@ -205,7 +259,9 @@ fn stream(job: &Job, prefix: &str, cli: &Cli) -> Result<Ending, String> {
                 let ending = match outcome {
                     Some(JobOutcome::Finished) => Some(Ending::Finished),
                     Some(JobOutcome::Stopped) => Some(Ending::Stopped),
-                    Some(JobOutcome::Faulted) => Some(Ending::Faulted(status.fault)),
+                    Some(JobOutcome::Faulted) => {
+                        Some(Ending::Faulted { code: status.fault, seq: status.executing_seq, line: status.executing_line })
+                    }
                     _ => None,
                 };
                 if let Some(e) = ending {
