@@ -62,6 +62,10 @@ pub struct ControllerConfig {
     pub tcp_error_lag: f64,
     /// Fraction of each joint's velocity, acceleration and jerk limit the approach move uses (0, 1].
     pub approach_speed_fraction: f64,
+    /// The joint-space approach ends this far (m) above the job's first point, back along the
+    /// nozzle, and the tool then moves straight down onto it (the CLIK's capped feedback): a
+    /// joint-space move sags between its ends, and next to the bed that is a crash.
+    pub approach_lift: f64,
     /// The tool counts as at the first point within this distance (m) …
     pub approach_position_tolerance: f64,
     /// … and this nozzle-axis angle (rad).
@@ -82,6 +86,7 @@ impl Default for ControllerConfig {
             tcp_error_time: 0.05,
             tcp_error_lag: 0.1,
             approach_speed_fraction: 0.3,
+            approach_lift: 0.01,
             approach_position_tolerance: 0.1e-3,
             approach_orientation_tolerance: 0.01,
             bounds_min: [-2.0, -2.0, -1.0],
@@ -109,6 +114,7 @@ impl ControllerConfig {
             ("tcp_error_time", self.tcp_error_time, 10.0),
             ("tcp_error_lag", self.tcp_error_lag, 1.0),
             ("approach_position_tolerance", self.approach_position_tolerance, 0.1),
+            ("approach_lift", self.approach_lift, 0.2),
             ("approach_orientation_tolerance", self.approach_orientation_tolerance, 1.0),
         ] {
             if !(v.is_finite() && (0.0..=hi).contains(&v)) {
@@ -1110,8 +1116,11 @@ impl Controller {
             };
             if iterations == 0 {
                 // The IK target is fixed when the approach starts; if the base moves meanwhile, the
-                // CLIK takes up the difference when the path starts.
-                let b = base.world_to_base(&TcpTarget::at_rest(p, q));
+                // CLIK takes up the difference when the path starts. It lies `approach_lift` above
+                // the first point (tool z is the nozzle, pointing at the substrate); the settling
+                // that follows brings the tool straight down.
+                let lifted = p - (q * Vector3::z()) * self.cfg.approach_lift;
+                let b = base.world_to_base(&TcpTarget::at_rest(lifted, q));
                 self.approach_target = TcpTarget::at_rest(b.position, b.orientation);
             }
             let target = self.approach_target;

@@ -249,6 +249,28 @@ fn strand_plan_refuses_bad_programs_naming_file_and_line() {
 }
 
 #[test]
+fn strand_check_job_refuses_bad_programs_and_configs_with_exit_2() {
+    let mut failures = Vec::new();
+    for bad in &inputs().programs {
+        let out = run("strand", &["check-job"], &bad.path);
+        failures.extend(check("strand check-job", bad, &out));
+        if out.status.code() != Some(2) {
+            failures.push(format!("strand check-job on {}: exit {:?}, not 2", bad.label, out.status.code()));
+        }
+    }
+    let job = root().join("tests/data/gcode/truss/truss_200mm.gcode").canonicalize().unwrap();
+    for bad in &inputs().configs {
+        let out = run("strand", &["check-job", job.to_str().unwrap(), "--config"], &bad.path);
+        failures.extend(check("strand check-job --config", bad, &out));
+    }
+    // A base trajectory that is not one.
+    let traj = Bad { label: "a trajectory without t", path: write(&inputs().dir, "plan.csv", b"x,y\n1,2\n"), line: Some(1) };
+    let out = run("strand", &["check-job", job.to_str().unwrap(), "--base-trajectory"], &traj.path);
+    failures.extend(check("strand check-job --base-trajectory", &traj, &out));
+    assert_all(failures);
+}
+
+#[test]
 fn strand_plan_refuses_bad_configs() {
     let mut failures = Vec::new();
     let job = root().join("tests/data/gcode/truss/truss_200mm.gcode").canonicalize().unwrap();
@@ -360,10 +382,16 @@ fn absurd_moves_are_refused_not_timed() {
     let mut failures = Vec::new();
     for (label, path) in [("a move of 1e17 m", far), ("F1e-19", slow)] {
         let bad = Bad { label, path, line: None };
-        let out = run("strand-plan", &["time"], &bad.path);
-        let stderr = String::from_utf8_lossy(&out.stderr);
-        if stderr.contains("panicked") || out.status.success() || !stderr.contains(":1") {
-            failures.push(format!("strand-plan time on {label}: {stderr}"));
+        // check-job runs what the controller would: a lone travel is the approach's target (a
+        // joint-space move, whatever its feed), so only the far move is absurd there.
+        let tools: &[(&str, &[&str])] =
+            if label == "F1e-19" { &[("strand-plan", &["time"])] } else { &[("strand-plan", &["time"]), ("strand", &["check-job"])] };
+        for &(tool, args) in tools {
+            let out = run(tool, args, &bad.path);
+            let stderr = String::from_utf8_lossy(&out.stderr);
+            if stderr.contains("panicked") || out.status.success() || !stderr.contains(":1") {
+                failures.push(format!("{tool} {} on {label}: {stderr}", args[0]));
+            }
         }
     }
     assert_all(failures);

@@ -81,6 +81,7 @@ fn a_clean_job_finishes_in_the_demo_in_the_predicted_time() {
         assert_eq!(summary["job_outcome"], "Finished");
         assert!(summary["faults"].as_array().unwrap().is_empty(), "{summary}");
         let measured = f(&summary, &["job_time_s"]);
+        assert_eq!(f(&summary, &["predicted_s"]), predicted, "the demo's own check is the same check");
         let ratio = predicted / measured;
         println!("{}: predicted {predicted:.3} s, measured {measured:.3} s, ratio {ratio:.4}", job.display());
         assert!((ratio - 1.0).abs() <= 0.01, "{}: predicted {predicted} s, measured {measured} s", job.display());
@@ -110,11 +111,21 @@ fn a_job_out_of_reach_is_refused_and_forced_through_it_faults_at_the_line_the_ch
     let unreachable = problems.iter().find(|p| p["kind"] == "unreachable").expect("an unreachable stretch");
     assert!(f(unreachable, &["worst"]) > 0.6, "worst distance {unreachable}");
 
-    // The feeder refuses it with the report (exit 3): the demo stops, naming the line.
+    // The demo checks it first and refuses it with the report, naming the line; nothing runs.
     let (code, _, stderr) = demo(&dir.join("refused"), &job, config, &[]);
     assert_eq!(code, 1, "{stderr}");
-    assert!(stderr.contains("exited with 3") && stderr.contains("unreachable.gcode:6"), "{stderr}");
+    assert!(stderr.contains("refused") && stderr.contains("unreachable.gcode:6"), "{stderr}");
     assert!(!dir.join("refused/run.mcap").exists(), "nothing ran: no log of idle ticks");
+    // So does the feeder (exit 3), before it looks for a service.
+    let out = Command::new(bin("strand-feed"))
+        .args(["--config", config, "--prefix", "strand/check-test-none", "--wait-service", "30", "--quiet"])
+        .arg(&job)
+        .current_dir(root())
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(3), "{stderr}");
+    assert!(stderr.contains("unreachable.gcode:6") && stderr.contains("would fault: TcpErrorLimit"), "{stderr}");
 
     // Forced through: the run faults at that line, and extrudes nothing from the fault on.
     let (code, summary, stderr) = demo(&dir.join("forced"), &job, config, &["--no-check"]);

@@ -106,7 +106,13 @@ fn a_segment_file_with_orientation_streams_like_g_code() {
     let prefix = format!("strand/feedtest-seg-{}", std::process::id());
     let log = dir.join("run.mcap");
     let mut svc = service(&prefix, "free-run", &log);
-    let out = feed(&prefix, &tilted, &[]).output().unwrap();
+    // The file is tilted offline against the config's flat bed, so the job check (rightly) sees
+    // the nozzle go under that bed: it is refused unless streamed without the check.
+    let refused = feed(&prefix, &tilted, &[]).output().unwrap();
+    let stderr = String::from_utf8_lossy(&refused.stderr);
+    assert_eq!(refused.status.code(), Some(3), "{stderr}");
+    assert!(stderr.contains("tcp -") && stderr.contains("from the bed plane"), "{stderr}");
+    let out = feed(&prefix, &tilted, &["--no-check"]).output().unwrap();
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert_eq!(out.status.code(), Some(0), "{stderr}");
     let t0 = Instant::now();
@@ -124,7 +130,8 @@ fn ctrl_c_is_a_controlled_stop() {
     let program = square_program(&dir, 2, 40, 3000.0);
     let prefix = format!("strand/feedstop-{}", std::process::id());
     let _svc = service(&prefix, "timer", &dir.join("stop.mcap"));
-    let child = feed(&prefix, &program, &[]).stderr(Stdio::piped()).spawn().unwrap();
+    // Without the check: the interrupt must reach a job in progress (a debug build checks slowly).
+    let child = feed(&prefix, &program, &["--no-check"]).stderr(Stdio::piped()).spawn().unwrap();
     // The approach alone takes seconds at 1 kHz: interrupt while the job is in progress.
     std::thread::sleep(Duration::from_millis(2500));
     // SAFETY: sending a signal to our own child.

@@ -7,8 +7,9 @@
 //! - the feeder killed mid-job → a controlled stop on the path, no fault;
 //! - the sim killed mid-job → the service faults (JointStateLost);
 //! - the free flyer prints a small truss on its drifting, tracked base within a stated bound;
-//! - a child that fails (the feeder refusing the job, the sim refusing its plant) stops the demo at
-//!   once with that child's own message, and no log of idle ticks is left behind.
+//! - a bad job stops the demo before anything starts, naming file and line; a child that fails
+//!   (the sim refusing its plant) stops the demo at once with that child's own message, and no log
+//!   of idle ticks is left behind.
 
 mod common;
 
@@ -204,22 +205,21 @@ fn demo_elsewhere(dir: &Path, args: &[&str]) -> (std::process::Output, Duration)
 }
 
 #[test]
-fn the_demo_stops_at_once_when_the_feeder_refuses_the_job() {
+fn the_demo_stops_at_once_on_a_bad_job() {
     let dir = temp_dir("sim", "demo-bad-job");
     let job = dir.join("bad.gcode");
     std::fs::write(&job, "G21\nG1 X1 Y1 F1200\nG1 X nan\n").unwrap();
     let (out, took) = demo_elsewhere(&dir, &["--gcode", job.to_str().unwrap()]);
     let (stdout, stderr) = (String::from_utf8_lossy(&out.stdout), String::from_utf8_lossy(&out.stderr));
-    assert_eq!(out.status.code(), Some(1), "stdout: {stdout}\nstderr: {stderr}");
+    // The demo reads (and checks) the job before it starts anything: exit 2, a bad input.
+    assert_eq!(out.status.code(), Some(2), "stdout: {stdout}\nstderr: {stderr}");
     assert!(took < Duration::from_secs(20), "took {took:?}: the demo waited for something");
-    assert!(stderr.contains("the feed (strand-feed) exited with 2"), "{stderr}");
-    assert!(stderr.contains(&format!("{}:3:", job.display())), "the feeder's own message, with file and line: {stderr}");
+    assert!(stderr.contains(&format!("{}:3:", job.display())), "the parser's message, with file and line: {stderr}");
     assert!(!stderr.contains("panicked"), "{stderr}");
     assert!(!stdout.contains("TCP error"), "no summary of an empty run: {stdout}");
     // Nothing ran: no log of idle ticks, no truth.
     assert!(!dir.join("demo/run.mcap").exists());
     assert!(!dir.join("demo/truth.csv").exists());
-    assert!(dir.join("demo/feed.log").is_file());
 }
 
 #[test]

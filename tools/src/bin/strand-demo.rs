@@ -228,6 +228,32 @@ fn run(cli: &Cli) -> Result<bool, String> {
     }
     let started = Instant::now();
     let deadline = started + Duration::from_secs_f64(cli.timeout);
+    // The job check, here and not in the feeder: the sim's clock (and a free flyer's planned
+    // trajectory) starts with the sim, so seconds of checking would put the base's plan ahead of
+    // the job. Same job as the feeder will send, same controller as the service will run.
+    let predicted = if cli.no_check {
+        eprintln!("strand-demo: WARNING: --no-check: the job was not checked against the robot");
+        None
+    } else {
+        match check(&gcode, layers, &cfg, tracked, &sim_cfg)? {
+            Ok(report) => {
+                if !cli.json {
+                    println!(
+                        "strand-demo: check-job: clean ({} segments, predicted {:.1} s, max TCP error {:.3} mm)",
+                        report.segments,
+                        report.time.total_s,
+                        report.max_tcp_error_m * 1e3
+                    );
+                }
+                Some(report.time.total_s)
+            }
+            Err(summary) => {
+                eprintln!("{summary}");
+                eprintln!("strand-demo: refused: the job check fails (run it anyway with --no-check)");
+                return Ok(false);
+            }
+        }
+    };
 
     let mut svc = Command::new(&strand_bin);
     svc.args(["run", "--clock", "robot", "--exit-when-done", "--set", "log.wait_when_full=true", "--prefix", &prefix])
@@ -266,9 +292,8 @@ fn run(cli: &Cli) -> Result<bool, String> {
     if let Some(n) = layers {
         feed.args(["--layers", &n.to_string()]);
     }
-    if cli.no_check {
-        feed.arg("--no-check");
-    }
+    // The demo checked the job itself, before the sim's clock started (see `check`).
+    feed.arg("--no-check");
     let mut feeder = Proc::spawn("feed", feed, &out)?;
 
     // Watch all three until the feeder ends: a child that fails stops the demo at once.
@@ -335,6 +360,7 @@ fn run(cli: &Cli) -> Result<bool, String> {
     json["job"] = gcode.display().to_string().into();
     json["sim"] = round_trip.clone().unwrap_or(serde_json::Value::Null);
     json["ok"] = ok.into();
+    json["predicted_s"] = predicted.into();
     std::fs::write(out.join("summary.json"), format!("{json:#}\n")).map_err(|e| e.to_string())?;
     if cli.json {
         println!("{json}");
@@ -342,6 +368,25 @@ fn run(cli: &Cli) -> Result<bool, String> {
         print_table(&rep, wall, &log, log_bytes, round_trip.as_ref());
     }
     Ok(ok)
+}
+
+/// Checks the job the feeder will send (`strand::check`): Ok(report) when clean, Err(summary)
+/// when not; the outer error is a job or config that cannot be read.
+fn check(job: &Path, layers: Option<usize>, cfg: &Config, tracked: bool, sim_cfg: &Path) -> Result<Result<strand::check::CheckReport, String>, String> {
+    let mut loaded = strand_tools::feed::load_gcode(job, cfg, None)?;
+    if let Some(n) = layers {
+        loaded = loaded.first_layers(n);
+    }
+    let trajectory = match SimConfig::load(sim_cfg).map_err(|e| e.to_string())?.flyer {
+        Some(f) if tracked && !f.trajectory.as_os_str().is_empty() => {
+            Some((strand::job::BaseTrajectory::load(&f.trajectory, cfg.base.mount_rpy[2])?, f.trajectory.display().to_string()))
+        }
+        _ => None,
+    };
+    let name = job.display().to_string();
+    let check_job = strand::check::CheckJob { file: &name, segments: &loaded.segments, layers: &loaded.layers };
+    let report = strand::check::check_job(&check_job, cfg, trajectory.as_ref().map(|(t, n)| (t, n.as_str())), None).map_err(|e| e.to_string())?;
+    Ok(if report.clean { Ok(report) } else { Err(report.summary()) })
 }
 
 /// A failure before the job began: stops the children, removes the idle files and returns the

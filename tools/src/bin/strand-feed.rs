@@ -59,6 +59,10 @@ struct Cli {
     /// The planned base trajectory for the check on a tracked base (CSV: t, base_x, base_y[, base_theta]).
     #[arg(long, value_name = "CSV")]
     base_trajectory: Option<PathBuf>,
+    /// Override one config key (repeatable), as the service's `run --set`: give the feeder the
+    /// service's overrides so that its check runs the service's controller.
+    #[arg(long = "set", value_name = "SECTION.KEY=VALUE")]
+    set: Vec<String>,
 }
 
 static INTERRUPTS: AtomicU32 = AtomicU32::new(0);
@@ -69,7 +73,7 @@ extern "C" fn on_interrupt(_: libc::c_int) {
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
-    let cfg = match locate::service_config(cli.config.as_deref()).and_then(|c| Config::load(&c)) {
+    let cfg = match locate::service_config(cli.config.as_deref()).and_then(|c| Config::load_with(&c, &cli.set)) {
         Ok(c) => c,
         Err(e) => {
             eprintln!("strand-feed: {e}");
@@ -89,6 +93,11 @@ fn main() -> ExitCode {
     for w in &job.warnings {
         eprintln!("strand-feed: note: {w}");
     }
+    // SAFETY: the handler only increments an atomic.
+    unsafe {
+        libc::signal(libc::SIGINT, on_interrupt as *const () as libc::sighandler_t);
+        libc::signal(libc::SIGTERM, on_interrupt as *const () as libc::sighandler_t);
+    }
     if cli.no_check {
         eprintln!("strand-feed: WARNING: --no-check: the job was not checked against the robot (reach, joint limits, bed)");
     } else {
@@ -105,10 +114,9 @@ fn main() -> ExitCode {
             }
         }
     }
-    // SAFETY: the handler only increments an atomic.
-    unsafe {
-        libc::signal(libc::SIGINT, on_interrupt as *const () as libc::sighandler_t);
-        libc::signal(libc::SIGTERM, on_interrupt as *const () as libc::sighandler_t);
+    if INTERRUPTS.load(Ordering::Relaxed) > 0 {
+        eprintln!("strand-feed: interrupted before streaming: nothing was sent");
+        return ExitCode::from(6);
     }
     let prefix = cli.prefix.clone().unwrap_or_else(|| cfg.service.prefix.clone());
     match stream(&job, &prefix, &cli) {

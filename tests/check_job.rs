@@ -1,0 +1,158 @@
+//! `strand::check` without processes: a job through `Controller::step` in virtual time.
+//!
+//! - a clean job: finished, no error, time per layer adding up, the filament the program asks for,
+//!   the bounding box where the program puts it;
+//! - a job out of reach: the stretch named by line and segment with its worst distance, the fault
+//!   the run would latch, exit-worthy (not clean);
+//! - a job that drives a joint onto its limit, and one that puts the nozzle under the bed;
+//! - a tracked base: assumed still without a trajectory (and said so), following one when given;
+//! - the approach never takes the nozzle below the first point (it comes from above).
+
+mod common;
+
+use common::root;
+use strand::check::{CheckJob, CheckReport, ProblemKind, Severity, check_job};
+use strand::config::Config;
+use strand::job::{BaseTrajectory, load_segments, wire_job};
+
+fn config(name: &str) -> Config {
+    Config::load(&root().join("config").join(format!("{name}.toml"))).unwrap()
+}
+
+fn check_text(program: &str, cfg: &Config) -> CheckReport {
+    let dir = std::env::temp_dir().join(format!("strand-check-job-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let file = dir.join(format!("job-{:x}.gcode", program.len() * 31 + program.bytes().map(u64::from).sum::<u64>() as usize));
+    std::fs::write(&file, program).unwrap();
+    check_file(&file, cfg, None)
+}
+
+fn check_file(file: &std::path::Path, cfg: &Config, trajectory: Option<&BaseTrajectory>) -> CheckReport {
+    let (all, _) = load_segments(file, cfg).unwrap();
+    let (segments, layers) = wire_job(&all);
+    let name = file.display().to_string();
+    check_job(&CheckJob { file: &name, segments: &segments, layers: &layers }, cfg, trajectory.map(|t| (t, "plan.csv")), None).unwrap()
+}
+
+fn errors(r: &CheckReport) -> Vec<&strand::check::Problem> {
+    r.problems.iter().filter(|p| p.severity == Severity::Error).collect()
+}
+
+#[test]
+fn a_clean_job_reports_its_time_filament_and_box() {
+    let cfg = config("iiwa7");
+    let file = root().join("tests/data/gcode/cura/square20.gcode");
+    let r = check_file(&file, &cfg, None);
+    assert!(r.clean, "{}", r.summary());
+    assert_eq!(r.outcome, "Finished");
+    assert!(errors(&r).is_empty());
+    // Time: approach + path = total (to a tick), and the layers share the path time.
+    let t = &r.time;
+    assert!((t.approach_s + t.path_s - t.total_s).abs() <= 2e-3, "{t:?}");
+    let layered: f64 = t.layers.iter().map(|l| l.seconds).sum();
+    assert!((layered - t.path_s).abs() < 1e-6, "layers {layered} s, path {} s", t.path_s);
+    assert_eq!(t.layers.iter().filter(|l| l.layer.is_some()).count(), 3, "{:?}", t.layers);
+    // The filament the program pushes (E in mm of 1.75 mm filament, M82 with G92 resets), to 1 %:
+    // corner blends carry each half's flow over a slightly different length (strand-plan time
+    // shows the same +0.3 % on this file).
+    let (all, _) = load_segments(&file, &cfg).unwrap();
+    let programmed: f64 = all.iter().map(|(s, _)| s.filament).sum();
+    assert!((r.filament_m - programmed).abs() < 0.01 * programmed, "pushed {} m, programmed {programmed} m", r.filament_m);
+    // The box in W: the program's extent on the bed ([bed] offset 0.45, 0, 0.2 m): from the bed
+    // origin (where G28 leaves it), past Cura's purge lines up to y = 200 mm, first layer at 0.2 mm.
+    let b = &r.bbox_world;
+    assert!((b.min[0] - 0.45).abs() < 1e-6 && b.max[1] >= 0.2 && (b.min[2] - 0.2002).abs() < 1e-9, "{b:?}");
+    assert!(r.bbox_world.min[2] >= 0.2, "nothing below the bed: {:?}", r.bbox_world);
+    assert!(r.max_tcp_error_m < 0.5e-3);
+    let m = r.min_joint_margin.as_ref().unwrap();
+    assert!(m.margin > 0.05 && m.joint < 7);
+}
+
+#[test]
+fn a_job_out_of_reach_is_named_by_line_with_its_worst_distance_and_the_fault() {
+    let cfg = config("iiwa7");
+    let r = check_text("G21\nG90\nM83\nG1 Z0.3 F3000\nG1 X20 Y0 E1 F1200\nG1 X1000 Y0 E10\nG1 X20 Y20 E1\n", &cfg);
+    assert!(!r.clean);
+    let unreachable = r.problems.iter().find(|p| p.kind == ProblemKind::Unreachable).expect("unreachable");
+    assert_eq!(unreachable.severity, Severity::Error);
+    assert_eq!(unreachable.lines[0], 6, "{}", unreachable.message);
+    // The program asks for x = 1000 mm on a bed at 0.45 m: 1.45 m from the base; the iiwa7 reaches
+    // about 0.8 m there, so the worst distance is over 0.6 m.
+    assert!(unreachable.worst > 0.6 && unreachable.worst < 0.7, "{}", unreachable.worst);
+    let fault = r.problems.iter().find(|p| p.kind == ProblemKind::Fault).expect("the fault the run would latch");
+    assert_eq!(fault.fault.as_deref(), Some("TcpErrorLimit"));
+    assert_eq!(fault.lines, [6, 6]);
+    assert!(fault.worst > cfg.controller.tcp_error_limit);
+    assert!(r.summary().contains("job.gcode:6") || r.summary().contains(":6 ("), "{}", r.summary());
+    // The JSON carries all of it.
+    let json = serde_json::to_value(&r).unwrap();
+    assert_eq!(json["problems"].as_array().unwrap().iter().filter(|p| p["kind"] == "unreachable").count(), 1);
+    for key in ["time", "filament_m", "bbox_world", "bbox_base", "min_joint_margin", "clean", "outcome", "base"] {
+        assert!(json.get(key).is_some(), "{key} missing");
+    }
+}
+
+#[test]
+fn a_nozzle_under_the_bed_is_an_error() {
+    let cfg = config("iiwa7");
+    let r = check_text("G21\nG90\nM83\nG1 Z1 F3000\nG1 X20 Y0 Z-3 F600\nG1 X40 Y0 Z1\n", &cfg);
+    let below: Vec<_> = r.problems.iter().filter(|p| p.kind == ProblemKind::BelowBed).collect();
+    assert!(!below.is_empty() && !r.clean, "{}", r.summary());
+    let tcp = below.iter().find(|p| p.frame.as_deref() == Some("tcp")).expect("the nozzle");
+    assert!((tcp.worst + 3e-3).abs() < 0.1e-3, "3 mm under: {}", tcp.worst);
+    assert_eq!(tcp.lines[0], 5);
+}
+
+#[test]
+fn a_joint_driven_onto_its_limit_is_reported_with_the_joint() {
+    // Tighter limits than the URDF's: the iiwa7 start posture has joint 4 at -1.5 rad; a job that
+    // needs it folded further meets the configured margin.
+    let mut cfg = config("iiwa7");
+    cfg.check.joint_margin = 0.6;
+    let r = check_text("G21\nG90\nM83\nG1 Z5 F3000\nG1 X-150 Y0 F3000\nG1 X20 Y0\n", &cfg);
+    let near: Vec<_> = r.problems.iter().filter(|p| p.kind == ProblemKind::JointLimit).collect();
+    assert!(!near.is_empty(), "{}", r.summary());
+    for p in &near {
+        assert!(p.joint.is_some() && p.worst < 0.6, "{p:?}");
+    }
+    let m = r.min_joint_margin.as_ref().unwrap();
+    assert!(near.iter().any(|p| p.joint == Some(m.joint)), "the smallest margin is among them");
+}
+
+#[test]
+fn the_approach_comes_down_onto_the_first_point_from_above() {
+    // Cura's start code lifts to Z2 at the bed origin, then prints at Z0.3: a joint-space approach
+    // straight to Z2 sags 2.4 mm on the IRB 140, into the bed. The approach ends above the point.
+    let cfg = config("irb140");
+    assert!(cfg.controller.approach_lift > 0.0);
+    let r = check_file(&root().join("tests/data/gcode/cura/square20.gcode"), &cfg, None);
+    assert!(r.problems.iter().all(|p| p.kind != ProblemKind::BelowBed), "{}", r.summary());
+    assert!(r.clean, "{}", r.summary());
+    // Without the lift the check sees the crash.
+    let mut flat = cfg.clone();
+    flat.controller.approach_lift = 0.0;
+    let r = check_file(&root().join("tests/data/gcode/cura/square20.gcode"), &flat, None);
+    let below = r.problems.iter().find(|p| p.kind == ProblemKind::BelowBed).expect("the sag under the bed");
+    assert_eq!(below.lines, [0, 0], "during the approach: {}", below.message);
+    assert!(below.message.contains("the approach"));
+}
+
+#[test]
+fn a_tracked_base_is_assumed_still_unless_a_trajectory_is_given() {
+    let cfg = config("free-flyer");
+    // A few seconds of printing in front of the Meca500 (debug builds tick slowly).
+    let dir = std::env::temp_dir().join(format!("strand-check-job-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let file = dir.join("short.gcode");
+    std::fs::write(&file, "G21\nG90\nM83\nG1 Z0.3 F3000\nG1 X20 Y0 F3000\nG1 X40 Y0 E1 F1200\nG1 X40 Y20 E1\nG1 X20 Y20 E1\nG1 X20 Y0 E1\n").unwrap();
+    let still = check_file(&file, &cfg, None);
+    assert!(still.base.contains("ASSUMED STILL"), "{}", still.base);
+    assert!(still.clean, "{}", still.summary());
+    // A base that drives 0.5 m away in the first 5 s takes the job out of reach.
+    let mount = cfg.base.mount_xyz;
+    let away = BaseTrajectory::from_samples(vec![[0.0, mount[0], mount[1], 0.0], [5.0, mount[0] + 0.5, mount[1], 0.0]]).unwrap();
+    let moved = check_file(&file, &cfg, Some(&away));
+    assert!(moved.base.contains("plan.csv"), "{}", moved.base);
+    assert!(!moved.clean, "{}", moved.summary());
+    assert!(moved.problems.iter().any(|p| matches!(p.kind, ProblemKind::Unreachable | ProblemKind::Fault)), "{}", moved.summary());
+}
