@@ -428,8 +428,8 @@ def run_check(prefix: str, timeout: float, verbose: bool = False) -> str:
                 break
             if outcome in (JobOutcome.STOPPED, JobOutcome.FAULTED) or status.run_state == RunState.FAULT:
                 raise CheckFailed(
-                    f"job ended {enum_name(JobOutcome, outcome)}, fault {enum_name(FaultCode, status.fault)}: "
-                    f"{status.describe()}"
+                    f"job ended {enum_name(JobOutcome, outcome)}, fault {enum_name(FaultCode, status.fault)} "
+                    f"at segment {status.executing_seq} (line {status.executing_line}): {status.describe()}"
                 )
             if client.status_publishers() == 0:
                 # The service is gone; give the last samples a moment, then give up.

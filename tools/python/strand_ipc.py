@@ -126,6 +126,7 @@ class FaultCode(enum.IntEnum):
     APPROACH_FAILED = 5
     ROBOT_DEVIATION = 6
     PATH_STALLED = 7
+    TCP_ERROR_LIMIT = 8
 
 
 class RejectReason(enum.IntEnum):
@@ -413,7 +414,7 @@ class Status(_Message):
             f"accepted {self.segments_accepted} last_received {self.last_received_seq} "
             f"free {self.queue_free}/{self.queue_capacity} rejected {self.rejected} "
             f"(last {enum_name(RejectReason, self.last_reject_reason)} seq {self.last_rejected_seq}) "
-            f"executing {self.executing_seq} path {self.path_position:.4f} m at {self.path_speed:.4f} m/s "
+            f"executing {self.executing_seq} (line {self.executing_line}) path {self.path_position:.4f} m at {self.path_speed:.4f} m/s "
             f"underruns {self.underruns} overruns {self.overruns} clamps {self.clamps}"
         )
 
