@@ -13,6 +13,9 @@
 #                                        target 5x slower)
 #   STRAND_FUZZ_JOBS=N                   libFuzzer -fork=N, -ignore_crashes: go on after a crash and
 #                                        collect them all (exits non-zero if any)
+#   STRAND_FUZZ_SEED=N                   libFuzzer -seed=N (default 0: a new random seed each run; CI
+#                                        fixes one, so that its verdict does not depend on the draw —
+#                                        long local runs are where new inputs are found)
 #
 # The toolchain is stable. The default build needs no unstable flag; ASan needs -Zsanitizer, which
 # RUSTC_BOOTSTRAP=1 lets stable rustc accept.
@@ -22,6 +25,7 @@ seconds=${1:-${STRAND_FUZZ_SECONDS:-60}}
 targets=${STRAND_FUZZ_TARGETS:-gcode_parser gcode_to_path}
 sanitizer=${STRAND_FUZZ_SANITIZER:-none}
 jobs=${STRAND_FUZZ_JOBS:-0}
+seed=${STRAND_FUZZ_SEED:-0}
 export RUST_BACKTRACE=0
 if [ "$sanitizer" != none ]; then
   export RUSTC_BOOTSTRAP=1
@@ -53,7 +57,7 @@ for target in $targets; do
     extra=(-fork="$jobs" -ignore_crashes=1 -ignore_timeouts=1 -ignore_ooms=1)
   fi
   set +e
-  "$bin" "work/$target" "corpus/$target" -dict=gcode.dict -max_total_time="$seconds" -max_len=8192 -timeout=30 \
+  "$bin" "work/$target" "corpus/$target" -dict=gcode.dict -max_total_time="$seconds" -max_len=8192 -timeout=30 -seed="$seed" \
     -rss_limit_mb=2048 -print_final_stats=1 -artifact_prefix="artifacts/$target/" "${extra[@]}" > "$log" 2>&1
   rc=$?
   set -e

@@ -144,7 +144,11 @@ fn a_tracked_base_is_assumed_still_unless_a_trajectory_is_given() {
     let dir = std::env::temp_dir().join(format!("strand-check-job-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let file = dir.join("short.gcode");
-    std::fs::write(&file, "G21\nG90\nM83\nG1 Z0.3 F3000\nG1 X20 Y0 F3000\nG1 X40 Y0 E1 F1200\nG1 X40 Y20 E1\nG1 X20 Y20 E1\nG1 X20 Y0 E1\n").unwrap();
+    std::fs::write(
+        &file,
+        "G21\nG90\nM83\nG1 Z0.3 F3000\nG1 X20 Y0 F3000\nG1 X40 Y0 E1 F1200\nG1 X40 Y20 E1\nG1 X20 Y20 E1\nG1 X20 Y0 E1\n",
+    )
+    .unwrap();
     let still = check_file(&file, &cfg, None);
     assert!(still.base.contains("ASSUMED STILL"), "{}", still.base);
     assert!(still.clean, "{}", still.summary());

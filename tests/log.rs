@@ -155,6 +155,7 @@ fn every_record_type_round_trips_bit_for_bit() {
             duration: f(),
             source_line: 99,
             _reserved: 0,
+            pressure_advance: f(),
         };
         assert_eq!(bytes(&decode::<ipc::Segment>(&bytes(&seg)).unwrap()), bytes(&seg));
         let st = ipc::Status { seq: 3, tcp_error: f(), path_speed: f(), feed_override: f(), log_state: 2, ..Default::default() };

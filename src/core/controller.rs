@@ -62,8 +62,8 @@ pub struct ControllerConfig {
     pub tcp_error_lag: f64,
     /// Fraction of each joint's velocity, acceleration and jerk limit the approach move uses (0, 1].
     pub approach_speed_fraction: f64,
-    /// The joint-space approach ends this far (m) above the job's first point, back along the
-    /// nozzle, and the tool then moves straight down onto it (the CLIK's capped feedback): a
+    /// The joint-space approach ends this far (m) above the end of the job's leading travel, back
+    /// along the nozzle, and that travel then brings the tool straight down onto it on the path: a
     /// joint-space move sags between its ends, and next to the bed that is a crash.
     pub approach_lift: f64,
     /// The tool counts as at the first point within this distance (m) …
@@ -869,10 +869,20 @@ impl Controller {
             return Err((RejectReason::QueueFull, ""));
         }
         if !self.job_open {
-            // A new job. Its first point: the end of a leading non-extruding line (the approach goes
-            // there and the line itself becomes a zero-length move), or where the tool is.
+            // A new job. Its first point: `approach_lift` above the end of a leading non-extruding
+            // line, back along the nozzle (tool z points at the substrate). The joint-space approach
+            // goes there, and the line itself, now from there to its end, brings the tool straight
+            // down on the path: a joint-space move sags between its ends, next to a bed a crash.
+            // Without a leading travel the job starts where the tool is.
             let first = if segment.kind == SegmentKind::Line && !segment.extrudes() && segment.filament == 0.0 {
-                (segment.end, segment.orientation)
+                let there = self.known && {
+                    let (p, q) = self.tool_world(now_ns);
+                    (p - segment.end).norm() <= self.cfg.approach_position_tolerance
+                        && (q * Vector3::z()).angle(&(segment.orientation * Vector3::z())) <= self.cfg.approach_orientation_tolerance
+                };
+                // Already there (a job following another at the same point): no approach at all.
+                let lift = if there { 0.0 } else { self.cfg.approach_lift };
+                (segment.end - (segment.orientation * Vector3::z()) * lift, segment.orientation)
             } else if self.known {
                 self.tool_world(now_ns)
             } else {
@@ -1116,11 +1126,8 @@ impl Controller {
             };
             if iterations == 0 {
                 // The IK target is fixed when the approach starts; if the base moves meanwhile, the
-                // CLIK takes up the difference when the path starts. It lies `approach_lift` above
-                // the first point (tool z is the nozzle, pointing at the substrate); the settling
-                // that follows brings the tool straight down.
-                let lifted = p - (q * Vector3::z()) * self.cfg.approach_lift;
-                let b = base.world_to_base(&TcpTarget::at_rest(lifted, q));
+                // CLIK takes up the difference when the path starts.
+                let b = base.world_to_base(&TcpTarget::at_rest(p, q));
                 self.approach_target = TcpTarget::at_rest(b.position, b.orientation);
             }
             let target = self.approach_target;

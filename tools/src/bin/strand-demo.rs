@@ -372,7 +372,13 @@ fn run(cli: &Cli) -> Result<bool, String> {
 
 /// Checks the job the feeder will send (`strand::check`): Ok(report) when clean, Err(summary)
 /// when not; the outer error is a job or config that cannot be read.
-fn check(job: &Path, layers: Option<usize>, cfg: &Config, tracked: bool, sim_cfg: &Path) -> Result<Result<strand::check::CheckReport, String>, String> {
+fn check(
+    job: &Path,
+    layers: Option<usize>,
+    cfg: &Config,
+    tracked: bool,
+    sim_cfg: &Path,
+) -> Result<Result<strand::check::CheckReport, String>, String> {
     let mut loaded = strand_tools::feed::load_gcode(job, cfg, None)?;
     if let Some(n) = layers {
         loaded = loaded.first_layers(n);
@@ -385,7 +391,8 @@ fn check(job: &Path, layers: Option<usize>, cfg: &Config, tracked: bool, sim_cfg
     };
     let name = job.display().to_string();
     let check_job = strand::check::CheckJob { file: &name, segments: &loaded.segments, layers: &loaded.layers };
-    let report = strand::check::check_job(&check_job, cfg, trajectory.as_ref().map(|(t, n)| (t, n.as_str())), None).map_err(|e| e.to_string())?;
+    let report =
+        strand::check::check_job(&check_job, cfg, trajectory.as_ref().map(|(t, n)| (t, n.as_str())), None).map_err(|e| e.to_string())?;
     Ok(if report.clean { Ok(report) } else { Err(report.summary()) })
 }
 
