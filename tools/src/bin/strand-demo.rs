@@ -383,8 +383,10 @@ fn check(
     if let Some(n) = layers {
         loaded = loaded.first_layers(n);
     }
-    let trajectory = match SimConfig::load(sim_cfg).map_err(|e| e.to_string())?.flyer {
-        Some(f) if tracked && !f.trajectory.as_os_str().is_empty() => {
+    // Only a tracked base reads the plant's flyer; a bad plant file is the sim's to report.
+    let flyer = if tracked { SimConfig::load(sim_cfg).ok().and_then(|s| s.flyer) } else { None };
+    let trajectory = match flyer {
+        Some(f) if !f.trajectory.as_os_str().is_empty() => {
             Some((strand::job::BaseTrajectory::load(&f.trajectory, cfg.base.mount_rpy[2])?, f.trajectory.display().to_string()))
         }
         _ => None,
