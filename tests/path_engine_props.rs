@@ -289,10 +289,17 @@ fn run_case(ops: &[Op], schedule: &[(usize, u32)], overrides: &[(u64, f64)], mod
                     return fail(format!("speed {} over feed {feed}", s.speed));
                 }
             }
-            if p.segment.kind != SegmentKind::Dwell && p.length > 0.0 {
+            // Lines under the engine's 1 nm are skipped, filament and all (a G-code program cannot
+            // send one that pushes filament: the parser makes any move under its zero length an
+            // extruder-only dwell; between its 1e-12 m and the engine's 1e-9 m the two disagree,
+            // see the closing note of [ROBUST]).
+            if p.segment.kind != SegmentKind::Dwell && p.length >= 1e-9 {
                 let flow = p.segment.filament / p.length;
                 if (s.flow - flow).abs() > 1e-9 * flow.abs().max(1e-9) {
-                    return fail(format!("flow {} against ΔE/L {flow}", s.flow));
+                    return fail(format!(
+                        "flow {} against ΔE/L {flow} (segment {:?} of {} m, filament {} m, flags {:?}; sample s {}, speed {})",
+                        s.flow, p.segment.kind, p.length, p.segment.filament, s.flags, s.s, s.speed
+                    ));
                 }
             }
         }
@@ -372,4 +379,27 @@ fn consecutive_dwells_and_retractions_run_through() {
         // 1.564 s of dwells plus about 0.5 s of motion.
         assert!(run.ticks > 1564 && run.ticks < 2300, "{mode:?}: {} ticks", run.ticks);
     }
+}
+
+/// Found by 3000 release cases (seed 20261125): a 73 µm line between two longer ones, the last
+/// segment followed by zero-length lines, fed 14 at a time with a 48-tick pause: a blend was passed
+/// at 17 m/s² against the 3 m/s² cap.
+#[test]
+fn a_short_line_between_corners_keeps_the_centripetal_limit() {
+    let mut ops = vec![
+        Op::Line {
+            delta: [-0.0017194800236306044, -0.002002275069425299, 0.00021756767552593264],
+            feed: 0.2589470370705138,
+            filament: 0.0,
+        },
+        Op::Repeat { feed: 0.005 },
+        Op::Line { delta: [-6.35790073505131e-5, -3.507638757400887e-5, 7.208338251837595e-6], feed: 0.27842016395039326, filament: 0.0 },
+        Op::Line {
+            delta: [-0.0009886967276336736, 0.0020442127887389814, -0.0001400902310791558],
+            feed: 0.12384050057735466,
+            filament: 0.0,
+        },
+    ];
+    ops.extend(std::iter::repeat_n(Op::Line { delta: [0.0; 3], feed: 0.005, filament: 0.0 }, 106));
+    run_case(&ops, &[(14, 48), (37, 0), (22, 0), (23, 0)], &[], PlanningMode::Lookahead, 0.001).unwrap();
 }

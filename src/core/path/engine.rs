@@ -1163,7 +1163,21 @@ impl PathEngine {
                 planned = self.ruckig_to(state, at, speed, cap.min(vrun).max(speed), vrun);
             }
         }
+        // A re-plan from a state on the current trajectory can find the boundary's speed out of
+        // reach by rounding (the current trajectory is time-optimal, at the edge of feasibility)
+        // and fall back to the lowest speed reachable under the boundary's cap — faster than the
+        // current trajectory arrives, and too fast for a cap just after it. The current
+        // trajectory still meets the boundary's speed: keep it.
+        let keeps_current = |arrival: f64, plan: &Plan| {
+            event
+                && arrival > speed * (1.0 + 1e-9) + 1e-12
+                && matches!(*plan, Plan::Ruckig { target: t, position: p, speed: old, cap, forced: false }
+                    if t == target && p == position && old <= speed * (1.0 + 1e-9) + 1e-12 && cap <= vrun * (1.0 + 1e-9))
+        };
         match planned {
+            Some(arrival) if keeps_current(arrival, &self.plan) => {
+                self.plan_time = previous_time;
+            }
             Some(speed) => {
                 std::mem::swap(&mut self.trajectory, &mut self.candidate);
                 self.plan = Plan::Ruckig { target, position, speed, cap: vrun, forced: false };
