@@ -1408,8 +1408,13 @@ impl PathEngine {
                         return;
                     }
                     let rest = t - duration;
-                    let end_state =
-                        if target == u64::MAX { self.ruckig_state(duration) } else { PathState { s: position, v: speed, a: 0.0, j: 0.0 } };
+                    // The trajectory's samples can pass its target by rounding (1e-11 m); its end
+                    // is the target, but never behind a position already reported: s never backs up.
+                    let end_state = if target == u64::MAX {
+                        self.ruckig_state(duration)
+                    } else {
+                        PathState { s: position.max(self.state.s), v: speed, a: 0.0, j: 0.0 }
+                    };
                     self.start_plan(end_state, self.dt - rest);
                     t = rest;
                 }
@@ -1425,7 +1430,7 @@ impl PathEngine {
                     }
                     let rest = t - duration;
                     let end = self.pieces.get(piece).end();
-                    let end_state = PathState { s: end, v: profile.v_out, a: 0.0, j: 0.0 };
+                    let end_state = PathState { s: end.max(self.state.s), v: profile.v_out, a: 0.0, j: 0.0 };
                     if self.piece == piece && piece + 1 < self.pieces.tail {
                         self.piece = piece + 1;
                     }
