@@ -8,7 +8,7 @@
 
 mod common;
 
-use common::{root, square_program, temp_dir};
+use common::{json_f64, root, square_program, temp_dir};
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
@@ -55,14 +55,6 @@ fn demo(dir: &Path, job: &Path, config: &str, extra: &[&str]) -> (i32, serde_jso
     (out.status.code().unwrap_or(-1), summary, stderr)
 }
 
-fn f(v: &serde_json::Value, path: &[&str]) -> f64 {
-    let mut x = v;
-    for k in path {
-        x = &x[*k];
-    }
-    x.as_f64().unwrap_or_else(|| panic!("{path:?} missing in {v}"))
-}
-
 #[test]
 fn a_clean_job_finishes_in_the_demo_in_the_predicted_time() {
     let dir = temp_dir("check", "agree");
@@ -75,20 +67,23 @@ fn a_clean_job_finishes_in_the_demo_in_the_predicted_time() {
         let (code, report) = check_job(job, config);
         assert_eq!((code, report["clean"].as_bool()), (0, Some(true)), "{}: {report:#}", job.display());
         assert_eq!(report["outcome"], "Finished");
-        let predicted = f(&report, &["time", "total_s"]);
+        let predicted = json_f64(&report, &["time", "total_s"]);
         let (code, summary, stderr) = demo(&dir.join(format!("demo-{k}")), job, config, &[]);
         assert_eq!(code, 0, "{}: a job the check passes must finish: {stderr}", job.display());
         assert_eq!(summary["job_outcome"], "Finished");
         assert!(summary["faults"].as_array().unwrap().is_empty(), "{summary}");
-        let measured = f(&summary, &["job_time_s"]);
-        assert_eq!(f(&summary, &["predicted_s"]), predicted, "the demo's own check is the same check");
+        let measured = json_f64(&summary, &["job_time_s"]);
+        assert_eq!(json_f64(&summary, &["predicted_s"]), predicted, "the demo's own check is the same check");
         let ratio = predicted / measured;
         println!("{}: predicted {predicted:.3} s, measured {measured:.3} s, ratio {ratio:.4}", job.display());
         assert!((ratio - 1.0).abs() <= 0.01, "{}: predicted {predicted} s, measured {measured} s", job.display());
         // The run stayed clear of the watchdog, as the check saw it would (the run adds the
         // measured robot's share on top of the commanded TCP's error).
-        let (seen, limit, predicted_error) =
-            (f(&summary, &["tcp_error_fault_m"]), f(&summary, &["tcp_error_limit_m"]), f(&report, &["max_tcp_error_m"]));
+        let (seen, limit, predicted_error) = (
+            json_f64(&summary, &["tcp_error_fault_m"]),
+            json_f64(&summary, &["tcp_error_limit_m"]),
+            json_f64(&report, &["max_tcp_error_m"]),
+        );
         assert!(seen < limit && seen < predicted_error + 0.3e-3, "watchdog saw {seen} m, check predicted {predicted_error} m");
     }
 }
@@ -109,7 +104,7 @@ fn a_job_out_of_reach_is_refused_and_forced_through_it_faults_at_the_line_the_ch
     let line = fault["lines"][0].as_u64().unwrap();
     assert_eq!(line, 6, "the far line: {report:#}");
     let unreachable = problems.iter().find(|p| p["kind"] == "unreachable").expect("an unreachable stretch");
-    assert!(f(unreachable, &["worst"]) > 0.6, "worst distance {unreachable}");
+    assert!(json_f64(unreachable, &["worst"]) > 0.6, "worst distance {unreachable}");
 
     // The demo checks it first and refuses it with the report, naming the line; nothing runs.
     let (code, _, stderr) = demo(&dir.join("refused"), &job, config, &[]);
@@ -157,6 +152,6 @@ fn a_job_out_of_reach_is_refused_and_forced_through_it_faults_at_the_line_the_ch
     // The check's predicted time of the fault and the run's agree (the run counts from its first tick
     // out of Idle; the check from Start).
     let predicted = fault["time_s"][0].as_f64().unwrap();
-    let measured = f(&summary, &["job_time_s"]);
+    let measured = json_f64(&summary, &["job_time_s"]);
     assert!((predicted - measured).abs() < 0.01 * measured + 0.05, "fault predicted at {predicted} s, run ended at {measured} s");
 }

@@ -13,7 +13,7 @@
 
 mod common;
 
-use common::{root, square_program, temp_dir};
+use common::{json_f64, root, square_program, temp_dir};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
@@ -45,14 +45,6 @@ fn demo(dir: &Path, args: &[&str]) -> serde_json::Value {
     serde_json::from_str(stdout.trim()).unwrap_or_else(|e| panic!("{e}: {stdout}"))
 }
 
-fn num(v: &serde_json::Value, path: &[&str]) -> f64 {
-    let mut x = v;
-    for k in path {
-        x = &x[*k];
-    }
-    x.as_f64().unwrap_or_else(|| panic!("{path:?} missing in {v}"))
-}
-
 #[test]
 fn the_demo_prints_a_short_job_within_bounds_and_its_log_replays_identically() {
     let dir = temp_dir("sim", "demo");
@@ -62,19 +54,19 @@ fn the_demo_prints_a_short_job_within_bounds_and_its_log_replays_identically() {
     assert_eq!(r["identical"], true, "{r}");
     assert!(r["verify"].as_str().unwrap().starts_with("identical"));
     // 2 × (travel + 12 lines) = 26 segments, every one accepted.
-    assert_eq!(num(&r, &["segments_accepted"]), 26.0);
-    assert_eq!(num(&r, &["segments_rejected"]), 0.0);
-    assert_eq!(num(&r, &["log_drops"]), 0.0);
-    assert_eq!(num(&r, &["unmatched"]), 0.0, "every target has its truth row (lockstep)");
+    assert_eq!(json_f64(&r, &["segments_accepted"]), 26.0);
+    assert_eq!(json_f64(&r, &["segments_rejected"]), 0.0);
+    assert_eq!(json_f64(&r, &["log_drops"]), 0.0);
+    assert_eq!(json_f64(&r, &["unmatched"]), 0.0, "every target has its truth row (lockstep)");
     assert!(r["faults"].as_array().unwrap().is_empty());
     // The bound: the sim's 1-cycle dead time and 2 ms lag at 40 mm/s are about 0.12 mm of path;
     // corners add the CLIK's transient. Mean under 0.2 mm, worst under 0.5 mm.
-    let ticks = num(&r, &["tcp_error_m", "samples"]);
+    let ticks = json_f64(&r, &["tcp_error_m", "samples"]);
     assert!(ticks > 1500.0, "{ticks} ticks on the path");
-    assert!(num(&r, &["tcp_error_m", "mean"]) < 0.2e-3, "{r}");
-    assert!(num(&r, &["tcp_error_m", "max"]) < 0.5e-3, "{r}");
+    assert!(json_f64(&r, &["tcp_error_m", "mean"]) < 0.2e-3, "{r}");
+    assert!(json_f64(&r, &["tcp_error_m", "max"]) < 0.5e-3, "{r}");
     // Extrusion reached the nozzle: deposited within 5 % of commanded (the melt lag's tail is cut).
-    let v = num(&r, &["volume_ratio"]);
+    let v = json_f64(&r, &["volume_ratio"]);
     assert!((0.95..=1.0).contains(&v), "volume ratio {v}");
     assert!(Path::new(r["log"].as_str().unwrap()).is_file());
 }
@@ -95,19 +87,19 @@ fn the_free_flyer_prints_a_truss_while_its_base_drifts() {
     let r = demo(&dir, &["--config", "config/free-flyer.toml", "--gcode", job.to_str().unwrap(), "--set", FAST_APPROACH]);
     assert_eq!(r["job_outcome"], "Finished", "{r}");
     assert_eq!(r["identical"], true, "{r}");
-    assert_eq!(num(&r, &["segments_rejected"]), 0.0);
-    assert_eq!(num(&r, &["unmatched"]), 0.0);
+    assert_eq!(json_f64(&r, &["segments_rejected"]), 0.0);
+    assert_eq!(json_f64(&r, &["unmatched"]), 0.0);
     assert!(r["faults"].as_array().unwrap().is_empty(), "{r}");
     // The base really moved under the arm: it strays from its planned pose by millimetres.
-    assert!(num(&r, &["base_error_m", "max"]) > 0.5e-3, "{r}");
+    assert!(json_f64(&r, &["base_error_m", "max"]) > 0.5e-3, "{r}");
     // ... and the nozzle stays on the path: the sim's 1-cycle dead time and 2 ms lag at 20 mm/s are
     // 0.06 mm; tracking noise (0.15 mm, 0.5 mrad) filtered by the estimator adds about as much.
     // Mean under 0.2 mm, worst under 0.6 mm (000 reports 0.26 mm dry, 0.75 mm printing).
-    assert!(num(&r, &["tcp_error_m", "samples"]) > 9000.0, "{r}");
-    assert!(num(&r, &["tcp_error_m", "mean"]) < 0.2e-3, "{r}");
-    assert!(num(&r, &["tcp_error_m", "max"]) < 0.6e-3, "{r}");
+    assert!(json_f64(&r, &["tcp_error_m", "samples"]) > 9000.0, "{r}");
+    assert!(json_f64(&r, &["tcp_error_m", "mean"]) < 0.2e-3, "{r}");
+    assert!(json_f64(&r, &["tcp_error_m", "max"]) < 0.6e-3, "{r}");
     // Job time near the feed-rate bound: 210 mm at 20 mm/s is 10.5 s; corners and the start cost a little.
-    let t = num(&r, &["job_time_s"]);
+    let t = json_f64(&r, &["job_time_s"]);
     assert!((10.5..14.0).contains(&t), "job time {t} s");
 }
 

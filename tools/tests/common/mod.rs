@@ -32,3 +32,12 @@ pub fn square_program(dir: &Path, layers: usize, loops: usize, feed: f64) -> Pat
     std::fs::write(&p, g).unwrap();
     p
 }
+
+/// The number at `path` (object keys) in a JSON value; panics naming the path if it is missing.
+pub fn json_f64(v: &serde_json::Value, path: &[&str]) -> f64 {
+    let mut x = v;
+    for k in path {
+        x = &x[*k];
+    }
+    x.as_f64().unwrap_or_else(|| panic!("{path:?} missing in {v}"))
+}
