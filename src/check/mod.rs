@@ -465,7 +465,8 @@ pub fn check_job(
             k if k == ipc::SegmentKind::Dwell as u32 => s.duration,
             _ => (end - at).norm().max(s.sweep.abs() * (end - Vector3::from(s.centre)).norm()) / s.feed.min(cfg.path.max_speed),
         };
-        if !(seconds <= MAX_SEGMENT_SECONDS) {
+        // NaN (a zero feed) is absurd too.
+        if seconds.is_nan() || seconds > MAX_SEGMENT_SECONDS {
             return Err(CheckError::Absurd { file: job.file.to_string(), line: s.source_line, seq: s.seq, seconds });
         }
         bound_s += 20.0 * (seconds + 0.1);
@@ -536,7 +537,7 @@ pub fn check_job(
         let mut input = TickInput::new(tick, now);
         state_seq += 1;
         input.joint_state = Some(ipc::JointState { seq: state_seq, stamp_ns: now, dof: n as u32, position: q_robot, ..Default::default() });
-        if tracked && tick % pose_every == 0 {
+        if tracked && tick.is_multiple_of(pose_every) {
             let (p, q) = match trajectory {
                 Some((traj, _)) => traj.pose_at(tick as f64 * dt, &mount_position, &mount_orientation, cfg.base.mount_rpy[2]),
                 None => (mount_position, mount_orientation),
@@ -675,7 +676,7 @@ pub fn check_job(
             }
         }
         if let Some(s) = series.as_deref_mut()
-            && tick % series_every == 0
+            && tick.is_multiple_of(series_every)
         {
             s.t.push(t);
             for i in 0..n {
