@@ -191,20 +191,13 @@ fn check_job(file: &Path, config: Option<&Path>, set: &[String], json: bool, png
         Ok(j) => j,
         Err(e) => return bad(e),
     };
-    let traj = match trajectory {
-        Some(p) => match strand::job::BaseTrajectory::load(p, cfg.base.mount_rpy[2]) {
-            Ok(t) => Some((t, p.display().to_string())),
-            Err(e) => return bad(e),
-        },
-        None => None,
-    };
     let (segments, layers) = strand::job::wire_job(&all);
     let name = file.display().to_string();
     let job = strand::check::CheckJob { file: &name, segments: &segments, layers: &layers };
     let mut series = png.map(|_| strand::check::CheckSeries::default());
-    let report = match strand::check::check_job(&job, &cfg, traj.as_ref().map(|(t, n)| (t, n.as_str())), series.as_mut()) {
+    let report = match strand::check::check_with_trajectory(&job, &cfg, trajectory, series.as_mut()) {
         Ok(r) => r,
-        Err(e) => return bad(e.to_string()),
+        Err(e) => return bad(e),
     };
     let wall = started.elapsed().as_secs_f64();
     if json {

@@ -802,6 +802,22 @@ impl CheckReport {
     }
 }
 
+/// Checks `job` with the planned base trajectory read from `trajectory` (a CSV as `strand-plan
+/// base --trajectory` writes it), if any: the one entry `strand check-job`, strand-feed and
+/// strand-demo share. Errors (an unreadable trajectory, an absurd segment) are one line each.
+pub fn check_with_trajectory(
+    job: &CheckJob,
+    cfg: &Config,
+    trajectory: Option<&std::path::Path>,
+    series: Option<&mut CheckSeries>,
+) -> Result<CheckReport, String> {
+    let planned = match trajectory {
+        Some(p) => Some((BaseTrajectory::load(p, cfg.base.mount_rpy[2])?, p.display().to_string())),
+        None => None,
+    };
+    check_job(job, cfg, planned.as_ref().map(|(t, n)| (t, n.as_str())), series).map_err(|e| e.to_string())
+}
+
 /// One line for a human: what, where (file:line range, segments), when, how bad.
 fn describe(p: &Problem, file: &str, joints: &[String], tcp_limit: f64, tcp_time: f64) -> String {
     let lines = match p.lines {

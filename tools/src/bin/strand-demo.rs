@@ -385,16 +385,10 @@ fn check(
     }
     // Only a tracked base reads the plant's flyer; a bad plant file is the sim's to report.
     let flyer = if tracked { SimConfig::load(sim_cfg).ok().and_then(|s| s.flyer) } else { None };
-    let trajectory = match flyer {
-        Some(f) if !f.trajectory.as_os_str().is_empty() => {
-            Some((strand::job::BaseTrajectory::load(&f.trajectory, cfg.base.mount_rpy[2])?, f.trajectory.display().to_string()))
-        }
-        _ => None,
-    };
+    let trajectory = flyer.map(|f| f.trajectory).filter(|t| !t.as_os_str().is_empty());
     let name = job.display().to_string();
     let check_job = strand::check::CheckJob { file: &name, segments: &loaded.segments, layers: &loaded.layers };
-    let report =
-        strand::check::check_job(&check_job, cfg, trajectory.as_ref().map(|(t, n)| (t, n.as_str())), None).map_err(|e| e.to_string())?;
+    let report = strand::check::check_with_trajectory(&check_job, cfg, trajectory.as_deref(), None)?;
     Ok(if report.clean { Ok(report) } else { Err(report.summary()) })
 }
 

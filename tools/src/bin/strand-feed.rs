@@ -146,14 +146,9 @@ fn main() -> ExitCode {
 /// The job check before streaming: None when the job is clean, else the report to show.
 fn check(job: &Job, cli: &Cli, cfg: &Config) -> Result<Option<String>, String> {
     let started = Instant::now();
-    let trajectory = match &cli.base_trajectory {
-        Some(p) => Some((strand::job::BaseTrajectory::load(p, cfg.base.mount_rpy[2])?, p.display().to_string())),
-        None => None,
-    };
     let name = cli.file.display().to_string();
     let check_job = strand::check::CheckJob { file: &name, segments: &job.segments, layers: &job.layers };
-    let report =
-        strand::check::check_job(&check_job, cfg, trajectory.as_ref().map(|(t, n)| (t, n.as_str())), None).map_err(|e| e.to_string())?;
+    let report = strand::check::check_with_trajectory(&check_job, cfg, cli.base_trajectory.as_deref(), None)?;
     if !report.clean {
         return Ok(Some(report.summary()));
     }
