@@ -15,8 +15,9 @@ use std::collections::VecDeque;
 use std::io::Cursor;
 use std::path::PathBuf;
 
+use strand::bed::BedTransform;
 use strand::config::Config;
-use strand::core::path::{BedTransform, PathEngine, SegmentFlags, SegmentKind};
+use strand::core::{PathEngine, SegmentFlags, SegmentKind};
 use strand::gcode::{GcodeOptions, Parser, segment_length};
 
 fn main() {

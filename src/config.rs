@@ -15,14 +15,15 @@ use std::path::{Path, PathBuf};
 use serde::{Deserialize, Serialize};
 use thiserror::Error;
 
+use crate::bed::BedConfig;
+use crate::bed::BedTransform;
 use crate::check::CheckConfig;
-use crate::core::base::BaseConfig;
-pub use crate::core::controller::ControllerConfig;
-use crate::core::controller::ControllerSettings;
-use crate::core::extrude::ExtruderConfig;
-use crate::core::kin::{ClikConfig, Frame, RobotModel, geom};
-use crate::core::path::bed::BedConfig;
-use crate::core::path::{BedTransform, PathConfig};
+use crate::core::BaseConfig;
+pub use crate::core::ControllerConfig;
+use crate::core::ControllerSettings;
+use crate::core::ExtruderConfig;
+use crate::core::PathConfig;
+use crate::core::kin::{ClikConfig, Frame, ModelError, RobotModel, geom};
 use crate::io::rt::RealtimeConfig;
 use crate::io::runner::ServiceConfig;
 use crate::log::LogConfig;
@@ -51,6 +52,14 @@ pub fn read_text(path: &Path) -> Result<String, ConfigError> {
         let line = e.as_bytes()[..valid].iter().filter(|b| **b == b'\n').count() + 1;
         ConfigError::new(path, format!("line {line}: not UTF-8 text"))
     })
+}
+
+/// Reads the URDF at `path` and builds the chain `root_link` → `tip_link` (the core parses the
+/// text; the shell reads the file). A file that cannot be read is a [`ModelError::Read`] naming it.
+pub fn robot_model_from_urdf_file(path: &Path, root_link: &str, tip_link: &str) -> Result<RobotModel, ModelError> {
+    let file = path.display().to_string();
+    let text = std::fs::read_to_string(path).map_err(|e| ModelError::Read { file: file.clone(), reason: e.to_string() })?;
+    RobotModel::from_urdf_str(&text, &file, root_link, tip_link)
 }
 
 fn read_toml<T: for<'de> Deserialize<'de>>(path: &Path) -> Result<T, ConfigError> {

@@ -9,8 +9,9 @@ use nalgebra::{UnitQuaternion, Vector3};
 
 use strand_ipc as ipc;
 
+use crate::bed::BedTransform;
 use crate::config::Config;
-use crate::core::path::{BedTransform, Segment, SegmentKind};
+use crate::core::Segment;
 use crate::gcode::{GcodeOptions, parse_file};
 use crate::segfile;
 
@@ -20,11 +21,7 @@ pub fn to_wire(s: &Segment) -> ipc::Segment {
     ipc::Segment {
         seq: s.seq,
         stamp_ns: 0,
-        kind: match s.kind {
-            SegmentKind::Line => ipc::SegmentKind::Line,
-            SegmentKind::Arc => ipc::SegmentKind::Arc,
-            SegmentKind::Dwell => ipc::SegmentKind::Dwell,
-        } as u32,
+        kind: s.kind as u32,
         flags: s.flags.0 | if s.pressure_advance.is_some() { ipc::segment_flags::PRESSURE_ADVANCE } else { 0 },
         end: s.end.into(),
         centre: s.centre.into(),

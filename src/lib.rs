@@ -6,9 +6,12 @@
 // Index loops read like the matrix formulas they implement; iterator chains would hide the indices.
 #![allow(clippy::needless_range_loop)]
 
+/// The deterministic core, its own crate (`src/core`, `strand-core`): see its façade.
+pub use strand_core as core;
+
+pub mod bed;
 pub mod check;
 pub mod config;
-pub mod core;
 pub mod gcode;
 pub mod io;
 pub mod job;

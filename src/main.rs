@@ -8,7 +8,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 
 use clap::{Parser, Subcommand};
 use strand::config::{Config, locate};
-use strand::core::controller::Controller;
+use strand::core::Controller;
 use strand::io::clock::ClockMode;
 use strand::io::runner::{JointFeedback, NullSink, Runner, StopWhen};
 use strand::log::writer::{LogContext, Logger};

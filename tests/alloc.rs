@@ -92,8 +92,8 @@ fn the_rare_paths_allocate_nothing_either() {
 #[test]
 fn path_engine_and_extruder_ticks_allocate_nothing() {
     use nalgebra::Vector3;
-    use strand::core::extrude::{Extruder, ExtruderConfig};
-    use strand::core::path::{PathConfig, PathEngine, PlanningMode};
+    use strand::core::{Extruder, ExtruderConfig};
+    use strand::core::{PathConfig, PathEngine, PlanningMode};
     use strand::gcode::{GcodeOptions, parse_file};
     let file = common::root().join("tests/data/gcode/slic3r/vase_cyl_spiral.gcode");
     // The first 3,000 segments, read before counting; fed under back-pressure while counting.
@@ -128,7 +128,7 @@ fn path_engine_and_extruder_ticks_allocate_nothing() {
 fn controller_steps_allocate_nothing() {
     use common::cell::{Cell, IIWA_START, config, square_job};
     use strand_ipc::{BasePose, Command, RunState};
-    let cfg = config(|c| c.base.mode = strand::core::base::BaseMode::Tracked);
+    let cfg = config(|c| c.base.mode = strand::core::BaseMode::Tracked);
     let mut cell = Cell::new(&cfg, &IIWA_START);
     let job = square_job(1, [0.45, -0.02, 0.2], 0.03, 3, 0.04);
     let second = square_job(100, [0.45, -0.02, 0.2], 0.02, 1, 0.04);

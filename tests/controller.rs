@@ -7,8 +7,8 @@ mod common;
 
 use common::cell::{Cell, DOWN, FLOW, IIWA_START, check_limits, config, job_filament, line, square_job};
 use nalgebra::{UnitQuaternion, Vector3};
-use strand::core::base::{BaseMode, EstimatorKind};
-use strand::core::controller::Event;
+use strand::core::Event;
+use strand::core::{BaseMode, EstimatorKind};
 use strand_ipc::{Command, FaultCode, JobOutcome, RejectReason, RunState};
 
 const ORIGIN: [f64; 3] = [0.45, -0.02, 0.2];

@@ -46,7 +46,8 @@ fn fk_matches_the_published_dimensions() {
     assert!((p - nalgebra::Vector3::new(0.21 + 0.07 + 0.06, 0.0, 0.28 + 0.21 + 0.075)).norm() < 1e-6, "{p:?}");
     // The TCP's z axis points along the approach direction on every arm (tool transforms in config).
     let m = robot("irb140");
-    let flange = RobotModel::from_urdf_file(&common::root().join("config/robots/irb140.urdf"), "base_link", "tool0").unwrap();
+    let flange =
+        strand::config::robot_model_from_urdf_file(&common::root().join("config/robots/irb140.urdf"), "base_link", "tool0").unwrap();
     let q = jv(&[0.3, 0.2, -0.4, 0.5, 0.6, 0.7]);
     let (tcp, fl) = (m.forward_kinematics(&q), flange.forward_kinematics(&q));
     let approach = fl.rotation * nalgebra::Vector3::x();
@@ -127,7 +128,7 @@ fn urdf_errors_name_the_file_and_the_element() {
     let msg = load(&branch, "a", "d").unwrap_err().to_string();
     assert!(msg.contains("link \"c\"") && msg.contains("\"f\"") && msg.contains("\"j3\"") && msg.contains("branches"), "{msg}");
     // A missing file.
-    let msg = RobotModel::from_urdf_file(Path::new("/nonexistent/robot.urdf"), "a", "b").unwrap_err().to_string();
+    let msg = strand::config::robot_model_from_urdf_file(Path::new("/nonexistent/robot.urdf"), "a", "b").unwrap_err().to_string();
     assert!(msg.contains("/nonexistent/robot.urdf"), "{msg}");
 }
 

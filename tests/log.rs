@@ -10,7 +10,7 @@ use std::path::{Path, PathBuf};
 use common::cell::{Cell, IIWA_START, config, line, square_job};
 use common::{Rng, temp_dir};
 use strand::config::Config;
-use strand::core::controller::{TickInput, TickOutput};
+use strand::core::{TickInput, TickOutput};
 use strand::log::cdr::{CdrType, CdrWriter, Scalar, decode, encode};
 use strand::log::dynamic::{Schema, Value};
 use strand::log::messages::{Tick, TickTiming};
@@ -255,7 +255,7 @@ fn a_changed_gain_is_reported_at_the_first_divergent_tick() {
     // the first tick whose output differs from the log.
     let mut cfg = log.config().unwrap();
     change(&mut cfg);
-    let mut ctl = strand::core::controller::Controller::new(&cfg.controller_settings(), cfg.robot.build_model().unwrap()).unwrap();
+    let mut ctl = strand::core::Controller::new(&cfg.controller_settings(), cfg.robot.build_model().unwrap()).unwrap();
     let first = log.ticks().map(Result::unwrap).find(|t| bytes(&ctl.step(&t.input)) != bytes(&t.output)).unwrap();
     assert_eq!(tick, first.input.tick);
     assert!(field.starts_with("output."), "{field}");
@@ -428,8 +428,10 @@ fn bad_segments_keep_their_reasons_in_the_log() {
     }
     logger.finish();
     let log = LogFile::open(&path).unwrap();
-    let found = log.ticks().map(Result::unwrap).flat_map(|t| t.output.events().to_vec()).any(|e| {
-        matches!(e, strand::core::controller::Event::SegmentRejected { seq: 1, reason: ipc::RejectReason::NonFinite, field: "end" })
-    });
+    let found = log
+        .ticks()
+        .map(Result::unwrap)
+        .flat_map(|t| t.output.events().to_vec())
+        .any(|e| matches!(e, strand::core::Event::SegmentRejected { seq: 1, reason: ipc::RejectReason::NonFinite, field: "end" }));
     assert!(found);
 }

@@ -6,8 +6,9 @@
 
 mod common;
 
-use strand::core::extrude::ExtruderConfig;
-use strand::core::path::{BedTransform, PathConfig, PlanningMode, Segment};
+use strand::bed::BedTransform;
+use strand::core::ExtruderConfig;
+use strand::core::{PathConfig, PlanningMode, Segment};
 use strand::gcode::{GcodeOptions, parse_file};
 use strand::plan::time_program;
 
@@ -104,12 +105,12 @@ fn rules_004_beats_stop_and_go_and_lookahead_beats_both_on_the_first_outer_wall(
             let mut s = *s;
             s.seq = i as u64 + 1;
             if i + 2 == wall.len() {
-                s.flags = s.flags.with(strand::core::path::SegmentFlags::LAST);
+                s.flags = s.flags.with(strand::core::SegmentFlags::LAST);
             }
             Ok(strand::gcode::GcodeSegment { segment: s, line: 0, tags: Default::default() })
         });
         // Start at the wall's first point.
-        let bed = BedTransform::new(&strand::core::path::bed::BedConfig { tilt: 0.0, offset: [0.0; 3] }).unwrap();
+        let bed = BedTransform::new(&strand::bed::BedConfig { tilt: 0.0, offset: [0.0; 3] }).unwrap();
         let shifted = program.map(move |r: Result<strand::gcode::GcodeSegment, strand::gcode::GcodeError>| {
             r.map(|mut g| {
                 g.segment.end -= start;

@@ -1,11 +1,10 @@
 //! The path engine on hand-made segment streams: limits, blending, underrun, dwell, override.
 
 use nalgebra::{UnitQuaternion, Vector3};
-use strand::core::extrude::{Extruder, ExtruderConfig};
-use strand::core::path::bed::BedConfig;
-use strand::core::path::{
-    BedTransform, Motion, PathConfig, PathEngine, PathSample, PlanningMode, Segment, SegmentError, SegmentFlags, SegmentKind,
-};
+use strand::bed::BedConfig;
+use strand::bed::BedTransform;
+use strand::core::{Extruder, ExtruderConfig};
+use strand::core::{Motion, PathConfig, PathEngine, PathSample, PlanningMode, Segment, SegmentError, SegmentFlags, SegmentKind};
 
 const DT: f64 = 1e-3;
 

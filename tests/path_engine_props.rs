@@ -12,8 +12,8 @@
 use nalgebra::{UnitQuaternion, Vector3};
 use proptest::prelude::*;
 use proptest::test_runner::{Config, TestRunner};
-use strand::core::path::engine::arc_geometry;
-use strand::core::path::{Motion, PathConfig, PathEngine, PlanningMode, Segment, SegmentFlags, SegmentKind};
+use strand::core::arc_geometry;
+use strand::core::{Motion, PathConfig, PathEngine, PlanningMode, Segment, SegmentFlags, SegmentKind};
 
 /// One thing a slicer or planner may send.
 #[derive(Clone, Debug)]
@@ -950,4 +950,22 @@ fn a_blend_is_not_grazed_over_its_cap() {
         Op::Line { delta: [1.8790489139011525e-7, 3.322888980235041e-7, -6.287158699695703e-8], feed: 0.005, filament: 0.0 },
     ];
     run_case(&ops, &[(1, 0)], &[], PlanningMode::Lookahead, 0.001).unwrap();
+}
+
+/// Found by seed 20261126 after about 240,000 release cases, shrunk: the first batch ended two
+/// lines short, so the boundary before a 0.7 µm line was planned for a stop there (0.36 mm/s), and
+/// the tool committed to reaching the boundary before it at 3.6 mm/s. The next batch raised the
+/// stop to the 0.7 µm blend's cap (1.47 mm/s) — and that was out of reach: over a short piece,
+/// slowing to a higher speed can take *longer* ((v + v')·√((v − v')/j) grows as v' falls from v to
+/// v/3). The executor braked to the cap by velocity and passed the blend at 3.007 m/s². It now
+/// arrives slower (the top of the lower interval of reachable speeds), which is always safe.
+#[test]
+fn a_raised_boundary_speed_out_of_reach_is_met_by_arriving_slower() {
+    let ops = vec![
+        Op::Line { delta: [2.6500023955510304e-6, -2.5373006889026116e-5, 7.760783388994123e-6], feed: 0.25023466575098446, filament: 0.0 },
+        Op::Line { delta: [0.0, -4.5616855130528066e-5, -4.963042306026347e-6], feed: 0.005, filament: 0.0 },
+        Op::Line { delta: [0.0, -4.891339280067925e-7, 5.120799887689712e-7], feed: 0.005, filament: 0.0 },
+        Op::Line { delta: [0.0001, 0.0, 0.0], feed: 0.005, filament: 0.0 },
+    ];
+    run_case(&ops, &[(3, 12)], &[], PlanningMode::Lookahead, 0.001).unwrap();
 }

@@ -12,7 +12,7 @@ use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
 use strand::io::clock::monotonic_ns;
-use strand::io::ports::{ClientPorts, ClientRoles};
+use strand_ipc::ports::{ClientPorts, ClientRoles};
 use strand_ipc::{self as ipc, FaultCode, JobOutcome, RunState, SEGMENT_BATCH_CAPACITY, SegmentBatch, ServiceNames};
 
 const ORIGIN: [f64; 3] = [0.45, -0.02, 0.2];

@@ -14,8 +14,8 @@ mod common;
 
 use std::path::{Path, PathBuf};
 
+use strand::bed::BedTransform;
 use strand::config::Config;
-use strand::core::path::BedTransform;
 use strand::gcode::{GcodeOptions, parse_file};
 use strand::plan::{TimingReport, time_program};
 

@@ -14,12 +14,49 @@
 //! numbers counting up from any start per publisher. Joint arrays hold [`MAX_JOINTS`] entries of which
 //! the first `dof` are used, in chain order (rad for revolute joints, m for prismatic ones).
 //!
-//! This crate depends only on iceoryx2's derive and trait crates, so a client can use it alone.
+//! [`ports`] opens the services: the controller's [`ports::ServicePorts`] and every client's
+//! [`ports::ClientPorts`] (feeder, robot driver, base tracker, monitor), with the quality of service
+//! fixed in one place.
+//!
+//! This is the client crate: it depends on iceoryx2 (and thiserror) only, nothing of the
+//! controller, so a feeder, a robot driver or a live view links it alone.
 
 use iceoryx2_bb_derive_macros::ZeroCopySend;
 // The derive refers to the trait by its bare name.
 #[allow(unused_imports)]
 use iceoryx2_bb_elementary_traits::zero_copy_send::ZeroCopySend;
+
+pub mod ports;
+
+/// Declares a wire enum: `#[repr(u32)]`, its variants with explicit wire values, and the decoders
+/// `from_u32` and `TryFrom<u32>` (the error is the unknown value), derived from the one list so a
+/// new variant cannot be forgotten in its decoder.
+macro_rules! wire_enum {
+    ($(#[$meta:meta])* $vis:vis enum $name:ident { $($(#[$vmeta:meta])* $variant:ident = $value:literal,)+ }) => {
+        $(#[$meta])*
+        #[repr(u32)]
+        $vis enum $name {
+            $($(#[$vmeta])* $variant = $value,)+
+        }
+
+        impl $name {
+            /// The variant for a wire value, if it names one.
+            pub fn from_u32(v: u32) -> Option<Self> {
+                $(if v == $value {
+                    return Some(Self::$variant);
+                })+
+                None
+            }
+        }
+
+        impl TryFrom<u32> for $name {
+            type Error = u32;
+            fn try_from(v: u32) -> Result<Self, u32> {
+                Self::from_u32(v).ok_or(v)
+            }
+        }
+    };
+}
 
 /// Version of this contract. Bumped on any change of layout or meaning; part of every type name.
 pub const CONTRACT_VERSION: u32 = 2;
@@ -30,27 +67,17 @@ pub const SEGMENT_BATCH_CAPACITY: usize = 32;
 /// Default service-name prefix; the cell name is the second part.
 pub const DEFAULT_PREFIX: &str = "strand/cell";
 
-/// What a [`Segment`] describes (`Segment::kind`).
-#[repr(u32)]
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum SegmentKind {
-    /// Straight line from the previous end point to `end`.
-    Line = 0,
-    /// Circular arc or helix about `centre`, in the plane with normal `normal`, sweeping `sweep`.
-    Arc = 1,
-    /// Stand still for `duration`, optionally moving filament.
-    Dwell = 2,
-}
-
-impl SegmentKind {
-    /// The kind for a wire value, if it names one.
-    pub fn from_u32(v: u32) -> Option<Self> {
-        match v {
-            0 => Some(SegmentKind::Line),
-            1 => Some(SegmentKind::Arc),
-            2 => Some(SegmentKind::Dwell),
-            _ => None,
-        }
+wire_enum! {
+    /// What a [`Segment`] describes (`Segment::kind`).
+    #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+    pub enum SegmentKind {
+        #[default]
+        /// Straight line from the previous end point to `end`.
+        Line = 0,
+        /// Circular arc or helix about `centre`, in the plane with normal `normal`, sweeping `sweep`.
+        Arc = 1,
+        /// Stand still for `duration`, optionally moving filament.
+        Dwell = 2,
     }
 }
 
@@ -137,42 +164,26 @@ impl SegmentBatch {
     }
 }
 
-/// An operator or client command (`Control::command`).
-#[repr(u32)]
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Command {
-    /// Start the queued job (moving to its first point first if needed).
-    Start = 1,
-    /// Slow to a stop on the path and wait.
-    Pause = 2,
-    /// Continue after a pause.
-    Resume = 3,
-    /// Controlled stop on the path; the rest of the job is discarded.
-    Stop = 4,
-    /// Stop as fast as the joint limits allow, extrusion off, then fault.
-    EmergencyStop = 5,
-    /// Clear a latched fault.
-    ClearFault = 6,
-    /// Set the feed override to `value` (fraction, 0.01 to 2).
-    FeedOverride = 7,
-    /// Set the flow override to `value` (fraction, 0 to 2).
-    FlowOverride = 8,
-}
-
-impl Command {
-    /// The command for a wire value, if it names one.
-    pub fn from_u32(v: u32) -> Option<Self> {
-        Some(match v {
-            1 => Command::Start,
-            2 => Command::Pause,
-            3 => Command::Resume,
-            4 => Command::Stop,
-            5 => Command::EmergencyStop,
-            6 => Command::ClearFault,
-            7 => Command::FeedOverride,
-            8 => Command::FlowOverride,
-            _ => return None,
-        })
+wire_enum! {
+    /// An operator or client command (`Control::command`).
+    #[derive(Clone, Copy, Debug, PartialEq, Eq)]
+    pub enum Command {
+        /// Start the queued job (moving to its first point first if needed).
+        Start = 1,
+        /// Slow to a stop on the path and wait.
+        Pause = 2,
+        /// Continue after a pause.
+        Resume = 3,
+        /// Controlled stop on the path; the rest of the job is discarded.
+        Stop = 4,
+        /// Stop as fast as the joint limits allow, extrusion off, then fault.
+        EmergencyStop = 5,
+        /// Clear a latched fault.
+        ClearFault = 6,
+        /// Set the feed override to `value` (fraction, 0.01 to 2).
+        FeedOverride = 7,
+        /// Set the flow override to `value` (fraction, 0 to 2).
+        FlowOverride = 8,
     }
 }
 
@@ -290,172 +301,106 @@ pub struct ExtruderCommand {
     pub _reserved: u32,
 }
 
-/// The controller's run state (`Status::run_state`, `JointCommand` has it too).
-#[repr(u32)]
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-pub enum RunState {
-    /// No job running; segments may be queued.
-    #[default]
-    Idle = 0,
-    /// Moving in joint space to the job's first point, not extruding.
-    Approaching = 1,
-    /// Executing the path.
-    Running = 2,
-    /// Slowing to a stop on the path.
-    Pausing = 3,
-    /// Stopped on the path; resume continues.
-    Paused = 4,
-    /// Controlled stop on the path; the rest of the job is then discarded.
-    Stopping = 5,
-    /// Braking as hard as the joint limits allow, then fault.
-    EmergencyStopping = 6,
-    /// Latched fault: holding still until ClearFault.
-    Fault = 7,
-}
-
-impl RunState {
-    /// The state for a wire value, if it names one.
-    pub fn from_u32(v: u32) -> Option<Self> {
-        Some(match v {
-            0 => RunState::Idle,
-            1 => RunState::Approaching,
-            2 => RunState::Running,
-            3 => RunState::Pausing,
-            4 => RunState::Paused,
-            5 => RunState::Stopping,
-            6 => RunState::EmergencyStopping,
-            7 => RunState::Fault,
-            _ => return None,
-        })
+wire_enum! {
+    /// The controller's run state (`Status::run_state`, `JointCommand` has it too).
+    #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+    pub enum RunState {
+        /// No job running; segments may be queued.
+        #[default]
+        Idle = 0,
+        /// Moving in joint space to the job's first point, not extruding.
+        Approaching = 1,
+        /// Executing the path.
+        Running = 2,
+        /// Slowing to a stop on the path.
+        Pausing = 3,
+        /// Stopped on the path; resume continues.
+        Paused = 4,
+        /// Controlled stop on the path; the rest of the job is then discarded.
+        Stopping = 5,
+        /// Braking as hard as the joint limits allow, then fault.
+        EmergencyStopping = 6,
+        /// Latched fault: holding still until ClearFault.
+        Fault = 7,
     }
 }
 
-/// Why the controller faulted (`Status::fault`).
-#[repr(u32)]
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-pub enum FaultCode {
-    /// No fault.
-    #[default]
-    None = 0,
-    /// An emergency stop was commanded.
-    EmergencyStop = 1,
-    /// Base tracking went silent past its timeout.
-    TrackingLost = 2,
-    /// The robot's joint state went silent past its timeout.
-    JointStateLost = 3,
-    /// A non-finite number appeared in the controller (never published).
-    NonFinite = 4,
-    /// The job's first point could not be reached (no inverse kinematics solution).
-    ApproachFailed = 5,
-    /// The measured joints left their limits or the commanded path by more than allowed.
-    RobotDeviation = 6,
-    /// The path had segments to execute but made no progress (neither the path position nor a
-    /// dwell advanced) for `[path] stall_timeout`: a planner fault, never a silent hang.
-    PathStalled = 7,
-    /// The TCP stayed further than `[controller] tcp_error_limit` from the path target for
-    /// `tcp_error_time`: the commanded (or measured) tool left its path — out of reach, at a joint
-    /// limit, a singularity, or a base that drifted away.
-    TcpErrorLimit = 8,
-}
-
-impl FaultCode {
-    /// The code for a wire value, if it names one.
-    pub fn from_u32(v: u32) -> Option<Self> {
-        Some(match v {
-            0 => FaultCode::None,
-            1 => FaultCode::EmergencyStop,
-            2 => FaultCode::TrackingLost,
-            3 => FaultCode::JointStateLost,
-            4 => FaultCode::NonFinite,
-            5 => FaultCode::ApproachFailed,
-            6 => FaultCode::RobotDeviation,
-            7 => FaultCode::PathStalled,
-            8 => FaultCode::TcpErrorLimit,
-            _ => return None,
-        })
+wire_enum! {
+    /// Why the controller faulted (`Status::fault`).
+    #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+    pub enum FaultCode {
+        /// No fault.
+        #[default]
+        None = 0,
+        /// An emergency stop was commanded.
+        EmergencyStop = 1,
+        /// Base tracking went silent past its timeout.
+        TrackingLost = 2,
+        /// The robot's joint state went silent past its timeout.
+        JointStateLost = 3,
+        /// A non-finite number appeared in the controller (never published).
+        NonFinite = 4,
+        /// The job's first point could not be reached (no inverse kinematics solution).
+        ApproachFailed = 5,
+        /// The measured joints left their limits or the commanded path by more than allowed.
+        RobotDeviation = 6,
+        /// The path had segments to execute but made no progress (neither the path position nor a
+        /// dwell advanced) for `[path] stall_timeout`: a planner fault, never a silent hang.
+        PathStalled = 7,
+        /// The TCP stayed further than `[controller] tcp_error_limit` from the path target for
+        /// `tcp_error_time`: the commanded (or measured) tool left its path — out of reach, at a joint
+        /// limit, a singularity, or a base that drifted away.
+        TcpErrorLimit = 8,
     }
 }
 
-/// Why a segment or control was rejected (`Status::last_reject_reason`).
-#[repr(u32)]
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-pub enum RejectReason {
-    /// Nothing rejected.
-    #[default]
-    None = 0,
-    /// A field is NaN or infinite.
-    NonFinite = 1,
-    /// Feed ≤ 0 (or a dwell's duration < 0).
-    BadFeed = 2,
-    /// A point outside the configured workspace bounds.
-    OutOfBounds = 3,
-    /// The sequence number is not the next one expected.
-    SequenceGap = 4,
-    /// The intake queue is full; resend after Status shows space.
-    QueueFull = 5,
-    /// Inconsistent geometry (arc centre, normal, sweep, orientation).
-    BadGeometry = 6,
-    /// Unknown segment kind or control command.
-    UnknownKind = 7,
-    /// The controller cannot take it yet (no joint state, or faulted).
-    NotReady = 8,
-    /// The command is not allowed in the current run state.
-    NotAllowed = 9,
-    /// An override value outside its range.
-    BadValue = 10,
-    /// A joint state with the wrong number of joints.
-    WrongDof = 11,
-}
-
-impl RejectReason {
-    /// The reason for a wire value, if it names one.
-    pub fn from_u32(v: u32) -> Option<Self> {
-        Some(match v {
-            0 => RejectReason::None,
-            1 => RejectReason::NonFinite,
-            2 => RejectReason::BadFeed,
-            3 => RejectReason::OutOfBounds,
-            4 => RejectReason::SequenceGap,
-            5 => RejectReason::QueueFull,
-            6 => RejectReason::BadGeometry,
-            7 => RejectReason::UnknownKind,
-            8 => RejectReason::NotReady,
-            9 => RejectReason::NotAllowed,
-            10 => RejectReason::BadValue,
-            11 => RejectReason::WrongDof,
-            _ => return None,
-        })
+wire_enum! {
+    /// Why a segment or control was rejected (`Status::last_reject_reason`).
+    #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+    pub enum RejectReason {
+        /// Nothing rejected.
+        #[default]
+        None = 0,
+        /// A field is NaN or infinite.
+        NonFinite = 1,
+        /// Feed ≤ 0 (or a dwell's duration < 0).
+        BadFeed = 2,
+        /// A point outside the configured workspace bounds.
+        OutOfBounds = 3,
+        /// The sequence number is not the next one expected.
+        SequenceGap = 4,
+        /// The intake queue is full; resend after Status shows space.
+        QueueFull = 5,
+        /// Inconsistent geometry (arc centre, normal, sweep, orientation).
+        BadGeometry = 6,
+        /// Unknown segment kind or control command.
+        UnknownKind = 7,
+        /// The controller cannot take it yet (no joint state, or faulted).
+        NotReady = 8,
+        /// The command is not allowed in the current run state.
+        NotAllowed = 9,
+        /// An override value outside its range.
+        BadValue = 10,
+        /// A joint state with the wrong number of joints.
+        WrongDof = 11,
     }
 }
 
-/// How the last job ended (`Status::job_outcome`).
-#[repr(u32)]
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-pub enum JobOutcome {
-    /// No job has run yet.
-    #[default]
-    None = 0,
-    /// A job is in progress.
-    InProgress = 1,
-    /// The segment flagged LAST ran to its end.
-    Finished = 2,
-    /// Stopped on command (or because the feeder went away); the rest was discarded.
-    Stopped = 3,
-    /// Ended by a fault or an emergency stop.
-    Faulted = 4,
-}
-
-impl JobOutcome {
-    /// The outcome for a wire value, if it names one.
-    pub fn from_u32(v: u32) -> Option<Self> {
-        Some(match v {
-            0 => JobOutcome::None,
-            1 => JobOutcome::InProgress,
-            2 => JobOutcome::Finished,
-            3 => JobOutcome::Stopped,
-            4 => JobOutcome::Faulted,
-            _ => return None,
-        })
+wire_enum! {
+    /// How the last job ended (`Status::job_outcome`).
+    #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+    pub enum JobOutcome {
+        /// No job has run yet.
+        #[default]
+        None = 0,
+        /// A job is in progress.
+        InProgress = 1,
+        /// The segment flagged LAST ran to its end.
+        Finished = 2,
+        /// Stopped on command (or because the feeder went away); the rest was discarded.
+        Stopped = 3,
+        /// Ended by a fault or an emergency stop.
+        Faulted = 4,
     }
 }
 
@@ -526,29 +471,18 @@ pub struct Status {
     pub _reserved: u32,
 }
 
-/// Whether the service is logging (`Status::log_state`).
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
-#[repr(u32)]
-pub enum LogState {
-    /// No log configured.
-    #[default]
-    Off = 0,
-    /// Every tick is written.
-    Recording = 1,
-    /// A write failed (disk full, I/O error): logging stopped, control goes on, and every tick
-    /// since is counted in `Status::log_drops`.
-    Failed = 2,
-}
-
-impl LogState {
-    /// From the wire value.
-    pub fn from_u32(v: u32) -> Option<Self> {
-        Some(match v {
-            0 => LogState::Off,
-            1 => LogState::Recording,
-            2 => LogState::Failed,
-            _ => return None,
-        })
+wire_enum! {
+    /// Whether the service is logging (`Status::log_state`).
+    #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+    pub enum LogState {
+        /// No log configured.
+        #[default]
+        Off = 0,
+        /// Every tick is written.
+        Recording = 1,
+        /// A write failed (disk full, I/O error): logging stopped, control goes on, and every tick
+        /// since is counted in `Status::log_drops`.
+        Failed = 2,
     }
 }
 

@@ -22,11 +22,11 @@ use serde::{Deserialize, Serialize};
 use strand_ipc as ipc;
 use strand_ipc::{Command, FaultCode, JobOutcome, RunState};
 
+use crate::bed::BedTransform;
 use crate::config::Config;
-use crate::core::base::BaseMode;
-use crate::core::controller::{Controller, Event, MAX_SEGMENTS_PER_TICK, TickInput};
+use crate::core::BaseMode;
 use crate::core::kin::{JointVector, MAX_JOINTS};
-use crate::core::path::BedTransform;
+use crate::core::{Controller, Event, MAX_SEGMENTS_PER_TICK, TickInput};
 use crate::job::BaseTrajectory;
 use crate::plan::MAX_SEGMENT_SECONDS;
 

@@ -915,11 +915,8 @@ impl Controller {
     /// Wire segment → core segment, checking what the path engine does not: kinds, finiteness,
     /// feed, bounds.
     fn validate_segment(&self, w: &ipc::Segment) -> Result<Segment, (RejectReason, &'static str)> {
-        let kind = match ipc::SegmentKind::from_u32(w.kind) {
-            Some(ipc::SegmentKind::Line) => SegmentKind::Line,
-            Some(ipc::SegmentKind::Arc) => SegmentKind::Arc,
-            Some(ipc::SegmentKind::Dwell) => SegmentKind::Dwell,
-            None => return Err((RejectReason::UnknownKind, "kind")),
+        let Some(kind) = SegmentKind::from_u32(w.kind) else {
+            return Err((RejectReason::UnknownKind, "kind"));
         };
         let finite = |v: &[f64]| v.iter().all(|x| x.is_finite());
         for (field, ok) in [
@@ -1441,7 +1438,8 @@ mod tests {
     //! arm brakes within its limits. (That it never fires on dwells, underruns and pauses is in
     //! tests/controller.rs.)
     use super::*;
-    use crate::config::Config;
+    use crate::kin::Frame;
+    use nalgebra::{Rotation3, Translation3};
 
     const START: [f64; 7] = [0.0, 0.4, 0.0, -1.5, 0.0, 1.2, 0.0];
     const DOWN: [f64; 4] = [0.0, 0.0, 1.0, 0.0];
@@ -1466,15 +1464,32 @@ mod tests {
 
     #[test]
     fn a_frozen_path_faults_as_path_stalled_and_the_arm_brakes() {
-        let cfg = Config::load(std::path::Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/config/default.toml"))).unwrap();
-        let settings = cfg.controller_settings();
+        // The default settings (config/default.toml's values) on the iiwa7 with its 10 cm tool and
+        // the dynamic limits of config/robots/iiwa7.toml.
+        let settings = ControllerSettings {
+            controller: ControllerConfig::default(),
+            clik: ClikConfig::default(),
+            path: PathConfig::default(),
+            extruder: ExtruderConfig::default(),
+            base: BaseConfig::default(),
+        };
         let timeout = settings.path.stall_timeout;
         assert_eq!(timeout, 0.5);
-        let model = cfg.robot.build_model().unwrap();
+        let urdf = include_str!("../../config/robots/iiwa7.urdf");
+        let model = RobotModel::from_urdf_str(urdf, "iiwa7.urdf", "world", "iiwa_link_ee")
+            .unwrap()
+            .with_tool(Frame::from_parts(Translation3::new(0.0, 0.0, 0.10), Rotation3::identity()))
+            .unwrap()
+            .with_dynamic_limits(
+                &[8.0, 8.0, 8.0, 10.0, 12.0, 15.0, 15.0],
+                &[80.0, 80.0, 80.0, 100.0, 120.0, 150.0, 150.0],
+                ("acceleration", "jerk"),
+            )
+            .unwrap();
         let dof = model.dof();
         let limits: Vec<_> = (0..dof).map(|i| model.limits(i).clone()).collect();
         let mut ctl = Controller::new(&settings, model).unwrap();
-        let dt_ns = (cfg.controller.dt() * 1e9).round() as u64;
+        let dt_ns = (settings.controller.dt() * 1e9).round() as u64;
         let mut q = [0.0; 8];
         q[..7].copy_from_slice(&START);
         let job = [
@@ -1542,7 +1557,7 @@ mod tests {
         let (at, code, seq, line) = fault.expect("the watchdog fired");
         assert_eq!(code, FaultCode::PathStalled);
         assert_eq!((seq, line), (2, 20), "the fault names the segment and its source line");
-        let waited = (at - frozen_at) as f64 * cfg.controller.dt();
+        let waited = (at - frozen_at) as f64 * settings.controller.dt();
         assert!(waited > timeout && waited < timeout + 0.01, "fired after {waited} s");
         assert_eq!(ctl.run_state(), RunState::Fault);
         assert_eq!(ctl.outcome, JobOutcome::Faulted);

@@ -8,7 +8,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use crate::core::path::{Motion, PathSample};
+use crate::path::{Motion, PathSample};
 
 /// `[extruder]`.
 #[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]

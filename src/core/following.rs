@@ -15,14 +15,14 @@
 
 use nalgebra::Vector3;
 
-use super::path::geometry::distance_to_segment;
+use super::path::distance_to_segment;
 
 /// Targets the trail keeps.
-pub const TRAIL_POINTS: usize = 64;
+pub(crate) const TRAIL_POINTS: usize = 64;
 
 /// The watchdog's state.
 #[derive(Clone, Debug)]
-pub struct FollowingWatch {
+pub(crate) struct FollowingWatch {
     limit: f64,
     time_ns: u64,
     every_ns: u64,
@@ -36,7 +36,7 @@ pub struct FollowingWatch {
 impl FollowingWatch {
     /// A watchdog tripping at `limit` (m; 0 disables tripping) held for `time` (s), tolerating a
     /// robot lag of up to `lag` (s).
-    pub fn new(limit: f64, time: f64, lag: f64) -> Self {
+    pub(crate) fn new(limit: f64, time: f64, lag: f64) -> Self {
         FollowingWatch {
             limit,
             time_ns: (time * 1e9).round() as u64,
@@ -50,14 +50,14 @@ impl FollowingWatch {
     }
 
     /// Forgets the trail and the clock (the path is not running).
-    pub fn reset(&mut self) {
+    pub(crate) fn reset(&mut self) {
         self.len = 0;
         self.since_ns = None;
     }
 
     /// One tick at `now_ns` with the path `target`, the `commanded` TCP and, with a fresh joint
     /// state, the `measured` one (all m, W). Returns the error (m) and whether the watchdog trips.
-    pub fn observe(
+    pub(crate) fn observe(
         &mut self,
         now_ns: u64,
         target: &Vector3<f64>,

@@ -1,4 +1,5 @@
-//! The I/O shell around the deterministic core: iceoryx2 ports, cycle clock, real-time set-up.
+//! The I/O shell around the deterministic core: the cycle runner over the iceoryx2 ports of
+//! `strand_ipc::ports`, cycle clock, real-time set-up.
 //!
 //! Nothing in here decides anything about motion; it moves bytes between shared memory and the
 //! controller, waits for ticks and measures how late they were. `core` never imports this module.
@@ -8,6 +9,5 @@
 pub mod alloc_count;
 pub mod clock;
 pub mod histogram;
-pub mod ports;
 pub mod rt;
 pub mod runner;

@@ -13,10 +13,10 @@ use strand_ipc::{JobOutcome, RunState, ServiceNames};
 
 use super::clock::{ClockMode, CycleStats, TimerClock, monotonic_ns};
 use super::histogram::Histogram;
-use super::ports::{PortError, ServicePorts};
 use super::rt::{self, RealtimeConfig};
-use crate::core::controller::{Controller, Event, TickInput, TickOutput};
+use crate::core::{Controller, Event, TickInput, TickOutput};
 use crate::log::messages::TickTiming;
+use strand_ipc::ports::{PortError, ServicePorts};
 
 /// Where the controller learns the joint positions.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Deserialize, Serialize)]
@@ -157,7 +157,7 @@ pub struct Runner {
 impl Runner {
     /// Opens the ports under the configured prefix. `node_name` names this process to iceoryx2.
     pub fn new(controller: Controller, service: &ServiceConfig, joint_state_timeout: f64, rate_hz: f64) -> Result<Self, RunError> {
-        let _ = super::ports::cleanup_dead_nodes();
+        let _ = strand_ipc::ports::cleanup_dead_nodes();
         let ports = ServicePorts::open(&ServiceNames::new(&service.prefix), "strand")?;
         let n = controller.model().dof();
         let mut echo_state = ipc::JointState { dof: n as u32, ..Default::default() };
@@ -286,7 +286,7 @@ impl Runner {
             //    peers (a crashed feeder or driver counts as a publisher until then).
             log_events(&out);
             if tick % cleanup_every == 0 {
-                let _ = super::ports::cleanup_dead_nodes();
+                let _ = strand_ipc::ports::cleanup_dead_nodes();
             }
             summary.status = out.status;
             summary.ticks += 1;
@@ -322,7 +322,7 @@ impl Runner {
                 break;
             }
         }
-        while input.control_count < crate::core::controller::MAX_CONTROLS_PER_TICK as u32 {
+        while input.control_count < crate::core::MAX_CONTROLS_PER_TICK as u32 {
             match self.ports.receive_control()? {
                 Some(c) => {
                     input.push_control(&c);

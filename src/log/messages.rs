@@ -13,8 +13,8 @@ use strand_ipc::{FaultCode, JobOutcome, RejectReason, RunState};
 
 use super::cdr::{CdrError, CdrReader, CdrType, CdrWriter, Scalar, add_dependency};
 use crate::cdr_message;
-use crate::core::base::BaseState;
-use crate::core::controller::{
+use crate::core::BaseState;
+use crate::core::{
     CycleCounters, Event, MAX_BASE_POSES_PER_TICK, MAX_CONTROLS_PER_TICK, MAX_EVENTS, MAX_SEGMENTS_PER_TICK, TickDiagnostics, TickInput,
     TickOutput,
 };
@@ -153,7 +153,7 @@ impl CdrType for Event {
         add_dependency(out, Self::ros_type(), || EVENT_DEFINITION.to_string());
     }
     fn write(&self, w: &mut CdrWriter) {
-        let (kind, seq, a, b, value, field) = self.parts();
+        let (kind, seq, a, b, value, field) = event_parts(self);
         w.u8(kind);
         w.u64(seq);
         w.u32(a);
@@ -178,7 +178,7 @@ impl CdrType for Event {
         })
     }
     fn flatten(&self, path: &str, out: &mut Vec<(String, Scalar)>) {
-        let (kind, seq, a, b, value, field) = self.parts();
+        let (kind, seq, a, b, value, field) = event_parts(self);
         out.push((format!("{path}.kind"), Scalar::U(kind as u64)));
         out.push((format!("{path}.seq"), Scalar::U(seq)));
         out.push((format!("{path}.a"), Scalar::U(a as u64)));
@@ -188,19 +188,17 @@ impl CdrType for Event {
     }
 }
 
-impl Event {
-    /// The wire fields (kind, seq, a, b, value, field) of `EVENT_DEFINITION`.
-    fn parts(&self) -> (u8, u64, u32, u32, f64, &'static str) {
-        match *self {
-            Event::SegmentRejected { seq, reason, field } => (1, seq, reason as u32, 0, 0.0, field),
-            Event::ControlRejected { command, reason } => (2, 0, command, reason as u32, 0.0, ""),
-            Event::JointStateRejected { seq, reason } => (3, seq, reason as u32, 0, 0.0, ""),
-            Event::BasePoseRejected { seq } => (4, seq, 0, 0, 0.0, ""),
-            Event::StateChanged { from, to } => (5, 0, from as u32, to as u32, 0.0, ""),
-            Event::Fault { code, seq, line, value } => (6, seq, code as u32, line, value, ""),
-            Event::JobEnded { outcome, last_seq } => (7, last_seq, outcome as u32, 0, 0.0, ""),
-            Event::Clamped { joint } => (8, 0, joint as u32, 0, 0.0, ""),
-        }
+/// The wire fields (kind, seq, a, b, value, field) of `EVENT_DEFINITION`.
+fn event_parts(event: &Event) -> (u8, u64, u32, u32, f64, &'static str) {
+    match *event {
+        Event::SegmentRejected { seq, reason, field } => (1, seq, reason as u32, 0, 0.0, field),
+        Event::ControlRejected { command, reason } => (2, 0, command, reason as u32, 0.0, ""),
+        Event::JointStateRejected { seq, reason } => (3, seq, reason as u32, 0, 0.0, ""),
+        Event::BasePoseRejected { seq } => (4, seq, 0, 0, 0.0, ""),
+        Event::StateChanged { from, to } => (5, 0, from as u32, to as u32, 0.0, ""),
+        Event::Fault { code, seq, line, value } => (6, seq, code as u32, line, value, ""),
+        Event::JobEnded { outcome, last_seq } => (7, last_seq, outcome as u32, 0, 0.0, ""),
+        Event::Clamped { joint } => (8, 0, joint as u32, 0, 0.0, ""),
     }
 }
 

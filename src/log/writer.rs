@@ -27,8 +27,8 @@ use super::cdr::{CdrWriter, encode, schema_text};
 use super::messages::{Tick, TickTiming, ros};
 use super::{LogCompression, LogConfig, build_version, names, topics, unix_now_ns, utc_stamp};
 use crate::config::Config;
-use crate::core::controller::{TickInput, TickOutput};
 use crate::core::kin::{JointVector, RobotModel};
+use crate::core::{TickInput, TickOutput};
 use crate::io::runner::TickSink;
 
 /// Why logging could not start or went wrong.

@@ -3,7 +3,7 @@
 #![allow(dead_code)]
 
 use strand::config::Config;
-use strand::core::controller::{Controller, MAX_SEGMENTS_PER_TICK, TickInput, TickOutput};
+use strand::core::{Controller, MAX_SEGMENTS_PER_TICK, TickInput, TickOutput};
 use strand_ipc as ipc;
 
 use super::root;

@@ -195,7 +195,7 @@ pub fn report(log: &Path, truth: &[Truth], flyer: bool) -> Result<Report, String
         }
         for e in o.events() {
             match *e {
-                strand::core::controller::Event::Fault { code, seq, line, value } => {
+                strand::core::Event::Fault { code, seq, line, value } => {
                     let figure = if code == strand_ipc::FaultCode::TcpErrorLimit {
                         format!(" (TCP error {:.3} mm)", value * 1e3)
                     } else {
@@ -206,7 +206,7 @@ pub fn report(log: &Path, truth: &[Truth], flyer: bool) -> Result<Report, String
                         if seq > 0 { format!("{code:?} at segment {seq}, line {line}{figure}") } else { format!("{code:?}{figure}") },
                     ))
                 }
-                strand::core::controller::Event::JobEnded { outcome, .. } => {
+                strand::core::Event::JobEnded { outcome, .. } => {
                     r.job_outcome = format!("{outcome:?}");
                     ended = Some(i.time_ns);
                 }

@@ -5,8 +5,9 @@
 
 use std::path::Path;
 
+use strand::bed::BedTransform;
 use strand::config::Config;
-use strand::core::path::{BedTransform, Segment, SegmentFlags, SegmentKind};
+use strand::core::{Segment, SegmentFlags, SegmentKind};
 use strand::gcode::GcodeOptions;
 pub use strand::job::{LayeredSegments, load_segments, to_wire};
 use strand_ipc as ipc;

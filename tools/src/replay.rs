@@ -7,9 +7,9 @@ use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
 use nalgebra::{UnitQuaternion, Vector3};
-use strand::core::base::BaseState;
-use strand::core::controller::{Event, TickOutput};
+use strand::core::BaseState;
 use strand::core::kin::{JointVector, RobotModel};
+use strand::core::{Event, TickOutput};
 use strand::io::histogram::Histogram;
 use strand::log::dynamic::Schema;
 use strand::log::reader::LogFile;

@@ -30,6 +30,6 @@ pub fn load_robot(arg: &Path, root: Option<&str>, tip: Option<&str>) -> Result<L
     let (Some(root), Some(tip)) = (root, tip) else {
         return Err(format!("{}: a URDF needs --root LINK and --tip LINK (or pass a robot .toml from config/robots)", path.display()));
     };
-    let model = RobotModel::from_urdf_file(path, root, tip).map_err(|e| e.to_string())?;
+    let model = strand::config::robot_model_from_urdf_file(path, root, tip).map_err(|e| e.to_string())?;
     Ok(LoadedRobot { model, from_config: false })
 }

@@ -12,7 +12,7 @@ use common::{json_f64, root, square_program, temp_dir};
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-use strand::core::controller::Event;
+use strand::core::Event;
 use strand::log::reader::LogFile;
 
 /// The approach at full joint speed (both sides use it): seconds of robot time saved per test.

@@ -18,7 +18,7 @@ use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
-use strand::io::ports::{ClientPorts, ClientRoles};
+use strand_ipc::ports::{ClientPorts, ClientRoles};
 use strand_ipc::{FaultCode, JobOutcome, RunState, ServiceNames, Status};
 
 /// The approach at full joint speed: seconds of robot time saved in every test (debug builds are slow).

@@ -318,7 +318,7 @@ fn position_velocity_bounds(q: f64, lo: f64, hi: f64, vmax: f64, acc: f64, dt: f
 /// most `acc·dt` per tick, stops within the distance `d`: the sequence v, v − a·dt, …, v − k·a·dt covers
 /// exactly d with its last term in [0, a·dt]. Following it, one tick later the bound is exactly v − a·dt,
 /// so braking never needs more than the acceleration limit.
-pub fn braking_speed(d: f64, acc: f64, dt: f64) -> f64 {
+pub(super) fn braking_speed(d: f64, acc: f64, dt: f64) -> f64 {
     if d <= 0.0 {
         return 0.0;
     }

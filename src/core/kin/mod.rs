@@ -4,12 +4,12 @@
 //! Frames: B is the chain's root link (the robot base), T the TCP at the nozzle tip with z along the
 //! nozzle. Everything here is in B; mapping world targets into B is the base correction's job.
 
-pub mod clik;
-pub mod fk;
+mod clik;
+mod fk;
 pub mod geom;
-pub mod model;
+mod model;
 pub mod svd;
-pub mod task;
+mod task;
 
 pub use clik::{Clik, ClikConfig, ClikStatus, ClikStep, InvalidClikConfig, PathVelocity, Priority, TcpTarget};
 pub use fk::{ChainState, Jacobian};

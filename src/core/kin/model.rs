@@ -8,7 +8,6 @@
 //! → TCP at the nozzle tip) comes from config, because the URDF describes the arm, not the extruder.
 
 use std::collections::BTreeMap;
-use std::path::Path;
 
 use nalgebra::{IsometryMatrix3, SVector, Translation3, Unit, Vector3};
 use thiserror::Error;
@@ -83,7 +82,9 @@ pub struct Joint {
     pub limits: JointLimits,
 }
 
-/// Why a URDF could not be turned into a chain. Every variant names the file and the element.
+/// Why a URDF could not be turned into a chain. Every variant names the file and the element; its
+/// message (the `#[error]` line) is its documentation.
+#[allow(missing_docs)]
 #[derive(Debug, Error)]
 pub enum ModelError {
     #[error("{file}: cannot read URDF: {reason}")]
@@ -150,13 +151,6 @@ fn pose_to_frame(pose: &urdf_rs::Pose) -> Option<Frame> {
 }
 
 impl RobotModel {
-    /// Reads `path` and builds the chain `root_link` → `tip_link`.
-    pub fn from_urdf_file(path: &Path, root_link: &str, tip_link: &str) -> Result<Self, ModelError> {
-        let file = path.display().to_string();
-        let text = std::fs::read_to_string(path).map_err(|e| ModelError::Read { file: file.clone(), reason: e.to_string() })?;
-        Self::from_urdf_str(&text, &file, root_link, tip_link)
-    }
-
     /// Builds the chain from URDF text; `file` is only used to name the source in errors.
     pub fn from_urdf_str(text: &str, file: &str, root_link: &str, tip_link: &str) -> Result<Self, ModelError> {
         let robot = urdf_rs::read_from_string(text).map_err(|e| match incomplete_limit(text) {

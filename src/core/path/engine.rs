@@ -54,7 +54,7 @@ use super::config::{InvalidPathConfig, PathConfig, PlanningMode};
 use super::geometry::Geometry;
 use super::profile::{Braking, PathState, Trapezoid};
 use super::segment::{MAX_ARC_SWEEP, Segment, SegmentFlags, SegmentKind};
-use crate::core::kin::geom;
+use crate::kin::geom;
 
 /// How many boundaries the executor looks past for a binding one before it settles for a
 /// non-binding intermediate target (it re-targets from there).
@@ -69,7 +69,9 @@ const STRAIGHT: f64 = 1e-7;
 /// property run found 3.000367 m/s² against 3). Planning at 0.999 keeps the limit itself.
 const CENTRIPETAL_PLANNING_SHARE: f64 = 0.999;
 
-/// Why a segment was refused. Nothing already accepted is affected.
+/// Why a segment was refused. Nothing already accepted is affected. `seq` is the segment's sequence
+/// number, `field` the wire field at fault.
+#[allow(missing_docs)]
 #[derive(Clone, Copy, Debug, PartialEq, Eq, thiserror::Error)]
 pub enum SegmentError {
     /// The intake queue is full; retry after the queue reports space.
@@ -1195,7 +1197,7 @@ impl PathEngine {
             && !keeps_current(arrival, &self.plan)
             && arrival > self.arrival_bound(target) * (1.0 + 1e-9) + 1e-12
         {
-            planned = None;
+            planned = self.slower_arrival(state, position, speed, vrun);
         }
         match planned {
             Some(arrival) if keeps_current(arrival, &self.plan) => {
@@ -1275,8 +1277,9 @@ impl PathEngine {
                 if too_fast {
                     match self.ruckig_check(state, position, speed_cap, vmax) {
                         Ok(()) => found = Some(speed_cap),
-                        // Even the boundary's own cap is too slow to arrive at.
-                        Err(true) => return None,
+                        // Even the boundary's own cap is too slow to arrive at: only a slower
+                        // arrival may still exist.
+                        Err(true) => return self.slower_arrival(state, position, speed, vmax),
                         // The cap needs more run-up than there is: the answer lies below it.
                         Err(false) => {}
                     }
@@ -1307,10 +1310,37 @@ impl PathEngine {
                         Err(false) => hi = mid,
                     }
                 }
-                let found = found?;
+                let Some(found) = found else {
+                    return if too_fast { self.slower_arrival(state, position, speed, vmax) } else { None };
+                };
                 self.ruckig_check(state, position, found, vmax).ok().map(|_| found)
             }
         }
+    }
+
+    /// The highest arrival speed below `speed` (m/s) at which a trajectory from `state` reaches
+    /// `position`, or None. Needed because the arrival speeds reachable over a short distance are
+    /// not one interval: slowing from v to v' at zero acceleration at both ends takes
+    /// `(v + v')·√((v − v')/j)` in its triangular range, which *grows* as v' falls from v to v/3
+    /// and shrinks below. When a boundary's speed rose after the tool committed to its run-up (the
+    /// later boundaries arrived), that speed can be out of reach while a slower one is not, and
+    /// slower at a boundary is always safe for everything after it. Leaves the trajectory in
+    /// `candidate`.
+    fn slower_arrival(&mut self, state: PathState, position: f64, speed: f64, vmax: f64) -> Option<f64> {
+        self.ruckig_check(state, position, 0.0, vmax).ok()?;
+        // 0 is reachable and `speed` is not: bisect for the top of the lower interval.
+        let (mut lo, mut hi) = (0.0, speed);
+        for _ in 0..48 {
+            if hi - lo <= 1e-12 + 1e-10 * hi {
+                break;
+            }
+            let mid = 0.5 * (lo + hi);
+            match self.ruckig_check(state, position, mid, vmax) {
+                Ok(()) => lo = mid,
+                Err(_) => hi = mid,
+            }
+        }
+        self.ruckig_check(state, position, lo, vmax).ok().map(|_| lo)
     }
 
     /// Computes the trajectory to (`position`, `speed`, 0); Err(true) if it would overshoot (too

@@ -7,8 +7,13 @@ use nalgebra::Vector3;
 /// A primitive of the executed path, in W.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum Geometry {
-    /// `start + direction · s`, `direction` unit.
-    Line { start: Vector3<f64>, direction: Vector3<f64> },
+    /// `start + direction · s`.
+    Line {
+        /// Where the line starts (m).
+        start: Vector3<f64>,
+        /// Unit direction of motion.
+        direction: Vector3<f64>,
+    },
     /// A circular arc, a helix or a slight spiral (002 Eqs. 4-5, extended):
     /// `x(θ) = centre + r(θ)(cos θ·e1 + sin θ·e2) + pitch·θ·normal`, `r(θ) = radius + radius_rate·θ`,
     /// θ from 0 to `sweep`, with θ proportional to arc length.
@@ -30,8 +35,11 @@ pub enum Geometry {
         /// Swept angle (rad, > 0).
         sweep: f64,
     },
-    /// Standing still at `point` (a dwell); zero length.
-    Hold { point: Vector3<f64> },
+    /// Standing still (a dwell); zero length.
+    Hold {
+        /// Where the tool stands (m).
+        point: Vector3<f64>,
+    },
 }
 
 /// Position and its first two derivatives with respect to arc length.

@@ -11,7 +11,7 @@
 /// composes along the path (the `v'²/(2a)` terms form a single backward minimum), which is what lets
 /// the lookahead keep one number per boundary instead of re-solving chains of short segments.
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Braking {
+pub(super) struct Braking {
     /// Acceleration limit along the path (m/s², > 0).
     pub acceleration: f64,
     /// Jerk limit along the path (m/s³, > 0; infinite for the acceleration-only modes).
@@ -22,14 +22,14 @@ impl Braking {
     /// `w(v)`: the distance (m) needed to brake from v (m/s, at zero acceleration), beyond the
     /// constant-deceleration part.
     #[inline]
-    pub fn w(&self, v: f64) -> f64 {
+    pub(super) fn w(&self, v: f64) -> f64 {
         let a = self.acceleration;
         v * v / (2.0 * a) + if self.jerk.is_finite() { v * a / self.jerk } else { 0.0 }
     }
 
     /// The inverse of [`w`](Self::w): the highest speed (m/s) with `w(v) ≤ d` (0 for d ≤ 0).
     #[inline]
-    pub fn w_inverse(&self, d: f64) -> f64 {
+    pub(super) fn w_inverse(&self, d: f64) -> f64 {
         if d <= 0.0 {
             return 0.0;
         }
@@ -44,14 +44,14 @@ impl Braking {
 
     /// The potential `S + v²/(2a)` of a speed cap v (m/s) at path position S (m).
     #[inline]
-    pub fn potential(&self, position: f64, cap: f64) -> f64 {
+    pub(super) fn potential(&self, position: f64, cap: f64) -> f64 {
         position + cap * cap / (2.0 * self.acceleration)
     }
 
     /// The exact distance (m) of the fastest change from speed `v` down to `v_to` (m/s) that starts
     /// and ends at zero acceleration: triangular `(v+v')·√(Δv/j)` below `Δv = a²/j`, trapezoidal
     /// `(v+v')/2·(Δv/a + a/j)` above.
-    pub fn exact_distance(&self, v: f64, v_to: f64) -> f64 {
+    pub(super) fn exact_distance(&self, v: f64, v_to: f64) -> f64 {
         let dv = v - v_to;
         if dv <= 0.0 {
             return 0.0;
@@ -65,7 +65,7 @@ impl Braking {
 
     /// The highest speed, at most `cap` (m/s), from which the tool can slow to `v_to` within
     /// `length` (m), starting and ending at zero acceleration (bisection on the exact distance).
-    pub fn reach(&self, length: f64, v_to: f64, cap: f64) -> f64 {
+    pub(super) fn reach(&self, length: f64, v_to: f64, cap: f64) -> f64 {
         if cap <= v_to || self.exact_distance(cap, v_to) <= length {
             return cap;
         }
@@ -83,7 +83,7 @@ impl Braking {
 
     /// An upper bound on the distance (m) to come to rest from speed `v` (m/s) and acceleration `a`
     /// (m/s²): first bring a positive acceleration back to zero, then brake.
-    pub fn stopping_distance(&self, v: f64, a: f64) -> f64 {
+    pub(super) fn stopping_distance(&self, v: f64, a: f64) -> f64 {
         if a > 0.0 && self.jerk.is_finite() {
             let t = a / self.jerk;
             let v1 = v + 0.5 * a * t;
@@ -97,7 +97,7 @@ impl Braking {
 /// A trapezoidal (or triangular) speed profile over one piece: accelerate at `a` from `v_in`,
 /// cruise at `v_peak`, decelerate at `a` to `v_out` (004 Eqs. 3-6 with v_in = v_out = 0).
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
-pub struct Trapezoid {
+pub(super) struct Trapezoid {
     /// Entry speed (m/s).
     pub v_in: f64,
     /// Highest speed reached (m/s).
@@ -119,7 +119,7 @@ pub struct Trapezoid {
 
 /// Position, speed, acceleration and jerk along the path.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
-pub struct PathState {
+pub(super) struct PathState {
     /// Arc length (m).
     pub s: f64,
     /// Speed (m/s).
@@ -136,7 +136,7 @@ impl Trapezoid {
     /// the cap (a feed override lowered mid-piece) first slows to the cap: the first phase then
     /// decelerates, and if even braking all the way cannot reach `v_out`, the exit is as slow as
     /// braking allows.
-    pub fn new(length: f64, v_in: f64, v_out: f64, v_cruise: f64, a: f64) -> Trapezoid {
+    pub(super) fn new(length: f64, v_in: f64, v_out: f64, v_cruise: f64, a: f64) -> Trapezoid {
         let length = length.max(0.0);
         let v_in = v_in.max(0.0);
         // Exit speed reachable from the entry (and vice versa, in case the entry is too fast).
@@ -154,12 +154,12 @@ impl Trapezoid {
     }
 
     /// Total duration (s), 004 Eq. 3 for a rest-to-rest trapezoid.
-    pub fn duration(&self) -> f64 {
+    pub(super) fn duration(&self) -> f64 {
         self.t_acc + self.t_cruise + self.t_dec
     }
 
     /// The state at time `t` (s) from the start of the piece (Eqs. 4, 5, 6).
-    pub fn at(&self, t: f64) -> PathState {
+    pub(super) fn at(&self, t: f64) -> PathState {
         let a = self.a;
         if t < self.t_acc {
             let a_in = self.a_in;

@@ -4,20 +4,11 @@
 
 use nalgebra::{UnitQuaternion, Vector3};
 
-/// What a segment asks for.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-pub enum SegmentKind {
-    /// A straight line from the previous end point to `end`.
-    #[default]
-    Line,
-    /// A circular (or helical) arc from the previous end point to `end` about `centre`, turning
-    /// counter-clockwise about `normal` by `sweep`. The end may lie off the start's plane along
-    /// `normal` (a helix) and at a slightly different radius (a spiral, as LinuxCNC allows).
-    Arc,
-    /// Stand still for `duration`. The extruder may move meanwhile (`filament`, e.g. a slicer's
-    /// retraction): it then pushes `filament` evenly over `duration`.
-    Dwell,
-}
+/// What a segment asks for: the wire contract's kind, one type on both sides. A line runs from
+/// the previous end point to `end`; an arc (or helix, or a spiral as LinuxCNC allows) turns about
+/// `centre` counter-clockwise about `normal` by `sweep`; a dwell stands still for `duration`, the
+/// extruder pushing `filament` evenly meanwhile (a slicer's retraction).
+pub use strand_ipc::SegmentKind;
 
 /// The most an arc may turn (rad): 1,000 full turns. A helix of more turns is a program error, not
 /// a path (at a 0.2 mm pitch it is 20 cm of spring), and the bound keeps the arc's length and its

@@ -10,7 +10,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 
 use serde::Serialize;
 use strand::config::Config;
-use strand::core::controller::Controller;
+use strand::core::Controller;
 use strand::io::clock::{ClockMode, TimerClock, monotonic_ns};
 use strand::io::histogram::Histogram;
 use strand::io::rt::{self, RealtimeConfig};

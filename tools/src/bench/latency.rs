@@ -18,10 +18,10 @@ use serde::Serialize;
 use strand::config::Config;
 use strand::io::clock::{TimerClock, monotonic_ns};
 use strand::io::histogram::Histogram;
-use strand::io::ports::{ClientPorts, ClientRoles, ServicePorts};
 use strand::log::reader::LogFile;
 use strand_ipc as ipc;
 use strand_ipc::ServiceNames;
+use strand_ipc::ports::{ClientPorts, ClientRoles, ServicePorts};
 
 use super::{Dist, bench_job, stream_job};
 

@@ -16,9 +16,9 @@ use plotters::prelude::*;
 use serde::Serialize;
 use strand::config::Config;
 use strand::io::histogram::Histogram;
-use strand::io::ports::{ClientPorts, ClientRoles};
 use strand_ipc as ipc;
 use strand_ipc::ServiceNames;
+use strand_ipc::ports::{ClientPorts, ClientRoles};
 
 use crate::feed::{Job, batch, credit, load_gcode};
 

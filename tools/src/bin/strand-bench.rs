@@ -15,7 +15,7 @@ use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
 use strand::config::{Config, locate};
-use strand::core::controller::{Controller, MAX_SEGMENTS_PER_TICK, TickInput};
+use strand::core::{Controller, MAX_SEGMENTS_PER_TICK, TickInput};
 use strand::io::alloc_count::{self, Counting};
 use strand::io::clock::{TimerClock, monotonic_ns};
 use strand::io::histogram::Histogram;

@@ -19,9 +19,9 @@ use std::time::{Duration, Instant};
 
 use clap::Parser;
 use strand::config::{Config, locate};
-use strand::core::base::BaseMode;
-use strand::io::ports::{ClientPorts, ClientRoles};
+use strand::core::BaseMode;
 use strand_ipc::ServiceNames;
+use strand_ipc::ports::{ClientPorts, ClientRoles};
 use strand_tools::demo::{Report, Spread, read_truth, report};
 use strand_tools::jobs;
 use strand_tools::sim::config::SimConfig;

@@ -18,8 +18,8 @@ use std::time::{Duration, Instant};
 use clap::Parser;
 use indicatif::{ProgressBar, ProgressStyle};
 use strand::config::{Config, locate};
-use strand::io::ports::{ClientPorts, ClientRoles};
 use strand_ipc as ipc;
+use strand_ipc::ports::{ClientPorts, ClientRoles};
 use strand_ipc::{Command, JobOutcome, RunState, SEGMENT_BATCH_CAPACITY, ServiceNames};
 use strand_tools::feed::{Ending, Job, batch, credit, load_gcode};
 

@@ -9,8 +9,9 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 use clap::{Parser, Subcommand, ValueEnum};
+use strand::bed::BedTransform;
 use strand::config::{Config, locate};
-use strand::core::path::{BedTransform, PlanningMode};
+use strand::core::PlanningMode;
 use strand::gcode::{GcodeOptions, parse_file};
 use strand::plan::time_program;
 

@@ -16,8 +16,8 @@ use clap::Parser;
 use strand::config::{Config, locate};
 use strand::io::clock::{TimerClock, monotonic_ns};
 use strand::io::histogram::Histogram;
-use strand::io::ports::{ClientPorts, ClientRoles};
 use strand_ipc::ServiceNames;
+use strand_ipc::ports::{ClientPorts, ClientRoles};
 use strand_tools::sim::config::SimConfig;
 use strand_tools::sim::{Sim, Truth};
 

@@ -28,10 +28,11 @@ use std::path::{Path, PathBuf};
 use nalgebra::{Vector2, Vector3};
 use plotters::prelude::*;
 use serde::Serialize;
+use strand::bed::BedTransform;
 use strand::config::{Config, locate};
-use strand::core::path::engine::arc_geometry;
-use strand::core::path::geometry::Geometry;
-use strand::core::path::{BedTransform, Segment, SegmentKind};
+use strand::core::Geometry;
+use strand::core::arc_geometry;
+use strand::core::{Segment, SegmentKind};
 use strand::gcode::{GcodeOptions, parse_file};
 use strand::plan::time_program;
 

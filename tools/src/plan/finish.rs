@@ -13,7 +13,7 @@
 use std::path::PathBuf;
 
 use nalgebra::Vector3;
-use strand::core::path::{Segment, SegmentFlags, SegmentKind};
+use strand::core::{Segment, SegmentFlags, SegmentKind};
 use strand::segfile::{tool_pointing, write_path};
 
 use super::surface::{Bump, Surface};

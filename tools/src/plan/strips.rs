@@ -64,7 +64,7 @@ use nalgebra::Vector3;
 use plotters::prelude::*;
 use serde::Serialize;
 use serde_json::json;
-use strand::core::path::{Segment, SegmentKind};
+use strand::core::{Segment, SegmentKind};
 use strand::gcode::{GcodeOptions, Parser, parse_file};
 
 /// Two coordinates closer than this (m) along the split axis are the same: a line this close to a

@@ -43,7 +43,7 @@ use std::time::Instant;
 use nalgebra::Vector3;
 use plotters::prelude::*;
 use serde::Serialize;
-use strand::core::path::{Segment, SegmentFlags, SegmentKind};
+use strand::core::{Segment, SegmentFlags, SegmentKind};
 
 // ---------------------------------------------------------------------------------------------------------
 // Surfaces

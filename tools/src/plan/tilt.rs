@@ -9,8 +9,9 @@
 
 use std::path::PathBuf;
 
-use strand::core::path::bed::BedConfig;
-use strand::core::path::{BedTransform, Segment, SegmentFlags};
+use strand::bed::BedConfig;
+use strand::bed::BedTransform;
+use strand::core::{Segment, SegmentFlags};
 use strand::gcode::{GcodeOptions, parse_file};
 use strand::segfile::write_path;
 

@@ -191,7 +191,7 @@ impl SimConfig {
     /// `sim/default.toml`, in the service config's folder if it is there, else by the search order
     /// of [`strand::config::locate`]. The error names the files tried.
     pub fn default_path(service: &strand::config::Config) -> Result<PathBuf, String> {
-        let tracked = service.base.mode == strand::core::base::BaseMode::Tracked;
+        let tracked = service.base.mode == strand::core::BaseMode::Tracked;
         let name = if tracked { "sim/free-flyer.toml" } else { "sim/default.toml" };
         strand::config::locate::beside_or_find(&service.file, name).map_err(|e| e.to_string())
     }

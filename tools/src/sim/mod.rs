@@ -15,7 +15,7 @@ use nalgebra::{UnitQuaternion, Vector3};
 use rand::rngs::StdRng;
 use rand::{RngExt, SeedableRng};
 use strand::config::Config;
-use strand::core::base::BaseMode;
+use strand::core::BaseMode;
 use strand::core::kin::{JointVector, RobotModel};
 use strand_ipc as ipc;
 

@@ -5,15 +5,16 @@
 
 use std::time::{Duration, Instant};
 
-use strand::io::ports::{ClientPorts, ClientRoles, PortError, ServicePorts, cleanup_dead_nodes};
+use strand_ipc::ports::{ClientPorts, ClientRoles, PortError, ServicePorts, cleanup_dead_nodes};
 use strand_ipc::*;
 
-#[path = "common/counting.rs"]
-mod counting;
-use counting::allocations;
+// The service's counting allocator, compiled in: this crate does not depend on the service.
+#[path = "../../src/io/alloc_count.rs"]
+mod alloc_count;
+use alloc_count::allocations;
 
 #[global_allocator]
-static GLOBAL: counting::Counting = counting::Counting;
+static GLOBAL: alloc_count::Counting = alloc_count::Counting;
 
 /// Heap allocations `f` makes on this thread.
 fn allocations_in(f: impl FnOnce()) -> usize {
@@ -306,7 +307,7 @@ fn steady_state_ports_allocate_only_iceoryx2s_loan() {
         });
     }
     assert_eq!(other, 0, "receive/wait/publisher counts allocated {other} times in 1000 rounds");
-    // If this fails with fewer, iceoryx2 stopped allocating per loan: update the docs in io::ports.
+    // If this fails with fewer, iceoryx2 stopped allocating per loan: update the docs in strand_ipc::ports.
     assert_eq!(publish, 7 * 1000, "allocations in 7000 publishes");
 }
 

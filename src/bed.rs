@@ -5,8 +5,8 @@
 use nalgebra::{Rotation3, UnitQuaternion, Vector3};
 use serde::{Deserialize, Serialize};
 
-use super::segment::{Segment, SegmentKind};
 use crate::core::kin::geom;
+use crate::core::{Segment, SegmentKind};
 
 /// `[bed]`: where the print bed is in W and how far it is tilted.
 #[derive(Clone, Debug, Default, Deserialize, Serialize, PartialEq)]

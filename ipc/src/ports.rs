@@ -51,13 +51,13 @@
 use core::fmt::Debug;
 use core::time::Duration;
 
+use crate::{BasePose, Control, ExtruderCommand, JointCommand, JointState, SegmentBatch, ServiceNames, Status};
 use iceoryx2::port::listener::{Listener, ListenerWaitError};
 use iceoryx2::port::notifier::Notifier;
 use iceoryx2::port::publisher::Publisher;
 use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::prelude::*;
 use iceoryx2::service::port_factory::publish_subscribe::PortFactory as PubSubFactory;
-use strand_ipc::{BasePose, Control, ExtruderCommand, JointCommand, JointState, SegmentBatch, ServiceNames, Status};
 
 /// A port error: which service, which operation, and iceoryx2's error text. Built off the tick path
 /// (it allocates its text).
