@@ -15,10 +15,10 @@ use std::collections::VecDeque;
 use std::io::Cursor;
 use std::path::PathBuf;
 
-use strand::bed::BedTransform;
 use strand::config::Config;
 use strand::core::{PathEngine, SegmentFlags, SegmentKind};
-use strand::gcode::{GcodeOptions, Parser, segment_length};
+use strand_job::bed::BedTransform;
+use strand_job::gcode::{GcodeOptions, Parser, segment_length};
 
 fn main() {
     let root = PathBuf::from(env!("CARGO_MANIFEST_DIR"));

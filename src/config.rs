@@ -8,16 +8,15 @@
 //! Which file a tool reads when none (or only a name) is given: [`locate`] (the search order, and
 //! the copy of `config/` built into the binary).
 
+pub mod check;
 pub mod locate;
+pub mod log;
 
 use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 use thiserror::Error;
 
-use crate::bed::BedConfig;
-use crate::bed::BedTransform;
-use crate::check::CheckConfig;
 use crate::core::BaseConfig;
 pub use crate::core::ControllerConfig;
 use crate::core::ControllerSettings;
@@ -26,7 +25,10 @@ use crate::core::PathConfig;
 use crate::core::kin::{ClikConfig, Frame, ModelError, RobotModel, geom};
 use crate::io::rt::RealtimeConfig;
 use crate::io::runner::ServiceConfig;
-use crate::log::LogConfig;
+use check::CheckConfig;
+use log::LogConfig;
+use strand_job::bed::BedConfig;
+use strand_job::bed::BedTransform;
 
 /// A configuration problem, naming the file and what in it is wrong.
 #[derive(Clone, Debug, Error)]
@@ -278,6 +280,11 @@ impl<R> ConfigFile<R> {
 }
 
 impl Config {
+    /// The `[bed]` transform (checked at load, so an error here names the file and the section).
+    pub fn bed_transform(&self) -> Result<BedTransform, String> {
+        BedTransform::new(&self.bed).map_err(|e| format!("{}: [bed] {e}", self.file.display()))
+    }
+
     /// Reads and validates a config file and the robot file it names.
     pub fn load(path: &Path) -> Result<Self, ConfigError> {
         Self::load_with(path, &[])

@@ -9,12 +9,7 @@
 /// The deterministic core, its own crate (`src/core`, `strand-core`): see its façade.
 pub use strand_core as core;
 
-pub mod bed;
 pub mod check;
 pub mod config;
-pub mod gcode;
 pub mod io;
-pub mod job;
 pub mod log;
-pub mod plan;
-pub mod segfile;

@@ -187,11 +187,11 @@ fn check_job(file: &Path, config: Option<&Path>, set: &[String], json: bool, png
         Ok(c) => c,
         Err(e) => return bad(e.to_string()),
     };
-    let (all, warnings) = match strand::job::load_segments(file, &cfg) {
+    let (all, warnings) = match cfg.bed_transform().and_then(|bed| strand_job::load_segments(file, &bed)) {
         Ok(j) => j,
         Err(e) => return bad(e),
     };
-    let (segments, layers) = strand::job::wire_job(&all);
+    let (segments, layers) = strand_job::wire_job(&all);
     let name = file.display().to_string();
     let job = strand::check::CheckJob { file: &name, segments: &segments, layers: &layers };
     let mut series = png.map(|_| strand::check::CheckSeries::default());

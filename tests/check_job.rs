@@ -13,7 +13,7 @@ mod common;
 use common::root;
 use strand::check::{CheckJob, CheckReport, ProblemKind, Severity, check_job};
 use strand::config::Config;
-use strand::job::{BaseTrajectory, load_segments, wire_job};
+use strand_job::load::{BaseTrajectory, load_segments, wire_job};
 
 fn config(name: &str) -> Config {
     Config::load(&root().join("config").join(format!("{name}.toml"))).unwrap()
@@ -28,7 +28,7 @@ fn check_text(program: &str, cfg: &Config) -> CheckReport {
 }
 
 fn check_file(file: &std::path::Path, cfg: &Config, trajectory: Option<&BaseTrajectory>) -> CheckReport {
-    let (all, _) = load_segments(file, cfg).unwrap();
+    let (all, _) = load_segments(file, &cfg.bed_transform().unwrap()).unwrap();
     let (segments, layers) = wire_job(&all);
     let name = file.display().to_string();
     check_job(&CheckJob { file: &name, segments: &segments, layers: &layers }, cfg, trajectory.map(|t| (t, "plan.csv")), None).unwrap()
@@ -55,7 +55,7 @@ fn a_clean_job_reports_its_time_filament_and_box() {
     // The filament the program pushes (E in mm of 1.75 mm filament, M82 with G92 resets), to 1 %:
     // corner blends carry each half's flow over a slightly different length (strand-plan time
     // shows the same +0.3 % on this file).
-    let (all, _) = load_segments(&file, &cfg).unwrap();
+    let (all, _) = load_segments(&file, &cfg.bed_transform().unwrap()).unwrap();
     let programmed: f64 = all.iter().map(|(s, _)| s.filament).sum();
     assert!((r.filament_m - programmed).abs() < 0.01 * programmed, "pushed {} m, programmed {programmed} m", r.filament_m);
     // The box in W: the program's extent on the bed ([bed] offset 0.45, 0, 0.2 m): from the bed

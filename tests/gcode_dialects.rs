@@ -10,7 +10,7 @@ use std::path::PathBuf;
 
 use proptest::prelude::*;
 use strand::core::{Segment, SegmentFlags, SegmentKind};
-use strand::gcode::{Dialect, FirmwareRetraction, GcodeError, GcodeOptions, GcodeSegment, Parser, ProgramLimits, Warning, parse_file};
+use strand_job::gcode::{Dialect, FirmwareRetraction, GcodeError, GcodeOptions, GcodeSegment, Parser, ProgramLimits, Warning, parse_file};
 
 const MM: f64 = 1e-3;
 

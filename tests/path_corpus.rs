@@ -6,11 +6,11 @@
 
 mod common;
 
-use strand::bed::BedTransform;
 use strand::core::ExtruderConfig;
 use strand::core::{PathConfig, PlanningMode, Segment};
-use strand::gcode::{GcodeOptions, parse_file};
-use strand::plan::time_program;
+use strand_job::bed::BedTransform;
+use strand_job::gcode::{GcodeOptions, parse_file};
+use strand_job::timing::time_program;
 
 const FILES: [&str; 13] = [
     "arcs/3dtest.ngc",
@@ -107,11 +107,11 @@ fn rules_004_beats_stop_and_go_and_lookahead_beats_both_on_the_first_outer_wall(
             if i + 2 == wall.len() {
                 s.flags = s.flags.with(strand::core::SegmentFlags::LAST);
             }
-            Ok(strand::gcode::GcodeSegment { segment: s, line: 0, tags: Default::default() })
+            Ok(strand_job::gcode::GcodeSegment { segment: s, line: 0, tags: Default::default() })
         });
         // Start at the wall's first point.
-        let bed = BedTransform::new(&strand::bed::BedConfig { tilt: 0.0, offset: [0.0; 3] }).unwrap();
-        let shifted = program.map(move |r: Result<strand::gcode::GcodeSegment, strand::gcode::GcodeError>| {
+        let bed = BedTransform::new(&strand_job::bed::BedConfig { tilt: 0.0, offset: [0.0; 3] }).unwrap();
+        let shifted = program.map(move |r: Result<strand_job::gcode::GcodeSegment, strand_job::gcode::GcodeError>| {
             r.map(|mut g| {
                 g.segment.end -= start;
                 g

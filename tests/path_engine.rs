@@ -1,10 +1,10 @@
 //! The path engine on hand-made segment streams: limits, blending, underrun, dwell, override.
 
 use nalgebra::{UnitQuaternion, Vector3};
-use strand::bed::BedConfig;
-use strand::bed::BedTransform;
 use strand::core::{Extruder, ExtruderConfig};
 use strand::core::{Motion, PathConfig, PathEngine, PathSample, PlanningMode, Segment, SegmentError, SegmentFlags, SegmentKind};
+use strand_job::bed::BedConfig;
+use strand_job::bed::BedTransform;
 
 const DT: f64 = 1e-3;
 

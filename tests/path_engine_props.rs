@@ -83,7 +83,7 @@ struct Programmed {
 
 impl Programmed {
     fn distance(&self, p: &Vector3<f64>) -> f64 {
-        strand::plan::distance_from_programmed(p, &self.start, &self.segment, self.length)
+        strand_job::timing::distance_from_programmed(p, &self.start, &self.segment, self.length)
     }
 }
 

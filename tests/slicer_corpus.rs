@@ -14,10 +14,10 @@ mod common;
 
 use std::path::{Path, PathBuf};
 
-use strand::bed::BedTransform;
 use strand::config::Config;
-use strand::gcode::{GcodeOptions, parse_file};
-use strand::plan::{TimingReport, time_program};
+use strand_job::bed::BedTransform;
+use strand_job::gcode::{GcodeOptions, parse_file};
+use strand_job::timing::{TimingReport, time_program};
 
 /// The corpus folders, under tests/data/gcode.
 const DIRS: [&str; 5] = ["cura", "prusaslicer25", "slic3r13", "orca", "simplify3d"];

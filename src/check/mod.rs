@@ -18,55 +18,19 @@
 pub mod plot;
 
 use nalgebra::{UnitQuaternion, Vector3};
-use serde::{Deserialize, Serialize};
+use serde::Serialize;
 use strand_ipc as ipc;
 use strand_ipc::{Command, FaultCode, JobOutcome, RunState};
 
-use crate::bed::BedTransform;
 use crate::config::Config;
 use crate::core::BaseMode;
 use crate::core::kin::{JointVector, MAX_JOINTS};
 use crate::core::{Controller, Event, MAX_SEGMENTS_PER_TICK, TickInput};
-use crate::job::BaseTrajectory;
-use crate::plan::MAX_SEGMENT_SECONDS;
+use strand_job::bed::BedTransform;
+use strand_job::load::BaseTrajectory;
+use strand_job::timing::MAX_SEGMENT_SECONDS;
 
-/// `[check]`: thresholds of `strand check-job` (the run-time limits come from `[controller]`).
-#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
-#[serde(deny_unknown_fields, default)]
-pub struct CheckConfig {
-    /// A joint closer than this to a position limit (rad or m) is reported as near its limit.
-    pub joint_margin: f64,
-    /// Every joint frame must stay this far above the bed plane (m); the nozzle must not go below
-    /// it (it prints a first layer a fraction of a millimetre above).
-    pub bed_clearance: f64,
-    /// Findings of one kind closer together than this (s) are one stretch.
-    pub merge_gap: f64,
-    /// Slow-down stretches that cost less than this (s) are only counted in the total, not listed.
-    pub min_slowdown_cost: f64,
-}
-
-impl Default for CheckConfig {
-    fn default() -> Self {
-        CheckConfig { joint_margin: 0.05, bed_clearance: 0.05, merge_gap: 0.05, min_slowdown_cost: 0.01 }
-    }
-}
-
-impl CheckConfig {
-    /// Checks every key; the message names it.
-    pub fn validate(&self) -> Result<(), String> {
-        for (key, v, hi) in [
-            ("joint_margin", self.joint_margin, 1.0),
-            ("bed_clearance", self.bed_clearance, 1.0),
-            ("merge_gap", self.merge_gap, 10.0),
-            ("min_slowdown_cost", self.min_slowdown_cost, 60.0),
-        ] {
-            if !(v.is_finite() && (0.0..=hi).contains(&v)) {
-                return Err(format!("[check] {key} = {v}: must lie in [0, {hi}]"));
-            }
-        }
-        Ok(())
-    }
-}
+pub use crate::config::check::CheckConfig;
 
 /// What a finding is about.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]

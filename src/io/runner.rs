@@ -15,7 +15,6 @@ use super::clock::{ClockMode, CycleStats, TimerClock, monotonic_ns};
 use super::histogram::Histogram;
 use super::rt::{self, RealtimeConfig};
 use crate::core::{Controller, Event, TickInput, TickOutput};
-use crate::log::messages::TickTiming;
 use strand_ipc::ports::{PortError, ServicePorts};
 
 /// Where the controller learns the joint positions.
@@ -78,6 +77,18 @@ impl ServiceConfig {
         }
         Ok(())
     }
+}
+
+/// How long a tick took, measured by the shell (not an input: it changes nothing the controller
+/// does, so replay ignores it; plots and `info` use it).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct TickTiming {
+    /// Wake-up lateness against the timer deadline (ns; 0 in robot and free-run clock modes).
+    pub wake_lateness_ns: u64,
+    /// Cost of `Controller::step` (ns).
+    pub step_ns: u64,
+    /// Wake-up to last publish (ns).
+    pub tick_ns: u64,
 }
 
 /// Receives every tick's input and output after publishing (the logger). Must not block,

@@ -332,17 +332,7 @@ impl CdrType for TickOutput {
     }
 }
 
-/// How long a tick took, measured by the shell (not an input: it changes nothing the controller
-/// does, so replay ignores it; plots and `info` use it).
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-pub struct TickTiming {
-    /// Wake-up lateness against the timer deadline (ns; 0 in robot and free-run clock modes).
-    pub wake_lateness_ns: u64,
-    /// Cost of `Controller::step` (ns).
-    pub step_ns: u64,
-    /// Wake-up to last publish (ns).
-    pub tick_ns: u64,
-}
+pub use crate::io::runner::TickTiming;
 cdr_message!(TickTiming, "strand_msgs/msg/TickTiming", [wake_lateness_ns, step_ns, tick_ns]);
 
 /// One tick as logged on `/strand/tick`.

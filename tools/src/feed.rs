@@ -1,16 +1,16 @@
-//! What `strand-feed` sends: a G-code program read with `strand::gcode` or a segment file read with
-//! `strand::segfile`, put on the bed with the config's `[bed]` transform, numbered, flagged (the
+//! What `strand-feed` sends: a G-code program read with `strand_job::gcode` or a segment file read with
+//! `strand_job::segfile`, put on the bed with the config's `[bed]` transform, numbered, flagged (the
 //! last segment LAST) and converted to the wire `Segment`; and how a run ends, as an exit code. The streaming itself (credit from Status, never
 //! a dropped segment) is in the binary.
 
 use std::path::Path;
 
-use strand::bed::BedTransform;
 use strand::config::Config;
 use strand::core::{Segment, SegmentFlags, SegmentKind};
-use strand::gcode::GcodeOptions;
-pub use strand::job::{LayeredSegments, load_segments, to_wire};
 use strand_ipc as ipc;
+use strand_job::bed::BedTransform;
+use strand_job::gcode::GcodeOptions;
+pub use strand_job::load::{LayeredSegments, load_segments, to_wire};
 
 /// A job ready to stream.
 #[derive(Clone, Debug)]
@@ -41,7 +41,7 @@ pub fn batch(segments: &[ipc::Segment], batch_seq: u64) -> ipc::SegmentBatch {
 /// program's first segment); `resume_from = Some(n)` drops segments before `n` and starts with a
 /// travel (numbered `n − 1`) to where segment `n` starts, so a job interrupted at `n` can go on.
 pub fn load_gcode(path: &Path, cfg: &Config, resume_from: Option<u64>) -> Result<Job, String> {
-    let (mut all, warnings) = load_segments(path, cfg)?;
+    let (mut all, warnings) = load_segments(path, &cfg.bed_transform()?)?;
     let bed = BedTransform::new(&cfg.bed).map_err(|e| format!("{}: [bed] {e}", cfg.file.display()))?;
     let mut start = bed.point(&GcodeOptions::default().start);
     let mut skipped = 0;
@@ -71,7 +71,7 @@ pub fn load_gcode(path: &Path, cfg: &Config, resume_from: Option<u64>) -> Result
     all[last].0.flags = all[last].0.flags.with(SegmentFlags::LAST);
     let mut lengths = Vec::with_capacity(all.len());
     for (s, _) in &all {
-        lengths.push(strand::gcode::segment_length(&start, s));
+        lengths.push(strand_job::gcode::segment_length(&start, s));
         start = s.end;
     }
     Ok(Job {

@@ -170,7 +170,7 @@ mod tests {
         let p = dir.join("truss.gcode");
         std::fs::write(&p, &text).unwrap();
         let parsed: Vec<_> =
-            strand::gcode::parse_file(&p, strand::gcode::GcodeOptions::for_path(&p)).unwrap().map(|r| r.unwrap()).collect();
+            strand_job::gcode::parse_file(&p, strand_job::gcode::GcodeOptions::for_path(&p)).unwrap().map(|r| r.unwrap()).collect();
         let extruding: Vec<_> = parsed.iter().filter(|g| g.segment.filament > 0.0).collect();
         let length: f64 = extruding.iter().map(|g| g.segment.feed).fold(0.0, f64::max);
         assert!((length - 3.33e-3).abs() < 1e-9, "feed {length} m/s");

@@ -7,7 +7,7 @@ mod common;
 use common::{root, temp_dir};
 use std::process::{Command, Output};
 
-use strand::segfile::read_path;
+use strand_job::segfile::read_path;
 
 fn plan(args: &[&str]) -> Output {
     Command::new(env!("CARGO_BIN_EXE_strand-plan")).args(args).current_dir(root()).output().unwrap()

@@ -4,7 +4,7 @@
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-use strand::gcode::{GcodeOptions, parse_file};
+use strand_job::gcode::{GcodeOptions, parse_file};
 
 fn bin() -> Command {
     Command::new(env!("CARGO_BIN_EXE_strand-plan"))
@@ -21,7 +21,7 @@ fn scratch(name: &str) -> PathBuf {
 }
 
 /// Extruded filament (m) of a job, skirt excluded, and its extruding segments with their start point.
-fn extrusions(path: &Path) -> (f64, Vec<([f64; 3], strand::gcode::GcodeSegment)>) {
+fn extrusions(path: &Path) -> (f64, Vec<([f64; 3], strand_job::gcode::GcodeSegment)>) {
     let mut at = GcodeOptions::default().start;
     let mut out = Vec::new();
     let mut total = 0.0;

@@ -51,7 +51,7 @@ fn writes_a_segment_file_and_a_png() {
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let text = String::from_utf8(out.stdout).unwrap();
     assert!(text.contains("tsp") && text.contains("wrote"), "{text}");
-    let back = strand::segfile::read_path(&file, 0).unwrap();
+    let back = strand_job::segfile::read_path(&file, 0).unwrap();
     assert!(back.note.unwrap().contains("--shape blade"));
     let segs: Vec<_> = back.segments.into_iter().map(|(s, _)| s).collect();
     assert!(segs.len() > 40);

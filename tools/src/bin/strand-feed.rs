@@ -1,4 +1,4 @@
-//! strand-feed: streams a job (a G-code program or a `strand::segfile` segment file) to the service
+//! strand-feed: streams a job (a G-code program or a `strand_job::segfile` segment file) to the service
 //! over iceoryx2. It never sends past the credit the controller announces in Status, so nothing is
 //! ever dropped; it shows a progress bar
 //! (segments, layer, ETA), turns Ctrl-C into a controlled stop (a second Ctrl-C into an emergency
@@ -30,7 +30,7 @@ use strand_tools::feed::{Ending, Job, batch, credit, load_gcode};
     about = "Stream a G-code program or segment file to the strand service (back-pressure from Status)"
 )]
 struct Cli {
-    /// The job: a G-code program, or a segment file (JSON lines, see strand::segfile).
+    /// The job: a G-code program, or a segment file (JSON lines, see strand_job::segfile).
     file: PathBuf,
     /// Service configuration: its `[bed]` places the program in the world, its `[service] prefix`
     /// names the services. A file or a NAME (`iiwa7`); default: default.toml by the search order

@@ -9,11 +9,11 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 use clap::{Parser, Subcommand, ValueEnum};
-use strand::bed::BedTransform;
 use strand::config::{Config, locate};
 use strand::core::PlanningMode;
-use strand::gcode::{GcodeOptions, parse_file};
-use strand::plan::time_program;
+use strand_job::bed::BedTransform;
+use strand_job::gcode::{GcodeOptions, parse_file};
+use strand_job::timing::time_program;
 
 #[derive(Parser)]
 #[command(
@@ -171,7 +171,7 @@ fn main() -> ExitCode {
     };
     let name = file.display().to_string();
     let mut program = parser.by_ref().peekable();
-    // time_program never ends on a program without a segment (strand::plan): refuse it here.
+    // time_program never ends on a program without a segment (strand_job::timing): refuse it here.
     if program.peek().is_none() {
         eprintln!("strand-plan: {name}: no motion in the program");
         return ExitCode::from(2);

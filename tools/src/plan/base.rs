@@ -28,13 +28,13 @@ use std::path::{Path, PathBuf};
 use nalgebra::{Vector2, Vector3};
 use plotters::prelude::*;
 use serde::Serialize;
-use strand::bed::BedTransform;
 use strand::config::{Config, locate};
 use strand::core::Geometry;
 use strand::core::arc_geometry;
 use strand::core::{Segment, SegmentKind};
-use strand::gcode::{GcodeOptions, parse_file};
-use strand::plan::time_program;
+use strand_job::bed::BedTransform;
+use strand_job::gcode::{GcodeOptions, parse_file};
+use strand_job::timing::time_program;
 
 use super::filter::Butterworth2;
 
@@ -84,7 +84,7 @@ pub fn sample_job(job: &Path, timing: Timing, dt: f64, config: &Config) -> Resul
     }
     let name = job.display().to_string();
     let mut parser = parse_file(job, GcodeOptions::for_path(job)).map_err(|e| e.to_string())?.peekable();
-    // strand::plan::time_program never ends on a program without a segment.
+    // strand_job::timing::time_program never ends on a program without a segment.
     if parser.peek().is_none() {
         return Err(format!("{name}: no motion in the program"));
     }

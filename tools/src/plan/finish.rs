@@ -8,13 +8,13 @@
 //! nozzle from +z (π: straight down), leaning with the slope. 002 states the orientation as ZYX
 //! Euler angles (0, α, 0) in its robot's base frame; here the profile runs along y, so the same
 //! tilt is a turn about x. The roll about the nozzle is the G-code default's
-//! ([`strand::segfile::tool_pointing`]), so a finishing layer follows flat layers without a spin.
+//! ([`strand_job::segfile::tool_pointing`]), so a finishing layer follows flat layers without a spin.
 
 use std::path::PathBuf;
 
 use nalgebra::Vector3;
 use strand::core::{Segment, SegmentFlags, SegmentKind};
-use strand::segfile::{tool_pointing, write_path};
+use strand_job::segfile::{tool_pointing, write_path};
 
 use super::surface::{Bump, Surface};
 

@@ -65,7 +65,7 @@ use plotters::prelude::*;
 use serde::Serialize;
 use serde_json::json;
 use strand::core::{Segment, SegmentKind};
-use strand::gcode::{GcodeOptions, Parser, parse_file};
+use strand_job::gcode::{GcodeOptions, Parser, parse_file};
 
 /// Two coordinates closer than this (m) along the split axis are the same: a line this close to a
 /// boundary lies on it, and a line is not cut within this distance of its ends.

@@ -1193,13 +1193,13 @@ impl Deposition {
 
 /// The segment stream for `order` through `cloud`: a travel to the first sample, then one extruding line
 /// per step, the last flagged LAST. Each end is the sample point offset by the standoff along its normal
-/// (m, bed frame), with the nozzle along −normal (`strand::segfile::tool_pointing`: the shortest turn from
+/// (m, bed frame), with the nozzle along −normal (`strand_job::segfile::tool_pointing`: the shortest turn from
 /// nozzle-down, π about x for straight up); sequence numbers from 0.
 pub fn segments(cloud: &PointCloud, order: &[usize], dep: &Deposition) -> Vec<Segment> {
     let per_m = dep.filament_per_metre();
     let tip = |k: usize| {
         let s = &cloud.samples[order[k]];
-        (s.point + dep.standoff * s.normal, strand::segfile::tool_pointing(&-s.normal))
+        (s.point + dep.standoff * s.normal, strand_job::segfile::tool_pointing(&-s.normal))
     };
     let mut out = Vec::with_capacity(order.len());
     for k in 0..order.len() {
@@ -1217,10 +1217,10 @@ pub fn segments(cloud: &PointCloud, order: &[usize], dep: &Deposition) -> Vec<Se
     out
 }
 
-/// Writes the segments as a segment file (`strand::segfile`). The one place this module touches that
+/// Writes the segments as a segment file (`strand_job::segfile`). The one place this module touches that
 /// format.
 pub fn write_segments(path: &Path, segments: &[Segment], note: &str) -> Result<(), String> {
-    strand::segfile::write_path(path, segments, note)
+    strand_job::segfile::write_path(path, segments, note)
 }
 
 // ---------------------------------------------------------------------------------------------------------
@@ -1400,7 +1400,7 @@ pub struct SurfaceArgs {
     /// Nozzle tip offset from the surface along its normal (m) [default: the layer height].
     #[arg(long)]
     pub standoff: Option<f64>,
-    /// Write the path as segments (JSON lines, strand::segfile); needs one --algorithm.
+    /// Write the path as segments (JSON lines, strand_job::segfile); needs one --algorithm.
     #[arg(long, short)]
     pub output: Option<PathBuf>,
     /// Draw the paths in the (u, v) plane, self-intersections marked.
@@ -2027,7 +2027,7 @@ mod tests {
         // The overhang: past vertical the nozzle points up.
         assert!(segs.iter().any(|s| (s.orientation * Vector3::z()).z > 0.4));
         // Straight up (normal −z, a ceiling) takes the π turn about x.
-        let q = strand::segfile::tool_pointing(&Vector3::z());
+        let q = strand_job::segfile::tool_pointing(&Vector3::z());
         assert!(((q * Vector3::z()) - Vector3::z()).norm() < 1e-12);
     }
 
@@ -2038,7 +2038,7 @@ mod tests {
         let segs = segments(&cloud, &p.order, &Deposition::default());
         let file = std::env::temp_dir().join(format!("strand-surface-unit-{}.jsonl", std::process::id()));
         write_segments(&file, &segs, "unit test").unwrap();
-        let back = strand::segfile::read_path(&file, 0).unwrap();
+        let back = strand_job::segfile::read_path(&file, 0).unwrap();
         let _ = std::fs::remove_file(&file);
         assert_eq!(back.note.as_deref(), Some("unit test"));
         // The reader numbers source lines by file line (the header is line 1).

@@ -9,11 +9,11 @@
 
 use std::path::PathBuf;
 
-use strand::bed::BedConfig;
-use strand::bed::BedTransform;
 use strand::core::{Segment, SegmentFlags};
-use strand::gcode::{GcodeOptions, parse_file};
-use strand::segfile::write_path;
+use strand_job::bed::BedConfig;
+use strand_job::bed::BedTransform;
+use strand_job::gcode::{GcodeOptions, parse_file};
+use strand_job::segfile::write_path;
 
 /// Eq. 7: the bed's angle from the bolts' height difference h over their distance d (rad).
 pub fn angle_from_bolts(h: f64, d: f64) -> f64 {

@@ -6,7 +6,7 @@
 
 use nalgebra::{Matrix3, SMatrix, Vector2, Vector3};
 
-pub use strand::job::BaseTrajectory;
+pub use strand_job::load::BaseTrajectory;
 
 use super::Gaussian;
 use super::config::FlyerConfig;

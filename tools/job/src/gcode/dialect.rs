@@ -14,7 +14,7 @@ use super::interpreter::{Interpreter, bounded};
 use super::lexer::{ExtendedParam, Fault};
 use super::limits::{self, FEED_LIMITED, Limits, Outcome, in_range, non_negative, positive};
 use super::{GcodeSegment, MM};
-use crate::core::{Segment, SegmentKind};
+use strand_core::{Segment, SegmentKind};
 
 /// Which G-code language a program is written in. The two differ where the same code means
 /// different things: `G4 P` (milliseconds in firmware, seconds in RS274/NGC), `G10`/`G11`

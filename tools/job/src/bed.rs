@@ -5,8 +5,8 @@
 use nalgebra::{Rotation3, UnitQuaternion, Vector3};
 use serde::{Deserialize, Serialize};
 
-use crate::core::kin::geom;
-use crate::core::{Segment, SegmentKind};
+use strand_core::kin::geom;
+use strand_core::{Segment, SegmentKind};
 
 /// `[bed]`: where the print bed is in W and how far it is tilted.
 #[derive(Clone, Debug, Default, Deserialize, Serialize, PartialEq)]

@@ -49,7 +49,7 @@ use nalgebra::{Quaternion, UnitQuaternion, Vector3};
 use serde::Deserialize;
 use thiserror::Error;
 
-use crate::core::{MAX_ARC_SWEEP, Segment, SegmentFlags, SegmentKind};
+use strand_core::{MAX_ARC_SWEEP, Segment, SegmentFlags, SegmentKind};
 
 /// The header's `format` value.
 pub const FORMAT: &str = "strand-segments";

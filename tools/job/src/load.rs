@@ -10,10 +10,9 @@ use nalgebra::{UnitQuaternion, Vector3};
 use strand_ipc as ipc;
 
 use crate::bed::BedTransform;
-use crate::config::Config;
-use crate::core::Segment;
 use crate::gcode::{GcodeOptions, parse_file};
 use crate::segfile;
+use strand_core::Segment;
 
 /// Core segment (W) → wire segment.
 pub fn to_wire(s: &Segment) -> ipc::Segment {
@@ -50,12 +49,11 @@ pub fn wire_job(all: &LayeredSegments) -> (Vec<ipc::Segment>, Vec<Option<i32>>) 
 /// A job's segments, each with its slicer layer (None where the job has none).
 pub type LayeredSegments = Vec<(Segment, Option<i32>)>;
 
-/// The job's segments in W (the config's `[bed]` applied), numbered from 1, each with its slicer
-/// layer, and the reader's warnings (one line each, naming the file). The job is a G-code program
-/// or a segment file ([`strand::segfile`], told apart by its header line, whatever the file is
-/// called); both are in bed coordinates. An error if it has no motion.
-pub fn load_segments(path: &Path, cfg: &Config) -> Result<(LayeredSegments, Vec<String>), String> {
-    let bed = BedTransform::new(&cfg.bed).map_err(|e| format!("{}: [bed] {e}", cfg.file.display()))?;
+/// The job's segments in W (`bed` applied: the config's `[bed]`), numbered from 1, each with its
+/// slicer layer, and the reader's warnings (one line each, naming the file). The job is a G-code
+/// program or a segment file ([`crate::segfile`], told apart by its header line, whatever the file
+/// is called); both are in bed coordinates. An error if it has no motion.
+pub fn load_segments(path: &Path, bed: &BedTransform) -> Result<(LayeredSegments, Vec<String>), String> {
     let (all, warnings) = if segfile::is_segment_file(path) {
         let file = segfile::read_path(path, 1).map_err(|e| e.to_string())?;
         (file.segments.iter().map(|(s, layer)| (bed.segment(s), *layer)).collect(), Vec::new())

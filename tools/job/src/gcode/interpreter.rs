@@ -11,7 +11,7 @@ use super::dialect::{Dialect, Firmware};
 use super::lexer::{Fault, Value, code_name};
 use super::report::Reports;
 use super::{GcodeOptions, GcodeSegment, MAX_COORDINATE, MM, Tags, ZERO_LENGTH};
-use crate::core::{Segment, SegmentFlags, SegmentKind};
+use strand_core::{Segment, SegmentFlags, SegmentKind};
 
 /// Modes that persist from line to line.
 pub(super) struct Modal {

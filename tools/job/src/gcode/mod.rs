@@ -117,7 +117,7 @@ use std::sync::Arc;
 use nalgebra::{Quaternion, UnitQuaternion, Vector3};
 use thiserror::Error;
 
-use crate::core::{Segment, SegmentFlags};
+use strand_core::{Segment, SegmentFlags};
 
 mod arc;
 mod block;

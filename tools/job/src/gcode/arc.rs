@@ -10,7 +10,7 @@ use super::codes::{Motion, PlaneAxes};
 use super::interpreter::{Interpreter, bounded, finite};
 use super::lexer::Fault;
 use super::{MM, ZERO_LENGTH};
-use crate::core::{MAX_ARC_SWEEP, Segment, SegmentKind};
+use strand_core::{MAX_ARC_SWEEP, Segment, SegmentKind};
 
 /// Path length (m) of `segment` when it starts at `start` (m): the chord of a line, 0 for a dwell,
 /// and for an arc ∫ |p'(θ)| dθ along the helical spiral whose radius goes linearly from r₀ (at the

@@ -9,11 +9,11 @@ use nalgebra::Vector3;
 use serde::Serialize;
 
 use crate::bed::BedTransform;
-use crate::core::arc_geometry;
-use crate::core::{self, Geometry};
-use crate::core::{Extruder, ExtruderConfig};
-use crate::core::{Motion, PathConfig, PathEngine, PathSample, Segment, SegmentFlags, SegmentKind};
 use crate::gcode::{GcodeError, GcodeSegment, segment_length};
+use strand_core::Geometry;
+use strand_core::arc_geometry;
+use strand_core::{Extruder, ExtruderConfig};
+use strand_core::{Motion, PathConfig, PathEngine, PathSample, Segment, SegmentFlags, SegmentKind};
 
 /// What one run measured. Speeds, accelerations and jerks are along the path.
 #[derive(Clone, Debug, Default, PartialEq, Serialize)]
@@ -95,9 +95,9 @@ impl Programmed {
 /// is `length` (m) long; from its point for a dwell. The deviation every planner check measures.
 pub fn distance_from_programmed(p: &Vector3<f64>, start: &Vector3<f64>, segment: &Segment, length: f64) -> f64 {
     match segment.kind {
-        SegmentKind::Line => core::distance_to_segment(p, start, &segment.end),
+        SegmentKind::Line => strand_core::distance_to_segment(p, start, &segment.end),
         SegmentKind::Arc => match arc_geometry(start, segment) {
-            Some(g @ Geometry::Arc { .. }) => core::distance_to_arc(p, &g, length),
+            Some(g @ Geometry::Arc { .. }) => strand_core::distance_to_arc(p, &g, length),
             _ => (p - start).norm(),
         },
         SegmentKind::Dwell => (p - start).norm(),

@@ -1,0 +1,92 @@
+//! `[log]`: the logger's section of the service config (the log module reads it; the config owns
+//! its type so that config and log do not import each other).
+
+use serde::{Deserialize, Serialize};
+
+/// Chunk compression.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Deserialize, Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum LogCompression {
+    /// zstd (smallest files; default).
+    #[default]
+    Zstd,
+    /// lz4 (faster, larger).
+    Lz4,
+    /// None.
+    None,
+}
+
+/// `[log]`: where and how ticks are written.
+#[derive(Clone, Debug, PartialEq, Deserialize, Serialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct LogConfig {
+    /// Write a log at all.
+    pub enabled: bool,
+    /// Folder for log files (relative to the working directory); created if missing.
+    pub dir: String,
+    /// File name without `.mcap`; empty: `strand-<UTC start time>`. Rotated parts add `-001`, `-002`...
+    pub name: String,
+    /// Ticks the queue between the tick and the writer holds (each slot is about 13 kB, allocated at
+    /// start), 64 to 65536.
+    pub queue_ticks: usize,
+    /// Longest time a chunk stays open (s), 0.005 to 0.1: a crash loses at most this much.
+    pub chunk_interval: f64,
+    /// Uncompressed size at which a chunk is closed earlier (bytes), 4 KiB to 64 MiB.
+    pub chunk_bytes: u64,
+    /// Chunk compression.
+    pub compression: LogCompression,
+    /// Start a new file after this many bytes (0: never).
+    pub rotate_bytes: u64,
+    /// Start a new file after this long (s; 0: never).
+    pub rotate_seconds: f64,
+    /// `fdatasync` after each chunk (survives a power loss, costs writer time).
+    pub fsync: bool,
+    /// With the robot clock, a tick whose record finds the queue full waits for a slot instead of
+    /// dropping the record: for a simulator that clocks the service faster than real time (the
+    /// demo), so the log stays complete. Leave it off on a real robot, where a late command is
+    /// worse than a lost record. The free-run clock always waits; the timer clock never does.
+    pub wait_when_full: bool,
+}
+
+impl Default for LogConfig {
+    fn default() -> Self {
+        LogConfig {
+            enabled: true,
+            dir: "logs".to_string(),
+            name: String::new(),
+            queue_ticks: 2048,
+            chunk_interval: 0.1,
+            chunk_bytes: 1 << 20,
+            compression: LogCompression::Zstd,
+            rotate_bytes: 0,
+            rotate_seconds: 0.0,
+            fsync: false,
+            wait_when_full: false,
+        }
+    }
+}
+
+impl LogConfig {
+    /// Checks every key; the message names it and its allowed range.
+    pub fn validate(&self) -> Result<(), String> {
+        if !(64..=65536).contains(&self.queue_ticks) {
+            return Err(format!("[log] queue_ticks = {}: must lie in [64, 65536]", self.queue_ticks));
+        }
+        if !(self.chunk_interval.is_finite() && (0.005..=0.1).contains(&self.chunk_interval)) {
+            return Err(format!("[log] chunk_interval = {}: must lie in [0.005, 0.1] s", self.chunk_interval));
+        }
+        if !(4096..=64 << 20).contains(&self.chunk_bytes) {
+            return Err(format!("[log] chunk_bytes = {}: must lie in [4096, 67108864]", self.chunk_bytes));
+        }
+        if self.rotate_bytes != 0 && self.rotate_bytes < 1 << 16 {
+            return Err(format!("[log] rotate_bytes = {}: must be 0 (off) or at least 65536", self.rotate_bytes));
+        }
+        if !(self.rotate_seconds.is_finite() && (self.rotate_seconds == 0.0 || self.rotate_seconds >= 1.0)) {
+            return Err(format!("[log] rotate_seconds = {}: must be 0 (off) or at least 1 s", self.rotate_seconds));
+        }
+        if self.name.contains(['/', '\\']) {
+            return Err(format!("[log] name = {:?}: a file name, without folders (use dir)", self.name));
+        }
+        Ok(())
+    }
+}

@@ -1,0 +1,132 @@
+//! The architecture, checked by the build's own test run (DESIGN.md's layout, ARCH):
+//!
+//! - the core (`strand-core`) depends only on the math, the trajectory generator, URDF text, the
+//!   config derives and the wire contract, and its source names no clock, file, thread, network,
+//!   printing or tracing;
+//! - the client crate (`strand-ipc`) depends on iceoryx2 and nothing of the controller;
+//! - the offline job crate (`strand-job`) does not depend on the service crate;
+//! - the service's folders (check, config, io, log) import each other without a loop.
+
+use std::collections::{BTreeMap, BTreeSet};
+use std::path::{Path, PathBuf};
+
+fn root() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+}
+
+/// The `[dependencies]` names of a crate's manifest.
+fn dependencies(manifest: &Path) -> BTreeSet<String> {
+    let text = std::fs::read_to_string(manifest).unwrap();
+    let doc: toml::Table = text.parse().unwrap();
+    doc.get("dependencies").and_then(|d| d.as_table()).map(|t| t.keys().cloned().collect()).unwrap_or_default()
+}
+
+fn rust_files(dir: &Path, out: &mut Vec<PathBuf>) {
+    for entry in std::fs::read_dir(dir).unwrap() {
+        let path = entry.unwrap().path();
+        if path.is_dir() {
+            rust_files(&path, out);
+        } else if path.extension().is_some_and(|e| e == "rs") {
+            out.push(path);
+        }
+    }
+}
+
+#[test]
+fn the_core_depends_on_nothing_of_the_shell() {
+    let allowed: BTreeSet<String> =
+        ["nalgebra", "urdf-rs", "libm", "serde", "thiserror", "rsruckig", "strand-ipc"].iter().map(|s| s.to_string()).collect();
+    let deps = dependencies(&root().join("src/core/Cargo.toml"));
+    let extra: Vec<_> = deps.difference(&allowed).collect();
+    assert!(extra.is_empty(), "strand-core may not depend on {extra:?}: the core does no I/O");
+    let mut files = Vec::new();
+    rust_files(&root().join("src/core"), &mut files);
+    assert!(files.len() > 10, "found the core's sources");
+    let forbidden = [
+        "std::fs",
+        "std::io",
+        "std::net",
+        "std::thread",
+        "std::time",
+        "std::env",
+        "std::process",
+        "Instant",
+        "SystemTime",
+        "println!",
+        "eprintln!",
+        "print!",
+        "tracing",
+        "iceoryx2",
+        "mcap",
+    ];
+    let mut found = Vec::new();
+    for f in &files {
+        let text = std::fs::read_to_string(f).unwrap();
+        for (n, line) in text.lines().enumerate() {
+            let code = line.split("//").next().unwrap_or("");
+            for word in forbidden {
+                if code.contains(word) {
+                    found.push(format!("{}:{}: {word}", f.strip_prefix(root()).unwrap().display(), n + 1));
+                }
+            }
+        }
+    }
+    assert!(found.is_empty(), "the core names I/O, a clock or printing:\n{}", found.join("\n"));
+}
+
+#[test]
+fn the_client_crate_does_not_link_the_controller() {
+    let deps = dependencies(&root().join("ipc/Cargo.toml"));
+    for name in ["strand", "strand-core", "strand-job", "nalgebra", "rsruckig", "mcap"] {
+        assert!(!deps.contains(name), "strand-ipc depends on {name}");
+    }
+    assert!(deps.contains("iceoryx2"), "strand-ipc opens the iceoryx2 ports itself");
+    let job = dependencies(&root().join("tools/job/Cargo.toml"));
+    assert!(!job.contains("strand"), "strand-job depends on the service crate");
+}
+
+#[test]
+fn the_service_folders_import_each_other_without_a_loop() {
+    let modules = ["check", "config", "io", "log"];
+    let mut graph: BTreeMap<&str, BTreeSet<&str>> = BTreeMap::new();
+    for m in modules {
+        let mut files = Vec::new();
+        let dir = root().join("src").join(m);
+        if dir.is_dir() {
+            rust_files(&dir, &mut files);
+        }
+        let file = root().join("src").join(format!("{m}.rs"));
+        if file.exists() {
+            files.push(file);
+        }
+        assert!(!files.is_empty(), "src/{m}");
+        let uses = graph.entry(m).or_default();
+        for f in files {
+            let text = std::fs::read_to_string(&f).unwrap();
+            for other in modules {
+                if other != m && text.contains(&format!("crate::{other}::")) {
+                    uses.insert(other);
+                }
+            }
+        }
+    }
+    // Depth-first search for a cycle.
+    fn visit<'a>(m: &'a str, graph: &BTreeMap<&'a str, BTreeSet<&'a str>>, stack: &mut Vec<&'a str>, done: &mut BTreeSet<&'a str>) {
+        if let Some(i) = stack.iter().position(|s| *s == m) {
+            panic!("import loop: {} -> {m}", stack[i..].join(" -> "));
+        }
+        if done.contains(m) {
+            return;
+        }
+        stack.push(m);
+        for next in &graph[m] {
+            visit(next, graph, stack, done);
+        }
+        stack.pop();
+        done.insert(m);
+    }
+    let mut done = BTreeSet::new();
+    for m in modules {
+        visit(m, &graph, &mut Vec::new(), &mut done);
+    }
+}
