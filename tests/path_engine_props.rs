@@ -969,3 +969,49 @@ fn a_raised_boundary_speed_out_of_reach_is_met_by_arriving_slower() {
     ];
     run_case(&ops, &[(3, 12)], &[], PlanningMode::Lookahead, 0.001).unwrap();
 }
+
+/// Found by seed 20261126 in the second 10⁶-case run, shrunk: a feed override dropped to 0.75
+/// while the tool cruised at a blend's cap (0.2295 m/s) towards the job's end. The next boundary
+/// then asked for 0.188 m/s, out of reach from there, and the "keep the current trajectory when
+/// nothing better fits" rule — meant for re-plans at the edge of feasibility — kept the old plan to
+/// the end, which cruised at 0.2295 m/s for 117 ticks, 22 % over the new feed. The rule now holds
+/// only for the same target at no more than today's speed there; here the executor brakes.
+#[test]
+fn an_override_drop_does_not_keep_a_trajectory_aimed_past_the_new_limit() {
+    let ops = vec![
+        Op::Line { delta: [-0.0033326057393950497, 0.0, 0.0], feed: 0.16742827785567507, filament: 0.0 },
+        Op::Line { delta: [-0.002071811583808793, -0.002272923931500155, 0.0], feed: 0.0001, filament: 0.0 },
+        Op::Line { delta: [-0.0008849797496371654, 0.0, 0.0], feed: 0.24628340606172672, filament: 0.0 },
+        Op::Line { delta: [0.0025493432025732914, 0.0, 0.0], feed: 0.014485242938663791, filament: 0.0 },
+        Op::Reverse { fraction: 0.6136873718478326, feed: 0.27130151444448813 },
+        Op::Arc {
+            offset: [-0.01726468130315094, 0.009063180099091845],
+            normal: 0,
+            ccw: false,
+            sweep: 9.999074990520294,
+            rise: 0.0,
+            feed: 0.005,
+            filament: 0.0,
+        },
+        Op::Line { delta: [0.0, 0.0, 0.0], feed: 0.005, filament: 0.0 },
+        Op::Arc {
+            offset: [-0.006435040507966207, -0.016359493080519028],
+            normal: 0,
+            ccw: true,
+            sweep: 12.364338695261246,
+            rise: 0.0,
+            feed: 0.005,
+            filament: 0.0,
+        },
+        Op::Arc {
+            offset: [0.010608761737992037, 0.016514088366524144],
+            normal: 0,
+            ccw: false,
+            sweep: 4.741568774898645,
+            rise: 0.0,
+            feed: 0.25,
+            filament: 0.0,
+        },
+    ];
+    run_case(&ops, &[(1, 0)], &[(2872, 0.7536943566575095)], PlanningMode::Lookahead, 0.001).unwrap();
+}

@@ -912,58 +912,15 @@ impl Controller {
         }
     }
 
-    /// Wire segment → core segment, checking what the path engine does not: kinds, finiteness,
-    /// feed, bounds.
+    /// Wire segment → core segment: the segment's own check ([`Segment::try_from`]) and the
+    /// workspace bounds, which only the controller knows.
     fn validate_segment(&self, w: &ipc::Segment) -> Result<Segment, (RejectReason, &'static str)> {
-        let Some(kind) = SegmentKind::from_u32(w.kind) else {
-            return Err((RejectReason::UnknownKind, "kind"));
-        };
-        let finite = |v: &[f64]| v.iter().all(|x| x.is_finite());
-        for (field, ok) in [
-            ("end", finite(&w.end)),
-            ("centre", finite(&w.centre)),
-            ("normal", finite(&w.normal)),
-            ("sweep", w.sweep.is_finite()),
-            ("orientation", finite(&w.orientation)),
-            ("feed", w.feed.is_finite()),
-            ("filament", w.filament.is_finite()),
-            ("duration", w.duration.is_finite()),
-            ("pressure_advance", w.pressure_advance.is_finite()),
-        ] {
-            if !ok {
-                return Err((RejectReason::NonFinite, field));
-            }
-        }
-        if kind != SegmentKind::Dwell && w.feed <= 0.0 {
-            return Err((RejectReason::BadFeed, "feed"));
-        }
-        if kind == SegmentKind::Dwell && w.duration < 0.0 {
-            return Err((RejectReason::BadFeed, "duration"));
-        }
+        let segment = Segment::try_from(w).map_err(|e| (e.reject, e.field))?;
         let inside = |p: &[f64; 3]| (0..3).all(|i| p[i] >= self.cfg.bounds_min[i] && p[i] <= self.cfg.bounds_max[i]);
-        if kind != SegmentKind::Dwell && !inside(&w.end) {
+        if segment.kind != SegmentKind::Dwell && !inside(&w.end) {
             return Err((RejectReason::OutOfBounds, "end"));
         }
-        let [qw, qx, qy, qz] = w.orientation;
-        let norm = (qw * qw + qx * qx + qy * qy + qz * qz).sqrt();
-        if (norm - 1.0).abs() > 1e-6 {
-            return Err((RejectReason::BadGeometry, "orientation"));
-        }
-        Ok(Segment {
-            seq: w.seq,
-            kind,
-            end: Vector3::from(w.end),
-            centre: Vector3::from(w.centre),
-            normal: Vector3::from(w.normal),
-            sweep: w.sweep,
-            orientation: UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(qw, qx, qy, qz)),
-            feed: w.feed,
-            filament: w.filament,
-            duration: w.duration,
-            flags: SegmentFlags(w.flags & !ipc::segment_flags::PRESSURE_ADVANCE),
-            source_line: w.source_line,
-            pressure_advance: (w.flags & ipc::segment_flags::PRESSURE_ADVANCE != 0).then_some(w.pressure_advance),
-        })
+        Ok(segment)
     }
 
     fn start_job(&mut self, now_ns: u64) {

@@ -35,6 +35,6 @@ pub use controller::{
 };
 pub use extrude::{Extruder, ExtruderCommand, ExtruderConfig};
 pub use path::{
-    Geometry, InvalidPathConfig, MAX_ARC_SWEEP, Motion, PathConfig, PathEngine, PathPoint, PathSample, PathStats, PlanningMode, Segment,
-    SegmentError, SegmentFlags, SegmentKind, arc_geometry, distance_to_arc, distance_to_segment,
+    Geometry, InvalidPathConfig, InvalidSegment, MAX_ARC_SWEEP, Motion, PathConfig, PathEngine, PathPoint, PathSample, PathStats,
+    PlanningMode, Segment, SegmentError, SegmentFlags, SegmentKind, arc_geometry, distance_to_arc, distance_to_segment,
 };

@@ -51,9 +51,9 @@ use nalgebra::{UnitQuaternion, Vector3};
 use rsruckig::prelude::*;
 
 use super::config::{InvalidPathConfig, PathConfig, PlanningMode};
-use super::geometry::Geometry;
+use super::geometry::{Geometry, arc_geometry};
 use super::profile::{Braking, PathState, Trapezoid};
-use super::segment::{MAX_ARC_SWEEP, Segment, SegmentFlags, SegmentKind};
+use super::segment::{Segment, SegmentFlags, SegmentKind};
 use crate::kin::geom;
 
 /// How many boundaries the executor looks past for a binding one before it settles for a
@@ -589,49 +589,12 @@ impl PathEngine {
         {
             return bad("seq", "must increase");
         }
-        if !s.end.iter().all(|x| x.is_finite()) {
-            return bad("end", "is not finite");
-        }
-        let q = s.orientation.quaternion();
-        if !q.coords.iter().all(|x| x.is_finite()) || (q.norm() - 1.0).abs() > 1e-6 {
-            return bad("orientation", "is not a finite unit quaternion");
-        }
-        if !s.filament.is_finite() {
-            return bad("filament", "is not finite");
-        }
-        if let Some(k) = s.pressure_advance
-            && !(k.is_finite() && k >= 0.0)
-        {
-            return bad("pressure_advance", "must be finite and >= 0 s");
-        }
-        match s.kind {
-            SegmentKind::Dwell => {
-                if !(s.duration.is_finite() && s.duration >= 0.0 && s.duration < 1e6) {
-                    return bad("duration", "must be finite, >= 0 and < 1e6 s");
-                }
-                if (s.end - self.last_end).norm() > 1e-9 {
-                    return bad("end", "a dwell must stay at the previous end point");
-                }
-                if s.filament != 0.0 && s.duration <= 0.0 {
-                    return bad("duration", "a dwell that moves filament needs a duration > 0");
-                }
-            }
-            SegmentKind::Line | SegmentKind::Arc => {
-                if !(s.feed.is_finite() && s.feed > 0.0) {
-                    return bad("feed", "must be finite and > 0");
-                }
-            }
+        s.check().map_err(|e| SegmentError::Invalid { seq, field: e.field, reason: e.reason })?;
+        // What depends on the segments before it.
+        if s.kind == SegmentKind::Dwell && (s.end - self.last_end).norm() > 1e-9 {
+            return bad("end", "a dwell must stay at the previous end point");
         }
         if s.kind == SegmentKind::Arc {
-            if !s.centre.iter().all(|x| x.is_finite()) {
-                return bad("centre", "is not finite");
-            }
-            if !(s.normal.iter().all(|x| x.is_finite()) && (s.normal.norm() - 1.0).abs() < 1e-6) {
-                return bad("normal", "must be a unit vector");
-            }
-            if !(s.sweep.is_finite() && s.sweep > 0.0 && s.sweep <= MAX_ARC_SWEEP) {
-                return bad("sweep", "must be finite and in (0, 2000π] rad (1,000 turns)");
-            }
             let Some(geometry) = arc_geometry(&self.last_end, s) else {
                 return bad("centre", "start lies on the arc's axis (zero radius)");
             };
@@ -1207,11 +1170,13 @@ impl PathEngine {
                 std::mem::swap(&mut self.trajectory, &mut self.candidate);
                 self.plan = Plan::Ruckig { target, position, speed, cap: vrun, forced: false };
             }
-            None if event && matches!(self.plan, Plan::Ruckig { target, cap, .. } if target != u64::MAX && cap <= vrun * (1.0 + 1e-9)) => {
+            None if event && self.current_meets_boundaries(vrun) => {
                 // A re-plan mid-trajectory found nothing better (numerically at the edge of
-                // feasibility): keep following the current trajectory, which meets its target —
-                // but only if it was planned under a cap no higher than today's (after a feed
-                // override or speed-scale drop it would run too fast: brake instead, below).
+                // feasibility, or new segments moved the target): keep following the current
+                // trajectory — but only if it passes every boundary up to its target no faster
+                // than today's boundary speeds, under a cap no higher than today's. After a feed
+                // override or speed-scale drop it would cruise through the new, lower limits:
+                // brake instead, below.
                 self.plan_time = previous_time;
             }
             None => {
@@ -1235,6 +1200,28 @@ impl PathEngine {
                 self.plan = Plan::Ruckig { target: u64::MAX, position: f64::NAN, speed: floor, cap: vrun, forced: true };
             }
         }
+    }
+
+    /// Whether the current trajectory, planned under cap `≤ vrun`, passes every boundary from here
+    /// to its target at no more than that boundary's speed now (the caps may have changed since
+    /// it was planned). Only for a position plan (not a brake).
+    fn current_meets_boundaries(&self, vrun: f64) -> bool {
+        let Plan::Ruckig { target, cap, forced: false, .. } = self.plan else { return false };
+        if target == u64::MAX || cap > vrun * (1.0 + 1e-9) {
+            return false;
+        }
+        let mut k = self.piece + 1;
+        while k <= target.min(self.pieces.tail) && k <= self.piece + TARGET_WALK as u64 {
+            let Some(t) = self.trajectory.get_first_time_at_position(0, self.boundary_position(k)) else {
+                // The trajectory ends before this boundary.
+                break;
+            };
+            if candidate_state(&self.trajectory, t).v > self.boundary_speed(k) * (1.0 + 1e-9) + 1e-12 {
+                return false;
+            }
+            k += 1;
+        }
+        true
     }
 
     /// The highest speed (m/s) at which the tool may arrive at boundary `k` (at zero acceleration)
@@ -1652,27 +1639,4 @@ fn angle_between(a: &Vector3<f64>, b: &Vector3<f64>) -> f64 {
 fn slerp_along(a: &UnitQuaternion<f64>, b: &UnitQuaternion<f64>, u: f64) -> UnitQuaternion<f64> {
     let rotation = geom::quaternion_log(&(b * a.inverse()));
     if rotation.norm_squared() == 0.0 { *a } else { geom::quaternion_exp(&(rotation * u.clamp(0.0, 1.0))) * a }
-}
-
-/// The arc from `start` that a segment describes, or None if the start lies on its axis.
-pub fn arc_geometry(start: &Vector3<f64>, s: &Segment) -> Option<Geometry> {
-    let n = s.normal.normalize();
-    let radial0 = start - s.centre;
-    let axial0 = radial0.dot(&n);
-    let radial0 = radial0 - n * axial0;
-    let radius = radial0.norm();
-    if radius < 1e-9 {
-        return None;
-    }
-    let e1 = radial0 / radius;
-    let e2 = n.cross(&e1);
-    let end_rel = s.end - s.centre;
-    let end_axial = end_rel.dot(&n);
-    let end_radial = end_rel - n * end_axial;
-    let radius_end = end_radial.norm();
-    let pitch = (end_axial - axial0) / s.sweep;
-    let radius_rate = (radius_end - radius) / s.sweep;
-    // The centre sits in the start's plane.
-    let centre = s.centre + n * axial0;
-    Some(Geometry::Arc { centre, e1, e2, normal: n, radius, radius_rate, pitch, sweep: s.sweep })
 }

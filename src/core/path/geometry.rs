@@ -4,6 +4,8 @@
 
 use nalgebra::Vector3;
 
+use super::segment::Segment;
+
 /// A primitive of the executed path, in W.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum Geometry {
@@ -54,15 +56,16 @@ pub struct PathPoint {
 }
 
 impl Geometry {
-    /// The arc length (m) of the primitive, for arcs `sweep · √(r̄² + pitch² + radius_rate²)` with
-    /// r̄ the mean radius (exact for circles and helices; for the slight spirals G-code tolerates the
-    /// speed along θ then varies by less than the relative radius mismatch).
+    /// The arc length (m) of the primitive (`line_length` for a line): for an arc, ∫ |p'(θ)| dθ
+    /// along the helical spiral whose radius goes linearly from `radius` to its end radius while
+    /// the height along `normal` goes linearly with θ — exact for circles, helices and spirals
+    /// ([`spiral_length`]). The one length of an arc: the G-code reader's flow per metre, the path
+    /// engine's pieces and the planners' flattening all use it.
     pub fn length(&self, line_length: f64) -> f64 {
         match *self {
             Geometry::Line { .. } => line_length,
             Geometry::Arc { radius, radius_rate, pitch, sweep, .. } => {
-                let r_mean = radius + 0.5 * radius_rate * sweep;
-                sweep * (r_mean * r_mean + pitch * pitch + radius_rate * radius_rate).sqrt()
+                spiral_length(radius, radius + radius_rate * sweep, sweep, pitch * sweep)
             }
             Geometry::Hold { .. } => 0.0,
         }
@@ -108,6 +111,25 @@ impl Geometry {
     }
 }
 
+/// Length (m) of the spiral r(φ) = r₀ + (r₁ − r₀)·φ/θ, height h·φ/θ, φ ∈ [0, θ]: with r₀ = r₁
+/// `√((r·θ)² + h²)`, otherwise the closed form of ∫ √(a + r²) dr / k (k = (r₁ − r₀)/θ,
+/// a = k² + (h/θ)²), written without cancellation.
+fn spiral_length(r0: f64, r1: f64, theta: f64, h: f64) -> f64 {
+    let dr = r1 - r0;
+    if dr == 0.0 || theta <= 0.0 {
+        return libm::hypot(r0 * theta, h);
+    }
+    let a = (dr / theta).powi(2) + (h / theta).powi(2);
+    let (s0, s1) = (libm::sqrt(a + r0 * r0), libm::sqrt(a + r1 * r1));
+    // [r·√(a+r²)] from r₀ to r₁, divided by Δr.
+    let algebraic = (r1 + r0) * (a + r0 * r0 + r1 * r1) / (r1 * s1 + r0 * s0);
+    // [a·asinh(r/√a)] from r₀ to r₁, divided by Δr, via asinh x − asinh y = asinh(x√(1+y²) − y√(1+x²)).
+    let z = dr * (r1 + r0) / (r1 * s0 + r0 * s1);
+    let asinh_ratio = if z.abs() < 1e-4 { 1.0 - z * z / 6.0 } else { libm::asinh(z) / z };
+    let logarithmic = a * (r1 + r0) / (r1 * s0 + r0 * s1) * asinh_ratio;
+    0.5 * theta * (algebraic + logarithmic)
+}
+
 /// The distance (m) from `p` to the segment `a`–`b`.
 pub fn distance_to_segment(p: &Vector3<f64>, a: &Vector3<f64>, b: &Vector3<f64>) -> f64 {
     let ab = b - a;
@@ -140,4 +162,27 @@ pub fn distance_to_arc(p: &Vector3<f64>, geometry: &Geometry, length: f64) -> f6
         }
     }
     best
+}
+
+/// The arc from `start` that a segment describes, or None if the start lies on its axis.
+pub fn arc_geometry(start: &Vector3<f64>, s: &Segment) -> Option<Geometry> {
+    let n = s.normal.normalize();
+    let radial0 = start - s.centre;
+    let axial0 = radial0.dot(&n);
+    let radial0 = radial0 - n * axial0;
+    let radius = radial0.norm();
+    if radius < 1e-9 {
+        return None;
+    }
+    let e1 = radial0 / radius;
+    let e2 = n.cross(&e1);
+    let end_rel = s.end - s.centre;
+    let end_axial = end_rel.dot(&n);
+    let end_radial = end_rel - n * end_axial;
+    let radius_end = end_radial.norm();
+    let pitch = (end_axial - axial0) / s.sweep;
+    let radius_rate = (radius_end - radius) / s.sweep;
+    // The centre sits in the start's plane.
+    let centre = s.centre + n * axial0;
+    Some(Geometry::Arc { centre, e1, e2, normal: n, radius, radius_rate, pitch, sweep: s.sweep })
 }

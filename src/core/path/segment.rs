@@ -2,7 +2,9 @@
 //! units. Fixed size and `Copy`, so the real-time queue holds segments by value and the wire type in
 //! `strand-ipc` can mirror it field for field.
 
-use nalgebra::{UnitQuaternion, Vector3};
+use nalgebra::{Quaternion, UnitQuaternion, Vector3};
+use strand_ipc as ipc;
+use strand_ipc::RejectReason;
 
 /// What a segment asks for: the wire contract's kind, one type on both sides. A line runs from
 /// the previous end point to `end`; an arc (or helix, or a spiral as LinuxCNC allows) turns about
@@ -100,5 +102,121 @@ impl Segment {
     /// True if the segment deposits material.
     pub fn extrudes(&self) -> bool {
         self.flags.contains(SegmentFlags::EXTRUDE)
+    }
+}
+
+/// Why a segment is not one the path engine can run, judged from its own fields (what depends on
+/// the segments before it — the sequence, a dwell's place, an arc's end — the engine checks on
+/// intake). `reject` is the wire's reason for it, `field` the field at fault.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, thiserror::Error)]
+#[error("field `{field}` {reason}")]
+pub struct InvalidSegment {
+    /// The reason the controller reports on the wire.
+    pub reject: RejectReason,
+    /// The field at fault (its wire name).
+    pub field: &'static str,
+    /// What is wrong with it.
+    pub reason: &'static str,
+}
+
+fn invalid(reject: RejectReason, field: &'static str, reason: &'static str) -> Result<(), InvalidSegment> {
+    Err(InvalidSegment { reject, field, reason })
+}
+
+impl Segment {
+    /// The one check of a segment's own fields, for segments from the wire
+    /// ([`TryFrom<&ipc::Segment>`]) and from the offline readers alike: every number finite, a
+    /// move's feed > 0, a dwell's duration in [0, 1e6) s (> 0 if it moves filament), a unit
+    /// orientation, a pressure advance ≥ 0, an arc's unit normal and sweep in (0, 1,000 turns].
+    pub fn check(&self) -> Result<(), InvalidSegment> {
+        use RejectReason::{BadFeed, BadGeometry, NonFinite};
+        let finite = |v: &Vector3<f64>| v.iter().all(|x| x.is_finite());
+        let q = self.orientation.quaternion();
+        for (field, ok) in [
+            ("end", finite(&self.end)),
+            ("centre", finite(&self.centre)),
+            ("normal", finite(&self.normal)),
+            ("sweep", self.sweep.is_finite()),
+            ("orientation", q.coords.iter().all(|x| x.is_finite())),
+            ("feed", self.feed.is_finite()),
+            ("filament", self.filament.is_finite()),
+            ("duration", self.duration.is_finite()),
+            ("pressure_advance", self.pressure_advance.is_none_or(f64::is_finite)),
+        ] {
+            if !ok {
+                return invalid(NonFinite, field, "is not finite");
+            }
+        }
+        match self.kind {
+            SegmentKind::Dwell => {
+                if self.duration < 0.0 {
+                    return invalid(BadFeed, "duration", "must be >= 0 s");
+                }
+                if self.duration >= 1e6 {
+                    return invalid(BadGeometry, "duration", "must be finite, >= 0 and < 1e6 s");
+                }
+                if self.filament != 0.0 && self.duration <= 0.0 {
+                    return invalid(BadGeometry, "duration", "a dwell that moves filament needs a duration > 0");
+                }
+            }
+            SegmentKind::Line | SegmentKind::Arc => {
+                if self.feed <= 0.0 {
+                    return invalid(BadFeed, "feed", "must be finite and > 0");
+                }
+            }
+        }
+        if (q.norm() - 1.0).abs() > 1e-6 {
+            return invalid(BadGeometry, "orientation", "is not a finite unit quaternion");
+        }
+        if self.pressure_advance.is_some_and(|k| k < 0.0) {
+            return invalid(BadGeometry, "pressure_advance", "must be finite and >= 0 s");
+        }
+        if self.kind == SegmentKind::Arc {
+            if (self.normal.norm() - 1.0).abs() >= 1e-6 {
+                return invalid(BadGeometry, "normal", "must be a unit vector");
+            }
+            if !(self.sweep > 0.0 && self.sweep <= MAX_ARC_SWEEP) {
+                return invalid(BadGeometry, "sweep", "must be finite and in (0, 2000π] rad (1,000 turns)");
+            }
+        }
+        Ok(())
+    }
+}
+
+/// A wire segment as the core's, checked ([`Segment::check`]); an unknown kind, or a non-finite
+/// number in any field (used or not), is refused before anything is converted.
+impl TryFrom<&ipc::Segment> for Segment {
+    type Error = InvalidSegment;
+
+    fn try_from(w: &ipc::Segment) -> Result<Segment, InvalidSegment> {
+        let Some(kind) = SegmentKind::from_u32(w.kind) else {
+            return Err(InvalidSegment { reject: RejectReason::UnknownKind, field: "kind", reason: "is not a segment kind" });
+        };
+        let finite = |v: &[f64]| v.iter().all(|x| x.is_finite());
+        for (field, ok) in [("orientation", finite(&w.orientation)), ("pressure_advance", w.pressure_advance.is_finite())] {
+            if !ok {
+                return Err(InvalidSegment { reject: RejectReason::NonFinite, field, reason: "is not finite" });
+            }
+        }
+        let [qw, qx, qy, qz] = w.orientation;
+        let segment = Segment {
+            seq: w.seq,
+            kind,
+            end: Vector3::from(w.end),
+            centre: Vector3::from(w.centre),
+            normal: Vector3::from(w.normal),
+            sweep: w.sweep,
+            // Not renormalised: `check` refuses a quaternion that is not unit to 1e-6.
+            orientation: UnitQuaternion::new_unchecked(Quaternion::new(qw, qx, qy, qz)),
+            feed: w.feed,
+            filament: w.filament,
+            duration: w.duration,
+            flags: SegmentFlags(w.flags & !ipc::segment_flags::PRESSURE_ADVANCE),
+            source_line: w.source_line,
+            pressure_advance: (w.flags & ipc::segment_flags::PRESSURE_ADVANCE != 0).then_some(w.pressure_advance),
+        };
+        segment.check()?;
+        // The controller used to renormalise here: keep the bits the engine has always seen.
+        Ok(Segment { orientation: UnitQuaternion::from_quaternion(Quaternion::new(qw, qx, qy, qz)), ..segment })
     }
 }

@@ -64,7 +64,7 @@ use nalgebra::Vector3;
 use plotters::prelude::*;
 use serde::Serialize;
 use serde_json::json;
-use strand::core::{Segment, SegmentKind};
+use strand::core::{Geometry, Segment, SegmentKind, arc_geometry};
 use strand_job::gcode::{GcodeOptions, Parser, parse_file};
 
 /// Two coordinates closer than this (m) along the split axis are the same: a line this close to a
@@ -270,31 +270,27 @@ pub fn read_job<R: BufRead>(parser: &mut Parser<R>, name: &str, options: &ReadOp
 /// Points after `start` along an arc segment, ending exactly at its end, such that each chord's
 /// sagitta is at most `tolerance` (and each chord spans at most a quarter turn).
 pub fn flatten_arc(start: &Vector3<f64>, s: &Segment, tolerance: f64) -> Result<Vec<Vector3<f64>>, String> {
-    let n = s.normal;
-    let r0v = start - s.centre;
-    let r0 = r0v.norm();
-    let from_centre = s.end - s.centre;
-    let h = from_centre.dot(&n);
-    let r1 = (from_centre - n * h).norm();
-    let r = r0.max(r1);
     if tolerance.is_nan() || tolerance <= 0.0 {
         return Err("the arc tolerance must be positive".into());
     }
+    // The core's geometry of the arc (the one the path engine runs): equal steps of θ along it.
+    let Some(geometry) = arc_geometry(start, s) else {
+        return Ok(vec![s.end]);
+    };
+    let Geometry::Arc { radius, radius_rate, sweep, .. } = geometry else { unreachable!("arc_geometry gives an arc") };
+    let r = radius.max(radius + radius_rate * sweep);
     let step =
         if tolerance >= r { std::f64::consts::FRAC_PI_2 } else { (2.0 * (1.0 - tolerance / r).acos()).min(std::f64::consts::FRAC_PI_2) };
-    let count = (s.sweep / step).ceil().max(1.0);
+    let count = (sweep / step).ceil().max(1.0);
     if count > 1e6 {
         return Err(format!("an arc of radius {r} m would need {count} chords"));
     }
     let count = count as usize;
-    let u = r0v / r0;
-    let v = n.cross(&u);
+    let length = geometry.length(0.0);
     let mut points = Vec::with_capacity(count);
     for j in 1..count {
         let f = j as f64 / count as f64;
-        let phi = s.sweep * f;
-        let radius = r0 + (r1 - r0) * f;
-        points.push(s.centre + (u * phi.cos() + v * phi.sin()) * radius + n * (h * f));
+        points.push(geometry.point(length * f, length).position);
     }
     points.push(s.end);
     Ok(points)

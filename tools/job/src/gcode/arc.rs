@@ -10,43 +10,19 @@ use super::codes::{Motion, PlaneAxes};
 use super::interpreter::{Interpreter, bounded, finite};
 use super::lexer::Fault;
 use super::{MM, ZERO_LENGTH};
-use strand_core::{MAX_ARC_SWEEP, Segment, SegmentKind};
+use strand_core::{MAX_ARC_SWEEP, Segment, SegmentKind, arc_geometry};
 
 /// Path length (m) of `segment` when it starts at `start` (m): the chord of a line, 0 for a dwell,
-/// and for an arc ∫ |p'(θ)| dθ along the helical spiral whose radius goes linearly from r₀ (at the
-/// start) to r₁ (at the end, in its plane) while the height along `normal` goes linearly from 0 to h.
-/// With r₀ = r₁ this is √((r·θ)² + h²); otherwise it is the closed form of ∫ √(a + r²) dr / k
-/// (k = (r₁ − r₀)/θ, a = k² + (h/θ)²), written without cancellation.
+/// and for an arc the length of the core's own geometry of it (`strand_core::arc_geometry`, the
+/// one home of arc geometry: a helix or spiral measured here is the one the path engine runs).
 pub fn segment_length(start: &Vector3<f64>, segment: &Segment) -> f64 {
     match segment.kind {
         SegmentKind::Line => (segment.end - start).norm(),
         SegmentKind::Dwell => 0.0,
-        SegmentKind::Arc => {
-            let n = segment.normal;
-            let from_centre = segment.end - segment.centre;
-            let h = from_centre.dot(&n);
-            let r0 = (start - segment.centre).norm();
-            let r1 = (from_centre - n * h).norm();
-            spiral_length(r0, r1, segment.sweep, h)
-        }
+        // A degenerate arc (start on the axis) is refused by the reader and the engine; its chord
+        // is the honest length until then.
+        SegmentKind::Arc => arc_geometry(start, segment).map_or((segment.end - start).norm(), |g| g.length(0.0)),
     }
-}
-
-/// Length of the spiral r(φ) = r₀ + (r₁ − r₀)·φ/θ, height h·φ/θ, φ ∈ [0, θ].
-fn spiral_length(r0: f64, r1: f64, theta: f64, h: f64) -> f64 {
-    let dr = r1 - r0;
-    if dr == 0.0 || theta <= 0.0 {
-        return libm::hypot(r0 * theta, h);
-    }
-    let a = (dr / theta).powi(2) + (h / theta).powi(2);
-    let (s0, s1) = (libm::sqrt(a + r0 * r0), libm::sqrt(a + r1 * r1));
-    // [r·√(a+r²)] from r₀ to r₁, divided by Δr.
-    let algebraic = (r1 + r0) * (a + r0 * r0 + r1 * r1) / (r1 * s1 + r0 * s0);
-    // [a·asinh(r/√a)] from r₀ to r₁, divided by Δr, via asinh x − asinh y = asinh(x√(1+y²) − y√(1+x²)).
-    let z = dr * (r1 + r0) / (r1 * s0 + r0 * s1);
-    let asinh_ratio = if z.abs() < 1e-4 { 1.0 - z * z / 6.0 } else { libm::asinh(z) / z };
-    let logarithmic = a * (r1 + r0) / (r1 * s0 + r0 * s1) * asinh_ratio;
-    0.5 * theta * (algebraic + logarithmic)
 }
 
 /// An arc's geometry, as the segment carries it.
