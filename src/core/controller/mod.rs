@@ -19,427 +19,33 @@
 //! The final command stage enforces every joint's position, velocity and acceleration limits on
 //! every command, counts each clamp, and never lets a non-finite number out: a NaN anywhere is a
 //! fault, and the arm brakes from its last good command.
+//!
+//! This file is the run-state machine and the tick; each stage with its own state has its own
+//! file: `tick.rs` the tick's types, `intake.rs` sequence and refusals, `approach.rs` the move to
+//! the first point, `command.rs` the final command stage.
 
 use nalgebra::{UnitQuaternion, Vector3};
-use rsruckig::prelude::*;
-use serde::{Deserialize, Serialize};
 use strand_ipc as ipc;
 use strand_ipc::{Command, FaultCode, JobOutcome, RejectReason, RunState};
 
-use super::base::{BaseConfig, BaseEstimator, BaseState};
-use super::extrude::{Extruder, ExtruderConfig};
+use super::base::{BaseEstimator, BaseState};
+use super::extrude::Extruder;
 use super::following::FollowingWatch;
-use super::kin::{Clik, ClikConfig, ClikStep, JointVector, MAX_JOINTS, PathVelocity, RobotModel, TcpTarget};
-use super::path::{Motion, PathConfig, PathEngine, PathSample, Segment, SegmentError, SegmentFlags, SegmentKind};
+use super::kin::{Clik, ClikStep, JointVector, MAX_JOINTS, PathVelocity, RobotModel, TcpTarget};
+use super::path::{Motion, PathEngine, PathSample, SegmentError, SegmentFlags, SegmentKind};
 
-/// Segments a [`TickInput`] carries at most (the shell keeps the rest for the next tick).
-pub const MAX_SEGMENTS_PER_TICK: usize = 64;
-/// Controls a [`TickInput`] carries at most.
-pub const MAX_CONTROLS_PER_TICK: usize = 8;
-/// Tracking samples a [`TickInput`] carries at most (the newest are kept).
-pub const MAX_BASE_POSES_PER_TICK: usize = 8;
-/// Events a [`TickOutput`] carries at most; more are counted in `events_dropped`.
-pub const MAX_EVENTS: usize = 16;
+mod approach;
+mod command;
+mod intake;
+mod tick;
 
-/// `[controller]`: the control loop and its supervision.
-#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
-#[serde(deny_unknown_fields, default)]
-pub struct ControllerConfig {
-    /// Tick rate (Hz), 250 to 8000.
-    pub rate_hz: f64,
-    /// Joint state silent for longer than this (s) → fault. 0 disables (a driver that only listens).
-    pub joint_state_timeout: f64,
-    /// Measured joints further than this (rad or m) from the last command → fault. 0 disables.
-    pub following_error_limit: f64,
-    /// Cartesian following error (m): the distance between the path target and the TCP of the
-    /// commanded joints (and, with a joint state fresh this tick, of the measured joints), in W.
-    /// Above it for `tcp_error_time` while the path runs → `TcpErrorLimit` fault. 0 disables.
-    pub tcp_error_limit: f64,
-    /// How long (s) the Cartesian following error may stay above `tcp_error_limit`.
-    pub tcp_error_time: f64,
-    /// How far behind its command (s) the measured TCP may be and still count as on its path:
-    /// the robot's command-to-motion delay, with margin (see `core::following`).
-    pub tcp_error_lag: f64,
-    /// Fraction of each joint's velocity, acceleration and jerk limit the approach move uses (0, 1].
-    pub approach_speed_fraction: f64,
-    /// The joint-space approach ends this far (m) above the end of the job's leading travel, back
-    /// along the nozzle, and that travel then brings the tool straight down onto it on the path: a
-    /// joint-space move sags between its ends, and next to the bed that is a crash.
-    pub approach_lift: f64,
-    /// The tool counts as at the first point within this distance (m) …
-    pub approach_position_tolerance: f64,
-    /// … and this nozzle-axis angle (rad).
-    pub approach_orientation_tolerance: f64,
-    /// Segment points must lie in this box (m, W): lower corner.
-    pub bounds_min: [f64; 3],
-    /// Upper corner (m, W).
-    pub bounds_max: [f64; 3],
-}
-
-impl Default for ControllerConfig {
-    fn default() -> Self {
-        ControllerConfig {
-            rate_hz: 1000.0,
-            joint_state_timeout: 0.05,
-            following_error_limit: 0.2,
-            tcp_error_limit: 2e-3,
-            tcp_error_time: 0.05,
-            tcp_error_lag: 0.1,
-            approach_speed_fraction: 0.3,
-            approach_lift: 0.01,
-            approach_position_tolerance: 0.1e-3,
-            approach_orientation_tolerance: 0.01,
-            bounds_min: [-2.0, -2.0, -1.0],
-            bounds_max: [2.0, 2.0, 2.5],
-        }
-    }
-}
-
-impl ControllerConfig {
-    /// The tick period (s).
-    pub fn dt(&self) -> f64 {
-        1.0 / self.rate_hz
-    }
-
-    /// Checks every key; the message names it and its allowed range.
-    pub fn validate(&self) -> Result<(), String> {
-        let k = "[controller]";
-        if !(self.rate_hz.is_finite() && (250.0..=8000.0).contains(&self.rate_hz)) {
-            return Err(format!("{k} rate_hz = {}: must lie in [250, 8000] Hz", self.rate_hz));
-        }
-        for (key, v, hi) in [
-            ("joint_state_timeout", self.joint_state_timeout, 10.0),
-            ("following_error_limit", self.following_error_limit, 10.0),
-            ("tcp_error_limit", self.tcp_error_limit, 1.0),
-            ("tcp_error_time", self.tcp_error_time, 10.0),
-            ("tcp_error_lag", self.tcp_error_lag, 1.0),
-            ("approach_position_tolerance", self.approach_position_tolerance, 0.1),
-            ("approach_lift", self.approach_lift, 0.2),
-            ("approach_orientation_tolerance", self.approach_orientation_tolerance, 1.0),
-        ] {
-            if !(v.is_finite() && (0.0..=hi).contains(&v)) {
-                return Err(format!("{k} {key} = {v}: must lie in [0, {hi}]"));
-            }
-        }
-        if !(self.approach_speed_fraction > 0.0 && self.approach_speed_fraction <= 1.0) {
-            return Err(format!("{k} approach_speed_fraction = {}: must lie in (0, 1]", self.approach_speed_fraction));
-        }
-        for i in 0..3 {
-            if !(self.bounds_min[i].is_finite() && self.bounds_max[i].is_finite() && self.bounds_min[i] < self.bounds_max[i]) {
-                return Err(format!("{k} bounds_min/bounds_max: axis {i} must be finite with min < max"));
-            }
-        }
-        Ok(())
-    }
-}
-
-/// Cycle figures the shell measured, passed through to `Status` (they never change what the
-/// controller does; they are inputs so that a replay reproduces Status exactly).
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-#[repr(C)]
-pub struct CycleCounters {
-    /// Ticks whose work ended after the next deadline.
-    pub overruns: u64,
-    /// Wake-ups later than the threshold.
-    pub late_wakeups: u64,
-    /// Worst wake-up lateness (ns).
-    pub worst_lateness_ns: u64,
-    /// Log records dropped.
-    pub log_drops: u64,
-    /// [`ipc::LogState`] as u32.
-    pub log_state: u32,
-}
-
-/// Everything that may influence one tick.
-#[derive(Clone, Copy, Debug)]
-pub struct TickInput {
-    /// Tick index, from 0.
-    pub tick: u64,
-    /// Nominal time of this tick (ns, monotonic): the time the shell woke for it.
-    pub time_ns: u64,
-    /// Segments received since the last tick, in arrival order (`segment_count` used).
-    pub segments: [ipc::Segment; MAX_SEGMENTS_PER_TICK],
-    /// Segments used.
-    pub segment_count: u32,
-    /// Controls received since the last tick, in arrival order.
-    pub controls: [ipc::Control; MAX_CONTROLS_PER_TICK],
-    /// Controls used.
-    pub control_count: u32,
-    /// The latest joint state, if one arrived since the last tick.
-    pub joint_state: Option<ipc::JointState>,
-    /// Tracking samples received since the last tick, oldest first.
-    pub base_poses: [ipc::BasePose; MAX_BASE_POSES_PER_TICK],
-    /// Tracking samples used.
-    pub base_pose_count: u32,
-    /// The shell saw no segment publisher left while a job was in progress.
-    pub feeder_lost: bool,
-    /// The shell's timing counters.
-    pub cycle: CycleCounters,
-}
-
-impl Default for TickInput {
-    fn default() -> Self {
-        TickInput::new(0, 0)
-    }
-}
-
-impl TickInput {
-    /// An input for tick `tick` at `time_ns` with nothing received.
-    pub fn new(tick: u64, time_ns: u64) -> Self {
-        TickInput {
-            tick,
-            time_ns,
-            segments: [ipc::Segment::default(); MAX_SEGMENTS_PER_TICK],
-            segment_count: 0,
-            controls: [ipc::Control::default(); MAX_CONTROLS_PER_TICK],
-            control_count: 0,
-            joint_state: None,
-            base_poses: [ipc::BasePose::default(); MAX_BASE_POSES_PER_TICK],
-            base_pose_count: 0,
-            feeder_lost: false,
-            cycle: CycleCounters::default(),
-        }
-    }
-
-    /// Clears what was received, for reuse as tick `tick` at `time_ns`.
-    pub fn reset(&mut self, tick: u64, time_ns: u64) {
-        self.tick = tick;
-        self.time_ns = time_ns;
-        self.segment_count = 0;
-        self.control_count = 0;
-        self.joint_state = None;
-        self.base_pose_count = 0;
-        self.feeder_lost = false;
-    }
-
-    /// Adds a segment; false if the tick is full (keep it for the next tick).
-    pub fn push_segment(&mut self, s: &ipc::Segment) -> bool {
-        let n = self.segment_count as usize;
-        if n >= MAX_SEGMENTS_PER_TICK {
-            return false;
-        }
-        self.segments[n] = *s;
-        self.segment_count += 1;
-        true
-    }
-
-    /// Room for more segments this tick.
-    pub fn segment_room(&self) -> usize {
-        MAX_SEGMENTS_PER_TICK - self.segment_count as usize
-    }
-
-    /// Adds a control; false if the tick is full (keep it for the next tick).
-    pub fn push_control(&mut self, c: &ipc::Control) -> bool {
-        let n = self.control_count as usize;
-        if n >= MAX_CONTROLS_PER_TICK {
-            return false;
-        }
-        self.controls[n] = *c;
-        self.control_count += 1;
-        true
-    }
-
-    /// Adds a tracking sample; when full, the oldest is dropped (only the newest matter).
-    pub fn push_base_pose(&mut self, p: &ipc::BasePose) {
-        let n = self.base_pose_count as usize;
-        if n >= MAX_BASE_POSES_PER_TICK {
-            self.base_poses.copy_within(1.., 0);
-            self.base_poses[MAX_BASE_POSES_PER_TICK - 1] = *p;
-        } else {
-            self.base_poses[n] = *p;
-            self.base_pose_count += 1;
-        }
-    }
-
-    /// The segments used.
-    pub fn segments(&self) -> &[ipc::Segment] {
-        &self.segments[..self.segment_count as usize]
-    }
-
-    /// The controls used.
-    pub fn controls(&self) -> &[ipc::Control] {
-        &self.controls[..self.control_count as usize]
-    }
-
-    /// The tracking samples used.
-    pub fn base_poses(&self) -> &[ipc::BasePose] {
-        &self.base_poses[..self.base_pose_count as usize]
-    }
-}
-
-/// Something the shell should tell a human about (through `tracing`, after publishing).
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub enum Event {
-    /// A segment was refused; everything accepted before it is kept.
-    SegmentRejected {
-        /// Its sequence number.
-        seq: u64,
-        /// Why.
-        reason: RejectReason,
-        /// The offending field, if one.
-        field: &'static str,
-    },
-    /// A control was refused.
-    ControlRejected {
-        /// The command's wire value.
-        command: u32,
-        /// Why.
-        reason: RejectReason,
-    },
-    /// A joint state was refused (wrong joint count, non-finite value).
-    JointStateRejected {
-        /// Its sequence number.
-        seq: u64,
-        /// Why.
-        reason: RejectReason,
-    },
-    /// A tracking sample was refused (invalid or out of order).
-    BasePoseRejected {
-        /// Its sequence number.
-        seq: u64,
-    },
-    /// The run state changed.
-    StateChanged {
-        /// Before.
-        from: RunState,
-        /// After.
-        to: RunState,
-    },
-    /// A fault latched.
-    Fault {
-        /// Which.
-        code: FaultCode,
-        /// The segment executing when it latched (0 before the path started).
-        seq: u64,
-        /// Its source line (0 if none).
-        line: u32,
-        /// The figure that tripped it: the TCP error (m) for `TcpErrorLimit`, else 0.
-        value: f64,
-    },
-    /// A job ended.
-    JobEnded {
-        /// How.
-        outcome: JobOutcome,
-        /// The last segment executed.
-        last_seq: u64,
-    },
-    /// The final stage clamped a joint command for the first time in a run of clamped ticks.
-    Clamped {
-        /// The joint (chain order).
-        joint: u8,
-    },
-}
-
-/// Diagnostic values of a tick that are not on the wire but belong in the log.
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
-pub struct TickDiagnostics {
-    /// Where the path wants the TCP (m, W).
-    pub tcp_target_world: Vector3<f64>,
-    /// Tool orientation the path wants (W).
-    pub tcp_target_orientation: UnitQuaternion<f64>,
-    /// Where the commanded joints put the TCP, through the estimated base pose (m, W).
-    pub tcp_command_world: Vector3<f64>,
-    /// Estimated base pose and twist used this tick (for the command time).
-    pub base: BaseState,
-    /// The CLIK's common speed scale (1 = unconstrained).
-    pub clik_scale: f64,
-    /// The speed scale the CLIK puts on the path for the next tick (1 = the path runs at its
-    /// planned speed; below 1 a joint limit slows it).
-    pub path_scale: f64,
-    /// Smallest task singular value.
-    pub sigma_min: f64,
-    /// Path speed (m/s).
-    pub path_speed: f64,
-    /// Cartesian following error this tick (m): the larger of |target − TCP(commanded joints)| and,
-    /// with a fresh joint state, |target − TCP(measured joints)|, in W; 0 while no path runs.
-    pub tcp_error: f64,
-}
-
-/// Everything one tick decided.
-#[derive(Clone, Copy, Debug)]
-pub struct TickOutput {
-    /// For the robot driver.
-    pub joint_command: ipc::JointCommand,
-    /// For the extruder driver.
-    pub extruder: ipc::ExtruderCommand,
-    /// For feeders and HMIs.
-    pub status: ipc::Status,
-    /// Events of this tick (`event_count` used).
-    pub events: [Event; MAX_EVENTS],
-    /// Events used.
-    pub event_count: u32,
-    /// Events that did not fit.
-    pub events_dropped: u32,
-    /// For the log.
-    pub diagnostics: TickDiagnostics,
-}
-
-impl Default for TickOutput {
-    fn default() -> Self {
-        TickOutput {
-            joint_command: ipc::JointCommand::default(),
-            extruder: ipc::ExtruderCommand::default(),
-            status: ipc::Status::default(),
-            events: [Event::Clamped { joint: 0 }; MAX_EVENTS],
-            event_count: 0,
-            events_dropped: 0,
-            diagnostics: TickDiagnostics::default(),
-        }
-    }
-}
-
-impl TickOutput {
-    /// The events used.
-    pub fn events(&self) -> &[Event] {
-        &self.events[..self.event_count as usize]
-    }
-
-    /// Adds an event (counted as dropped when the tick has no room left).
-    pub fn push(&mut self, e: Event) {
-        let n = self.event_count as usize;
-        if n < MAX_EVENTS {
-            self.events[n] = e;
-            self.event_count += 1;
-        } else {
-            self.events_dropped += 1;
-        }
-    }
-}
-
-/// Why the controller could not be built.
-#[derive(Debug, thiserror::Error)]
-#[error("{0}")]
-pub struct ControllerError(pub String);
-
-/// The parts of the service config the controller uses.
-#[derive(Clone, Debug, PartialEq)]
-pub struct ControllerSettings {
-    /// `[controller]`.
-    pub controller: ControllerConfig,
-    /// `[clik]`.
-    pub clik: ClikConfig,
-    /// `[path]`.
-    pub path: PathConfig,
-    /// `[extruder]`.
-    pub extruder: ExtruderConfig,
-    /// `[base]`.
-    pub base: BaseConfig,
-}
-
-/// The approach move to a job's first point.
-#[derive(Clone, Copy, Debug, PartialEq)]
-enum Approach {
-    /// Solving the inverse kinematics of the first point, a few iterations per tick.
-    Solving { iterations: u32 },
-    /// Following the joint-space trajectory.
-    Moving,
-}
-
-/// IK iterations per tick while solving for the first point, and in total before giving up.
-const IK_ITERATIONS_PER_TICK: u32 = 25;
-const IK_ITERATIONS_MAX: u32 = 4000;
-/// Joint speed below which a braking arm counts as stopped (rad/s or m/s).
-const AT_REST: f64 = 1e-9;
+use approach::{Approach, ApproachStep};
+use command::JointCommandStage;
+use intake::Intake;
+pub use tick::{
+    ControllerConfig, ControllerError, ControllerSettings, CycleCounters, Event, MAX_BASE_POSES_PER_TICK, MAX_CONTROLS_PER_TICK,
+    MAX_EVENTS, MAX_SEGMENTS_PER_TICK, TickDiagnostics, TickInput, TickOutput,
+};
 
 /// The controller. See the module documentation.
 pub struct Controller {
@@ -450,15 +56,11 @@ pub struct Controller {
     engine: PathEngine,
     extruder: Extruder,
     clik: Clik,
-    ik: Clik,
     base: BaseEstimator,
-    approach_otg: Ruckig<0, IgnoreErrorHandler>,
-    approach_in: InputParameter<0>,
-    approach_out: OutputParameter<0>,
+    /// The joint-space move to a job's first point.
     approach: Approach,
-    /// First point of the job (W) and its orientation, and the joints that reach it.
+    /// First point of the job (W) and its orientation.
     first_point: Option<(Vector3<f64>, UnitQuaternion<f64>)>,
-    q_first: JointVector,
 
     state: RunState,
     fault: FaultCode,
@@ -468,36 +70,22 @@ pub struct Controller {
     job_open: bool,
     /// The stop in progress brakes the joints (it interrupted an approach) instead of the path.
     stop_by_brake: bool,
-    /// The approach trajectory reached its end this tick.
-    approach_done: bool,
     /// Running, but holding the first point until the CLIK has the tool on it.
     settling: bool,
-    /// The approach's IK target (B), fixed when the approach starts.
-    approach_target: TcpTarget,
     /// State changes of the tick being computed (reported as events).
     transitions: [(RunState, RunState); 8],
     transition_count: u32,
 
-    // Joint command state.
-    known: bool,
-    q: JointVector,
-    qd: JointVector,
-    qdd: JointVector,
+    /// The joint command and its limits.
+    command: JointCommandStage,
+    /// The last measured joints (rad or m).
     q_measured: JointVector,
     last_state_ns: Option<u64>,
     last_state_seq: u64,
     last_state_stamp: u64,
     speed_scale: f64,
-    was_clamped: bool,
-
-    // Intake.
-    expected_seq: Option<u64>,
-    last_received_seq: u64,
-    last_rejected_seq: u64,
-    last_reject_reason: RejectReason,
-    rejected: u64,
-    accepted: u64,
-    clamps: u64,
+    /// Sequence, acceptance and refusals of what comes in.
+    intake: Intake,
     flow_override: f64,
     last_sample: Option<PathSample>,
     last_clik: Option<ClikStep>,
@@ -521,17 +109,7 @@ impl Controller {
             .map_err(|err| ControllerError(format!("[path] {err}")))?;
         let extruder = Extruder::new(&settings.extruder, dt).map_err(|m| ControllerError(format!("[extruder] {m}")))?;
         let clik = Clik::new(settings.clik).map_err(|err| ControllerError(format!("[clik] {err}")))?;
-        let ik = clik.clone();
-        let n = model.dof();
-        let mut approach_in = InputParameter::new(Some(n));
-        approach_in.synchronization = Synchronization::Time;
-        let f = settings.controller.approach_speed_fraction;
-        for i in 0..n {
-            let l = model.limits(i);
-            approach_in.max_velocity[i] = l.velocity * f;
-            approach_in.max_acceleration[i] = l.acceleration * f;
-            approach_in.max_jerk[i] = l.jerk * f;
-        }
+        let approach = Approach::new(&model, settings.controller.approach_speed_fraction, dt, clik.clone());
         Ok(Controller {
             cfg: settings.controller.clone(),
             dt,
@@ -539,42 +117,25 @@ impl Controller {
             engine,
             extruder,
             clik,
-            ik,
             base: BaseEstimator::new(&settings.base),
-            approach_otg: Ruckig::new(Some(n), dt),
-            approach_in,
-            approach_out: OutputParameter::new(Some(n)),
-            approach: Approach::Moving,
+            approach,
             first_point: None,
-            q_first: JointVector::zeros(),
             state: RunState::Idle,
             fault: FaultCode::None,
             outcome: JobOutcome::None,
             fault_after_stop: FaultCode::None,
             job_open: false,
             stop_by_brake: false,
-            approach_done: false,
             settling: false,
-            approach_target: TcpTarget::at_rest(Vector3::zeros(), UnitQuaternion::identity()),
             transitions: [(RunState::Idle, RunState::Idle); 8],
             transition_count: 0,
-            known: false,
-            q: model.middle_configuration(),
-            qd: JointVector::zeros(),
-            qdd: JointVector::zeros(),
+            command: JointCommandStage::new(model.middle_configuration()),
             q_measured: JointVector::zeros(),
             last_state_ns: None,
             last_state_seq: 0,
             last_state_stamp: 0,
             speed_scale: 1.0,
-            was_clamped: false,
-            expected_seq: None,
-            last_received_seq: 0,
-            last_rejected_seq: 0,
-            last_reject_reason: RejectReason::None,
-            rejected: 0,
-            accepted: 0,
-            clamps: 0,
+            intake: Intake::new(settings.controller.bounds_min, settings.controller.bounds_max),
             flow_override: 1.0,
             last_sample: None,
             last_clik: None,
@@ -612,7 +173,7 @@ impl Controller {
 
     /// The last joint command (rad or m).
     pub fn joint_command(&self) -> &JointVector {
-        &self.q
+        &self.command.q
     }
 
     /// One control tick.
@@ -667,7 +228,7 @@ impl Controller {
         self.after_motion(input.time_ns, &mut out);
 
         let (p_cmd_b, q_cmd_b) = {
-            let f = self.model.forward_kinematics(&self.q);
+            let f = self.model.forward_kinematics(&self.command.q);
             (f.translation.vector, UnitQuaternion::from_rotation_matrix(&f.rotation))
         };
         out.diagnostics.tcp_command_world = base.base_to_world(&p_cmd_b, &q_cmd_b).0;
@@ -711,20 +272,15 @@ impl Controller {
     }
 
     fn is_moving(&self) -> bool {
-        self.qd.iter().take(self.model.dof()).any(|v| v.abs() > AT_REST)
+        self.command.is_moving(self.model.dof())
     }
 
     fn hold_still(&mut self) {
-        self.qd = JointVector::zeros();
-        self.qdd = JointVector::zeros();
+        self.command.hold_still();
     }
 
     fn reject(&mut self, seq: Option<u64>, reason: RejectReason) {
-        self.rejected += 1;
-        self.last_reject_reason = reason;
-        if let Some(seq) = seq {
-            self.last_rejected_seq = seq;
-        }
+        self.intake.reject(seq, reason);
     }
 
     fn take_joint_state(&mut self, input: &TickInput, out: &mut TickOutput) {
@@ -744,10 +300,10 @@ impl Controller {
         self.last_state_ns = Some(input.time_ns);
         self.last_state_seq = js.seq;
         self.last_state_stamp = js.stamp_ns;
-        if !self.known {
+        if !self.command.known {
             // The first state tells where the robot is: command exactly that, at rest.
-            self.known = true;
-            self.q = q;
+            self.command.known = true;
+            self.command.q = q;
             self.hold_still();
             self.clik.reset(JointVector::zeros());
         }
@@ -770,7 +326,7 @@ impl Controller {
                 if self.state != RunState::Idle {
                     return Err(RejectReason::NotAllowed);
                 }
-                if !self.known {
+                if !self.command.known {
                     return Err(RejectReason::NotReady);
                 }
                 self.start_job(now_ns);
@@ -821,7 +377,7 @@ impl Controller {
                 let (p, q) = self.tool_world(now_ns);
                 self.engine.reset_at(p, q);
                 self.job_open = false;
-                self.expected_seq = None;
+                self.intake.restart_sequence();
                 self.set_state(RunState::Idle);
             }
             Command::FeedOverride => {
@@ -842,7 +398,7 @@ impl Controller {
 
     /// The TCP of the current command in W (through the base estimate at `now_ns`).
     fn tool_world(&self, now_ns: u64) -> (Vector3<f64>, UnitQuaternion<f64>) {
-        let f = self.model.forward_kinematics(&self.q);
+        let f = self.model.forward_kinematics(&self.command.q);
         let base = self.base.at(now_ns);
         base.base_to_world(&f.translation.vector, &UnitQuaternion::from_rotation_matrix(&f.rotation))
     }
@@ -859,12 +415,7 @@ impl Controller {
         if matches!(self.state, RunState::Fault | RunState::EmergencyStopping | RunState::Stopping) {
             return Err((RejectReason::NotReady, ""));
         }
-        if let Some(expected) = self.expected_seq
-            && seq != expected
-        {
-            return Err((RejectReason::SequenceGap, "seq"));
-        }
-        let mut segment = self.validate_segment(w)?;
+        let mut segment = self.intake.admit(w)?;
         if self.engine.free_space() == 0 {
             return Err((RejectReason::QueueFull, ""));
         }
@@ -875,7 +426,7 @@ impl Controller {
             // down on the path: a joint-space move sags between its ends, next to a bed a crash.
             // Without a leading travel the job starts where the tool is.
             let first = if segment.kind == SegmentKind::Line && !segment.extrudes() && segment.filament == 0.0 {
-                let there = self.known && {
+                let there = self.command.known && {
                     let (p, q) = self.tool_world(now_ns);
                     (p - segment.end).norm() <= self.cfg.approach_position_tolerance
                         && (q * Vector3::z()).angle(&(segment.orientation * Vector3::z())) <= self.cfg.approach_orientation_tolerance
@@ -883,7 +434,7 @@ impl Controller {
                 // Already there (a job following another at the same point): no approach at all.
                 let lift = if there { 0.0 } else { self.cfg.approach_lift };
                 (segment.end - (segment.orientation * Vector3::z()) * lift, segment.orientation)
-            } else if self.known {
+            } else if self.command.known {
                 self.tool_world(now_ns)
             } else {
                 return Err((RejectReason::NotReady, ""));
@@ -899,9 +450,7 @@ impl Controller {
         match self.engine.push(&segment) {
             Ok(()) => {
                 self.job_open = true;
-                self.accepted += 1;
-                self.expected_seq = Some(seq.wrapping_add(1));
-                self.last_received_seq = seq;
+                self.intake.accepted(seq);
                 if self.state == RunState::Idle {
                     self.outcome = JobOutcome::InProgress;
                 }
@@ -910,17 +459,6 @@ impl Controller {
             Err(SegmentError::QueueFull { .. }) => Err((RejectReason::QueueFull, "")),
             Err(SegmentError::Invalid { field, .. }) => Err((RejectReason::BadGeometry, field)),
         }
-    }
-
-    /// Wire segment → core segment: the segment's own check ([`Segment::try_from`]) and the
-    /// workspace bounds, which only the controller knows.
-    fn validate_segment(&self, w: &ipc::Segment) -> Result<Segment, (RejectReason, &'static str)> {
-        let segment = Segment::try_from(w).map_err(|e| (e.reject, e.field))?;
-        let inside = |p: &[f64; 3]| (0..3).all(|i| p[i] >= self.cfg.bounds_min[i] && p[i] <= self.cfg.bounds_max[i]);
-        if segment.kind != SegmentKind::Dwell && !inside(&w.end) {
-            return Err((RejectReason::OutOfBounds, "end"));
-        }
-        Ok(segment)
     }
 
     fn start_job(&mut self, now_ns: u64) {
@@ -940,15 +478,13 @@ impl Controller {
         if (p - first_p).norm() <= self.cfg.approach_position_tolerance && nozzle_angle <= self.cfg.approach_orientation_tolerance {
             self.enter_running();
         } else {
-            self.ik.reset(JointVector::zeros());
-            self.q_first = self.q;
-            self.approach = Approach::Solving { iterations: 0 };
+            self.approach.begin(&self.command.q);
             self.set_state(RunState::Approaching);
         }
     }
 
     fn enter_running(&mut self) {
-        self.clik.reset(self.qd);
+        self.clik.reset(self.command.qd);
         self.speed_scale = 1.0;
         // The path starts once the CLIK holds the tool on the first point (on a moving base it has
         // moved since the approach was planned).
@@ -967,7 +503,7 @@ impl Controller {
     fn end_job(&mut self, outcome: JobOutcome, out: &mut TickOutput) {
         self.outcome = outcome;
         self.job_open = false;
-        self.expected_seq = None;
+        self.intake.restart_sequence();
         let last_seq = self.last_sample.map_or(0, |s| s.seq);
         out.push(Event::JobEnded { outcome, last_seq });
     }
@@ -983,9 +519,9 @@ impl Controller {
         {
             return self.latch_fault(FaultCode::JointStateLost, out);
         }
-        if self.cfg.following_error_limit > 0.0 && self.known && self.last_state_ns == Some(now_ns) {
+        if self.cfg.following_error_limit > 0.0 && self.command.known && self.last_state_ns == Some(now_ns) {
             let n = self.model.dof();
-            let worst = (0..n).map(|i| (self.q_measured[i] - self.q[i]).abs()).fold(0.0, f64::max);
+            let worst = (0..n).map(|i| (self.q_measured[i] - self.command.q[i]).abs()).fold(0.0, f64::max);
             if worst > self.cfg.following_error_limit {
                 return self.latch_fault(FaultCode::RobotDeviation, out);
             }
@@ -1001,17 +537,17 @@ impl Controller {
 
     /// The joint positions this tick wants, before the final stage.
     fn motion(&mut self, base: &BaseState, out: &mut TickOutput) -> JointVector {
-        if !self.known {
-            return self.q;
+        if !self.command.known {
+            return self.command.q;
         }
         match self.state {
-            RunState::Idle | RunState::Fault => self.q,
+            RunState::Idle | RunState::Fault => self.command.q,
             RunState::EmergencyStopping => self.brake(),
             RunState::Stopping if self.stop_by_brake => self.brake(),
             RunState::Approaching => self.approach_step(base, out),
             RunState::Running if self.settling => {
                 let (p, q) = self.first_point.unwrap_or_else(|| self.tool_world(0));
-                let step = self.clik.step(&self.model, &self.q, &base.world_to_base(&TcpTarget::at_rest(p, q)), self.dt);
+                let step = self.clik.step(&self.model, &self.command.q, &base.world_to_base(&TcpTarget::at_rest(p, q)), self.dt);
                 if step.position_error <= self.cfg.approach_position_tolerance
                     && step.orientation_error <= self.cfg.approach_orientation_tolerance
                 {
@@ -1037,7 +573,7 @@ impl Controller {
                 // costs is not cured by a slower path (slowing for it would stall the job).
                 let r_bw = base.orientation.inverse();
                 let path_b = PathVelocity { linear: r_bw * sample.velocity, angular: r_bw * sample.angular_velocity };
-                let step = self.clik.step_on_path(&self.model, &self.q, &base.world_to_base(&target_w), &path_b, self.dt);
+                let step = self.clik.step_on_path(&self.model, &self.command.q, &base.world_to_base(&target_w), &path_b, self.dt);
                 self.speed_scale = step.path_scale;
                 let d = &mut out.diagnostics;
                 d.path_scale = step.path_scale;
@@ -1053,94 +589,30 @@ impl Controller {
         }
     }
 
-    /// Joint brake: every joint slows at its acceleration limit or less, all by one common factor
-    /// (the direction of motion is kept, so the tool leaves the path as little as braking allows).
+    /// Joint brake ([`JointCommandStage::brake`]).
     fn brake(&self) -> JointVector {
-        let n = self.model.dof();
-        let mut factor: f64 = 1.0;
-        for i in 0..n {
-            let v = self.qd[i].abs();
-            if v > 0.0 {
-                factor = factor.min((1.0 - self.model.limits(i).acceleration * self.dt / v).max(0.0));
-            }
-        }
-        let mut q = self.q;
-        for i in 0..n {
-            q[i] += self.qd[i] * factor * self.dt;
-        }
-        q
+        self.command.brake(&self.model, self.dt)
     }
 
     fn approach_step(&mut self, base: &BaseState, out: &mut TickOutput) -> JointVector {
-        let n = self.model.dof();
-        if let Approach::Solving { iterations } = self.approach {
-            let Some((p, q)) = self.first_point else {
-                self.enter_running();
-                return self.q;
-            };
-            if iterations == 0 {
-                // The IK target is fixed when the approach starts; if the base moves meanwhile, the
-                // CLIK takes up the difference when the path starts.
-                let b = base.world_to_base(&TcpTarget::at_rest(p, q));
-                self.approach_target = TcpTarget::at_rest(b.position, b.orientation);
-            }
-            let target = self.approach_target;
-            let mut done = false;
-            let mut k = iterations;
-            while k < iterations + IK_ITERATIONS_PER_TICK {
-                // A virtual tick of 0.1 s: each iteration is a Newton step within the joint limits.
-                let r = self.ik.step(&self.model, &self.q_first, &target, 0.1);
-                self.q_first = r.q;
-                k += 1;
-                if r.position_error < 1e-7 && r.orientation_error < 1e-6 {
-                    done = true;
-                    break;
-                }
-            }
-            if !done {
-                if k >= IK_ITERATIONS_MAX {
-                    self.latch_fault(FaultCode::ApproachFailed, out);
-                } else {
-                    self.approach = Approach::Solving { iterations: k };
-                }
-                return self.q;
-            }
-            for i in 0..n {
-                self.approach_in.current_position[i] = self.q[i];
-                self.approach_in.current_velocity[i] = self.qd[i];
-                self.approach_in.current_acceleration[i] = self.qdd[i];
-                self.approach_in.target_position[i] = self.q_first[i];
-                self.approach_in.target_velocity[i] = 0.0;
-                self.approach_in.target_acceleration[i] = 0.0;
-            }
-            self.approach = Approach::Moving;
-        }
-        match self.approach_otg.update(&self.approach_in, &mut self.approach_out) {
-            Ok(RuckigResult::Working) => {
-                let mut q = self.q;
-                for i in 0..n {
-                    q[i] = self.approach_out.new_position[i];
-                }
-                self.approach_out.pass_to_input(&mut self.approach_in);
-                q
-            }
-            Ok(RuckigResult::Finished) => {
-                let mut q = self.q;
-                for i in 0..n {
-                    q[i] = self.approach_out.new_position[i];
-                }
-                self.approach_done = true;
-                q
-            }
-            _ => {
+        let Some(first_point) = self.first_point else {
+            self.enter_running();
+            return self.command.q;
+        };
+        let c = &self.command;
+        match self.approach.step(&self.model, first_point, base, (&c.q, &c.qd, &c.qdd)) {
+            ApproachStep::Hold => self.command.q,
+            ApproachStep::Move(q) => q,
+            ApproachStep::Failed => {
                 self.latch_fault(FaultCode::ApproachFailed, out);
-                self.q
+                self.command.q
             }
         }
     }
 
-    /// Enforces every joint's position, velocity and acceleration limits on the command, counts
-    /// clamps, and turns a non-finite command into a fault with a brake from the last good one.
+    /// Enforces every joint's position, velocity and acceleration limits on the command
+    /// ([`JointCommandStage::limit`]), reports the start of a clamp, and turns a non-finite command
+    /// into a fault with a brake from the last good one.
     fn final_stage(&mut self, q_des: &JointVector, out: &mut TickOutput) {
         let n = self.model.dof();
         let mut q_des = *q_des;
@@ -1148,45 +620,8 @@ impl Controller {
             self.latch_fault(FaultCode::NonFinite, out);
             q_des = self.brake();
         }
-        let dt = self.dt;
-        let mut clamped = None;
-        for i in 0..n {
-            let l = self.model.limits(i);
-            let dv = l.acceleration * dt;
-            let (mut lo, mut hi) = ((-l.velocity).max(self.qd[i] - dv), l.velocity.min(self.qd[i] + dv));
-            if lo > hi {
-                // Faster than the limit already (cannot happen from our own commands): slow down
-                // at the acceleration limit.
-                let v = if self.qd[i] > 0.0 { self.qd[i] - dv } else { self.qd[i] + dv };
-                (lo, hi) = (v, v);
-            }
-            let tol = 1e-9 * (1.0 + l.velocity);
-            let mut v = (q_des[i] - self.q[i]) / dt;
-            if v < lo - tol || v > hi + tol {
-                clamped.get_or_insert(i);
-            }
-            v = v.max(lo).min(hi);
-            let mut qn = self.q[i] + v * dt;
-            // Never further out than the limit (or than where it is, if it starts outside).
-            let (q_lo, q_hi) = (l.lower.min(self.q[i]), l.upper.max(self.q[i]));
-            if qn > q_hi + 1e-12 || qn < q_lo - 1e-12 {
-                clamped.get_or_insert(i);
-            }
-            qn = qn.max(q_lo).min(q_hi);
-            v = (qn - self.q[i]) / dt;
-            self.qdd[i] = (v - self.qd[i]) / dt;
-            self.qd[i] = v;
-            self.q[i] = qn;
-        }
-        match clamped {
-            Some(joint) => {
-                self.clamps += 1;
-                if !self.was_clamped {
-                    out.push(Event::Clamped { joint: joint as u8 });
-                }
-                self.was_clamped = true;
-            }
-            None => self.was_clamped = false,
+        if let Some(joint) = self.command.limit(&self.model, self.dt, &q_des) {
+            out.push(Event::Clamped { joint });
         }
     }
 
@@ -1195,8 +630,8 @@ impl Controller {
         if self.watch_progress(now_ns) {
             return self.latch_fault(FaultCode::PathStalled, out);
         }
-        if self.state == RunState::Approaching && self.approach_done {
-            self.approach_done = false;
+        if self.state == RunState::Approaching && self.approach.done {
+            self.approach.done = false;
             self.enter_running();
             return;
         }
@@ -1310,11 +745,11 @@ impl Controller {
         jc.state_seq = self.last_state_seq;
         jc.state_stamp_ns = self.last_state_stamp;
         jc.dof = n as u32;
-        jc.valid = self.known as u32;
+        jc.valid = self.command.known as u32;
         for i in 0..n.min(MAX_JOINTS) {
-            jc.position[i] = self.q[i];
-            jc.velocity[i] = self.qd[i];
-            jc.acceleration[i] = self.qdd[i];
+            jc.position[i] = self.command.q[i];
+            jc.velocity[i] = self.command.qd[i];
+            jc.acceleration[i] = self.command.qdd[i];
         }
         let e = self.extruder_command();
         let finite = [e.motor_speed, e.filament_rate, e.position, e.volumetric_rate].iter().all(|x| x.is_finite());
@@ -1340,20 +775,20 @@ impl Controller {
             run_state: self.state as u32,
             fault: self.fault as u32,
             job_outcome: self.outcome as u32,
-            last_reject_reason: self.last_reject_reason as u32,
+            last_reject_reason: self.intake.last_reject_reason as u32,
             queue_capacity: self.engine.config().queue_capacity as u32,
             queue_free: self.engine.free_space() as u32,
             executing_line: sample.map_or(0, |s| s.source_line),
-            last_received_seq: self.last_received_seq,
-            last_rejected_seq: self.last_rejected_seq,
+            last_received_seq: self.intake.last_received_seq,
+            last_rejected_seq: self.intake.last_rejected_seq,
             executing_seq: sample.map_or(0, |s| s.seq),
-            segments_accepted: self.accepted,
-            rejected: self.rejected,
+            segments_accepted: self.intake.accepted,
+            rejected: self.intake.rejected,
             underruns: stats.underruns,
             overruns: input.cycle.overruns,
             late_wakeups: input.cycle.late_wakeups,
             worst_lateness_ns: input.cycle.worst_lateness_ns,
-            clamps: self.clamps,
+            clamps: self.command.clamps,
             log_drops: input.cycle.log_drops,
             log_state: input.cycle.log_state,
             _reserved: 0,
@@ -1395,7 +830,10 @@ mod tests {
     //! arm brakes within its limits. (That it never fires on dwells, underruns and pauses is in
     //! tests/controller.rs.)
     use super::*;
-    use crate::kin::Frame;
+    use crate::base::BaseConfig;
+    use crate::extrude::ExtruderConfig;
+    use crate::kin::{ClikConfig, Frame};
+    use crate::path::PathConfig;
     use nalgebra::{Rotation3, Translation3};
 
     const START: [f64; 7] = [0.0, 0.4, 0.0, -1.5, 0.0, 1.2, 0.0];
@@ -1432,7 +870,7 @@ mod tests {
         };
         let timeout = settings.path.stall_timeout;
         assert_eq!(timeout, 0.5);
-        let urdf = include_str!("../../config/robots/iiwa7.urdf");
+        let urdf = include_str!("../../../config/robots/iiwa7.urdf");
         let model = RobotModel::from_urdf_str(urdf, "iiwa7.urdf", "world", "iiwa_link_ee")
             .unwrap()
             .with_tool(Frame::from_parts(Translation3::new(0.0, 0.0, 0.10), Rotation3::identity()))
