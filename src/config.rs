@@ -248,15 +248,15 @@ struct ConfigFile<R> {
 
 impl<R> ConfigFile<R> {
     fn validate(&self, path: &Path) -> Result<(), ConfigError> {
-        self.clik.validate().map_err(|m| ConfigError::new(path, m))?;
-        self.controller.validate().map_err(|m| ConfigError::new(path, m))?;
-        self.base.validate().map_err(|m| ConfigError::new(path, m))?;
-        self.service.validate().map_err(|m| ConfigError::new(path, m))?;
-        self.realtime.validate().map_err(|m| ConfigError::new(path, m))?;
+        self.clik.validate().map_err(|m| ConfigError::new(path, m.to_string()))?;
+        self.controller.validate().map_err(|m| ConfigError::new(path, m.to_string()))?;
+        self.base.validate().map_err(|m| ConfigError::new(path, m.to_string()))?;
+        self.service.validate().map_err(|m| ConfigError::new(path, m.to_string()))?;
+        self.realtime.validate().map_err(|m| ConfigError::new(path, m.to_string()))?;
         self.path.validate().map_err(|m| ConfigError::new(path, m.to_string()))?;
         self.extruder.validate().map_err(|m| ConfigError::new(path, m))?;
-        self.log.validate().map_err(|m| ConfigError::new(path, m))?;
-        self.check.validate().map_err(|m| ConfigError::new(path, m))?;
+        self.log.validate().map_err(|m| ConfigError::new(path, m.to_string()))?;
+        self.check.validate().map_err(|m| ConfigError::new(path, m.to_string()))?;
         BedTransform::new(&self.bed).map_err(|m| ConfigError::new(path, m))?;
         Ok(())
     }
@@ -281,8 +281,8 @@ impl<R> ConfigFile<R> {
 
 impl Config {
     /// The `[bed]` transform (checked at load, so an error here names the file and the section).
-    pub fn bed_transform(&self) -> Result<BedTransform, String> {
-        BedTransform::new(&self.bed).map_err(|e| format!("{}: [bed] {e}", self.file.display()))
+    pub fn bed_transform(&self) -> Result<BedTransform, ConfigError> {
+        BedTransform::new(&self.bed).map_err(|e| ConfigError::new(&self.file, format!("[bed] {e}")))
     }
 
     /// Reads and validates a config file and the robot file it names.

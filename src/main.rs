@@ -187,7 +187,11 @@ fn check_job(file: &Path, config: Option<&Path>, set: &[String], json: bool, png
         Ok(c) => c,
         Err(e) => return bad(e.to_string()),
     };
-    let (all, warnings) = match cfg.bed_transform().and_then(|bed| strand_job::load_segments(file, &bed)) {
+    let (all, warnings) = match cfg
+        .bed_transform()
+        .map_err(|e| e.to_string())
+        .and_then(|bed| strand_job::load_segments(file, &bed).map_err(|e| e.to_string()))
+    {
         Ok(j) => j,
         Err(e) => return bad(e),
     };
@@ -197,7 +201,7 @@ fn check_job(file: &Path, config: Option<&Path>, set: &[String], json: bool, png
     let mut series = png.map(|_| strand::check::CheckSeries::default());
     let report = match strand::check::check_with_trajectory(&job, &cfg, trajectory, series.as_mut()) {
         Ok(r) => r,
-        Err(e) => return bad(e),
+        Err(e) => return bad(e.to_string()),
     };
     let wall = started.elapsed().as_secs_f64();
     if json {

@@ -229,6 +229,9 @@ pub enum CheckError {
     /// The controller could not be built from the config.
     #[error("{0}")]
     Controller(String),
+    /// The planned base trajectory cannot be read.
+    #[error(transparent)]
+    Trajectory(#[from] strand_job::JobError),
     /// The job has no segment.
     #[error("{0}: the job has no segments")]
     Empty(String),
@@ -774,12 +777,12 @@ pub fn check_with_trajectory(
     cfg: &Config,
     trajectory: Option<&std::path::Path>,
     series: Option<&mut CheckSeries>,
-) -> Result<CheckReport, String> {
+) -> Result<CheckReport, CheckError> {
     let planned = match trajectory {
         Some(p) => Some((BaseTrajectory::load(p, cfg.base.mount_rpy[2])?, p.display().to_string())),
         None => None,
     };
-    check_job(job, cfg, planned.as_ref().map(|(t, n)| (t, n.as_str())), series).map_err(|e| e.to_string())
+    check_job(job, cfg, planned.as_ref().map(|(t, n)| (t, n.as_str())), series)
 }
 
 /// One line for a human: what, where (file:line range, segments), when, how bad.

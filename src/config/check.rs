@@ -2,6 +2,7 @@
 //! the type so that config and check do not import each other).
 
 use serde::{Deserialize, Serialize};
+use strand_core::InvalidSetting;
 
 /// `[check]`: thresholds of `strand check-job` (the run-time limits come from `[controller]`).
 #[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
@@ -26,7 +27,7 @@ impl Default for CheckConfig {
 
 impl CheckConfig {
     /// Checks every key; the message names it.
-    pub fn validate(&self) -> Result<(), String> {
+    pub fn validate(&self) -> Result<(), InvalidSetting> {
         for (key, v, hi) in [
             ("joint_margin", self.joint_margin, 1.0),
             ("bed_clearance", self.bed_clearance, 1.0),
@@ -34,7 +35,7 @@ impl CheckConfig {
             ("min_slowdown_cost", self.min_slowdown_cost, 60.0),
         ] {
             if !(v.is_finite() && (0.0..=hi).contains(&v)) {
-                return Err(format!("[check] {key} = {v}: must lie in [0, {hi}]"));
+                return Err(InvalidSetting::new("check", format!("[check] {key} = {v}: must lie in [0, {hi}]")));
             }
         }
         Ok(())

@@ -2,6 +2,7 @@
 //! its type so that config and log do not import each other).
 
 use serde::{Deserialize, Serialize};
+use strand_core::InvalidSetting;
 
 /// Chunk compression.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Deserialize, Serialize)]
@@ -68,24 +69,30 @@ impl Default for LogConfig {
 
 impl LogConfig {
     /// Checks every key; the message names it and its allowed range.
-    pub fn validate(&self) -> Result<(), String> {
+    pub fn validate(&self) -> Result<(), InvalidSetting> {
         if !(64..=65536).contains(&self.queue_ticks) {
-            return Err(format!("[log] queue_ticks = {}: must lie in [64, 65536]", self.queue_ticks));
+            return Err(InvalidSetting::new("log", format!("[log] queue_ticks = {}: must lie in [64, 65536]", self.queue_ticks)));
         }
         if !(self.chunk_interval.is_finite() && (0.005..=0.1).contains(&self.chunk_interval)) {
-            return Err(format!("[log] chunk_interval = {}: must lie in [0.005, 0.1] s", self.chunk_interval));
+            return Err(InvalidSetting::new("log", format!("[log] chunk_interval = {}: must lie in [0.005, 0.1] s", self.chunk_interval)));
         }
         if !(4096..=64 << 20).contains(&self.chunk_bytes) {
-            return Err(format!("[log] chunk_bytes = {}: must lie in [4096, 67108864]", self.chunk_bytes));
+            return Err(InvalidSetting::new("log", format!("[log] chunk_bytes = {}: must lie in [4096, 67108864]", self.chunk_bytes)));
         }
         if self.rotate_bytes != 0 && self.rotate_bytes < 1 << 16 {
-            return Err(format!("[log] rotate_bytes = {}: must be 0 (off) or at least 65536", self.rotate_bytes));
+            return Err(InvalidSetting::new(
+                "log",
+                format!("[log] rotate_bytes = {}: must be 0 (off) or at least 65536", self.rotate_bytes),
+            ));
         }
         if !(self.rotate_seconds.is_finite() && (self.rotate_seconds == 0.0 || self.rotate_seconds >= 1.0)) {
-            return Err(format!("[log] rotate_seconds = {}: must be 0 (off) or at least 1 s", self.rotate_seconds));
+            return Err(InvalidSetting::new(
+                "log",
+                format!("[log] rotate_seconds = {}: must be 0 (off) or at least 1 s", self.rotate_seconds),
+            ));
         }
         if self.name.contains(['/', '\\']) {
-            return Err(format!("[log] name = {:?}: a file name, without folders (use dir)", self.name));
+            return Err(InvalidSetting::new("log", format!("[log] name = {:?}: a file name, without folders (use dir)", self.name)));
         }
         Ok(())
     }

@@ -23,6 +23,7 @@ use nalgebra::{Translation3, UnitQuaternion, Vector3};
 use serde::{Deserialize, Serialize};
 
 use super::kin::{Frame, TcpTarget, geom};
+use crate::setting::InvalidSetting;
 
 /// How the base pose is known.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Deserialize, Serialize)]
@@ -102,32 +103,35 @@ impl Default for BaseConfig {
 
 impl BaseConfig {
     /// Checks every key; the message names it and its allowed range.
-    pub fn validate(&self) -> Result<(), String> {
+    pub fn validate(&self) -> Result<(), InvalidSetting> {
         for (key, v) in [("mount_xyz", self.mount_xyz), ("mount_rpy", self.mount_rpy)] {
             if v.iter().any(|x| !x.is_finite()) {
-                return Err(format!("[base] {key}: values must be finite"));
+                return Err(InvalidSetting::new("base", format!("[base] {key}: values must be finite")));
             }
         }
         if !(self.alpha > 0.0 && self.alpha <= 1.0) {
-            return Err(format!("[base] alpha = {}: must lie in (0, 1]", self.alpha));
+            return Err(InvalidSetting::new("base", format!("[base] alpha = {}: must lie in (0, 1]", self.alpha)));
         }
         if !(self.beta > 0.0 && self.beta < 2.0) {
-            return Err(format!("[base] beta = {}: must lie in (0, 2)", self.beta));
+            return Err(InvalidSetting::new("base", format!("[base] beta = {}: must lie in (0, 2)", self.beta)));
         }
         if !(2..=MAX_WINDOW).contains(&self.window) {
-            return Err(format!("[base] window = {}: must lie in 2..={MAX_WINDOW}", self.window));
+            return Err(InvalidSetting::new("base", format!("[base] window = {}: must lie in 2..={MAX_WINDOW}", self.window)));
         }
         if !(self.timeout.is_finite() && self.timeout > 0.0 && self.timeout <= 10.0) {
-            return Err(format!("[base] timeout = {}: must lie in (0, 10] s", self.timeout));
+            return Err(InvalidSetting::new("base", format!("[base] timeout = {}: must lie in (0, 10] s", self.timeout)));
         }
         if !(self.measurement_delay.is_finite() && (0.0..=1.0).contains(&self.measurement_delay)) {
-            return Err(format!("[base] measurement_delay = {}: must lie in [0, 1] s", self.measurement_delay));
+            return Err(InvalidSetting::new(
+                "base",
+                format!("[base] measurement_delay = {}: must lie in [0, 1] s", self.measurement_delay),
+            ));
         }
         if !(self.smoothing.is_finite() && (0.0..=1.0).contains(&self.smoothing)) {
-            return Err(format!("[base] smoothing = {}: must lie in [0, 1] s", self.smoothing));
+            return Err(InvalidSetting::new("base", format!("[base] smoothing = {}: must lie in [0, 1] s", self.smoothing)));
         }
         if !(self.max_prediction.is_finite() && self.max_prediction > 0.0 && self.max_prediction <= 1.0) {
-            return Err(format!("[base] max_prediction = {}: must lie in (0, 1] s", self.max_prediction));
+            return Err(InvalidSetting::new("base", format!("[base] max_prediction = {}: must lie in (0, 1] s", self.max_prediction)));
         }
         Ok(())
     }

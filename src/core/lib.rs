@@ -27,6 +27,7 @@ mod extrude;
 mod following;
 pub mod kin;
 mod path;
+mod setting;
 
 pub use base::{BaseConfig, BaseEstimator, BaseMode, BaseState, EstimatorKind, MAX_WINDOW, PoseRejection};
 pub use controller::{
@@ -38,3 +39,4 @@ pub use path::{
     Geometry, InvalidPathConfig, InvalidSegment, MAX_ARC_SWEEP, Motion, PathConfig, PathEngine, PathPoint, PathSample, PathStats,
     PlanningMode, Segment, SegmentError, SegmentFlags, SegmentKind, arc_geometry, distance_to_arc, distance_to_segment,
 };
+pub use setting::InvalidSetting;

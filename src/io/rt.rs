@@ -13,6 +13,7 @@
 use std::fmt;
 
 use serde::{Deserialize, Serialize};
+use strand_core::InvalidSetting;
 
 /// Largest stack pre-fault [`RealtimeConfig::validate`] accepts (bytes): 8 MiB, the usual main-thread
 /// stack limit.
@@ -55,23 +56,26 @@ pub struct RealtimeConfig {
 impl RealtimeConfig {
     /// Checks the ranges: priority ≤ 99, CPU index below the number of online CPUs, pre-fault at most
     /// 8 MiB. The message names the key, as `[realtime] fifo_priority: ...`.
-    pub fn validate(&self) -> Result<(), String> {
+    pub fn validate(&self) -> Result<(), InvalidSetting> {
         if self.fifo_priority > 99 {
-            return Err(format!(
-                "[realtime] fifo_priority: must be 0 (stay on SCHED_OTHER) or 1..=99 (SCHED_FIFO), got {}",
-                self.fifo_priority
+            return Err(InvalidSetting::new(
+                "realtime",
+                format!("[realtime] fifo_priority: must be 0 (stay on SCHED_OTHER) or 1..=99 (SCHED_FIFO), got {}", self.fifo_priority),
             ));
         }
         if let Some(cpu) = self.cpu {
             let online = online_cpus();
             if cpu >= online {
-                return Err(format!("[realtime] cpu: CPU {cpu} does not exist: this machine has {online} online CPU(s), numbered from 0"));
+                return Err(InvalidSetting::new(
+                    "realtime",
+                    format!("[realtime] cpu: CPU {cpu} does not exist: this machine has {online} online CPU(s), numbered from 0"),
+                ));
             }
         }
         if self.prefault_stack_bytes > MAX_PREFAULT_STACK_BYTES {
-            return Err(format!(
-                "[realtime] prefault_stack_bytes: at most {MAX_PREFAULT_STACK_BYTES} (8 MiB), got {}",
-                self.prefault_stack_bytes
+            return Err(InvalidSetting::new(
+                "realtime",
+                format!("[realtime] prefault_stack_bytes: at most {MAX_PREFAULT_STACK_BYTES} (8 MiB), got {}", self.prefault_stack_bytes),
             ));
         }
         Ok(())
@@ -382,12 +386,13 @@ mod tests {
 
     #[test]
     fn validate_names_the_key() {
-        let e = RealtimeConfig { fifo_priority: 100, ..Default::default() }.validate().unwrap_err();
+        let e = RealtimeConfig { fifo_priority: 100, ..Default::default() }.validate().unwrap_err().to_string();
         assert!(e.starts_with("[realtime] fifo_priority:"), "{e}");
         assert!(e.contains("100"), "{e}");
-        let e = RealtimeConfig { cpu: Some(4096), ..Default::default() }.validate().unwrap_err();
+        let e = RealtimeConfig { cpu: Some(4096), ..Default::default() }.validate().unwrap_err().to_string();
         assert!(e.starts_with("[realtime] cpu:"), "{e}");
-        let e = RealtimeConfig { prefault_stack_bytes: MAX_PREFAULT_STACK_BYTES + 1, ..Default::default() }.validate().unwrap_err();
+        let e =
+            RealtimeConfig { prefault_stack_bytes: MAX_PREFAULT_STACK_BYTES + 1, ..Default::default() }.validate().unwrap_err().to_string();
         assert!(e.starts_with("[realtime] prefault_stack_bytes:"), "{e}");
         let ok = RealtimeConfig { fifo_priority: 99, cpu: Some(0), prefault_stack_bytes: MAX_PREFAULT_STACK_BYTES, ..Default::default() };
         assert_eq!(ok.validate(), Ok(()));

@@ -15,6 +15,7 @@ use super::clock::{ClockMode, CycleStats, TimerClock, monotonic_ns};
 use super::histogram::Histogram;
 use super::rt::{self, RealtimeConfig};
 use crate::core::{Controller, Event, TickInput, TickOutput};
+use strand_core::InvalidSetting;
 use strand_ipc::ports::{PortError, ServicePorts};
 
 /// Where the controller learns the joint positions.
@@ -62,18 +63,24 @@ impl Default for ServiceConfig {
 
 impl ServiceConfig {
     /// Checks every key; the message names it and its allowed range.
-    pub fn validate(&self) -> Result<(), String> {
+    pub fn validate(&self) -> Result<(), InvalidSetting> {
         if self.prefix.is_empty() || self.prefix.len() > 200 || self.prefix.contains(char::is_whitespace) {
-            return Err(format!("[service] prefix = {:?}: must be 1 to 200 characters without spaces", self.prefix));
+            return Err(InvalidSetting::new(
+                "service",
+                format!("[service] prefix = {:?}: must be 1 to 200 characters without spaces", self.prefix),
+            ));
         }
         if !(self.spin.is_finite() && (0.0..=0.0005).contains(&self.spin)) {
-            return Err(format!("[service] spin = {}: must lie in [0, 0.0005] s", self.spin));
+            return Err(InvalidSetting::new("service", format!("[service] spin = {}: must lie in [0, 0.0005] s", self.spin)));
         }
         if !(self.late_threshold.is_finite() && self.late_threshold > 0.0 && self.late_threshold <= 1.0) {
-            return Err(format!("[service] late_threshold = {}: must lie in (0, 1] s", self.late_threshold));
+            return Err(InvalidSetting::new(
+                "service",
+                format!("[service] late_threshold = {}: must lie in (0, 1] s", self.late_threshold),
+            ));
         }
         if self.initial_joints.iter().any(|v| !v.is_finite()) {
-            return Err("[service] initial_joints: values must be finite".to_string());
+            return Err(InvalidSetting::new("service", "[service] initial_joints: values must be finite".to_string()));
         }
         Ok(())
     }

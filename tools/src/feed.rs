@@ -41,7 +41,7 @@ pub fn batch(segments: &[ipc::Segment], batch_seq: u64) -> ipc::SegmentBatch {
 /// program's first segment); `resume_from = Some(n)` drops segments before `n` and starts with a
 /// travel (numbered `n − 1`) to where segment `n` starts, so a job interrupted at `n` can go on.
 pub fn load_gcode(path: &Path, cfg: &Config, resume_from: Option<u64>) -> Result<Job, String> {
-    let (mut all, warnings) = load_segments(path, &cfg.bed_transform()?)?;
+    let (mut all, warnings) = load_segments(path, &cfg.bed_transform().map_err(|e| e.to_string())?).map_err(|e| e.to_string())?;
     let bed = BedTransform::new(&cfg.bed).map_err(|e| format!("{}: [bed] {e}", cfg.file.display()))?;
     let mut start = bed.point(&GcodeOptions::default().start);
     let mut skipped = 0;

@@ -101,14 +101,12 @@ impl Controller {
     /// A controller for `model`, idle, not yet knowing where the robot is (it learns from the first
     /// joint state). All memory is allocated here.
     pub fn new(settings: &ControllerSettings, model: RobotModel) -> Result<Self, ControllerError> {
-        let e = |m: String| ControllerError(m);
-        settings.controller.validate().map_err(e)?;
-        settings.base.validate().map_err(e)?;
+        settings.controller.validate()?;
+        settings.base.validate()?;
         let dt = settings.controller.dt();
-        let engine = PathEngine::new(&settings.path, dt, Vector3::zeros(), UnitQuaternion::identity())
-            .map_err(|err| ControllerError(format!("[path] {err}")))?;
-        let extruder = Extruder::new(&settings.extruder, dt).map_err(|m| ControllerError(format!("[extruder] {m}")))?;
-        let clik = Clik::new(settings.clik).map_err(|err| ControllerError(format!("[clik] {err}")))?;
+        let engine = PathEngine::new(&settings.path, dt, Vector3::zeros(), UnitQuaternion::identity())?;
+        let extruder = Extruder::new(&settings.extruder, dt).map_err(ControllerError::Extruder)?;
+        let clik = Clik::new(settings.clik)?;
         let approach = Approach::new(&model, settings.controller.approach_speed_fraction, dt, clik.clone());
         Ok(Controller {
             cfg: settings.controller.clone(),

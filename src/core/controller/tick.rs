@@ -9,8 +9,9 @@ use strand_ipc::{FaultCode, JobOutcome, RejectReason, RunState};
 
 use crate::base::{BaseConfig, BaseState};
 use crate::extrude::ExtruderConfig;
-use crate::kin::ClikConfig;
-use crate::path::PathConfig;
+use crate::kin::{ClikConfig, InvalidClikConfig};
+use crate::path::{InvalidPathConfig, PathConfig};
+use crate::setting::InvalidSetting;
 
 /// Segments a [`TickInput`] carries at most (the shell keeps the rest for the next tick).
 pub const MAX_SEGMENTS_PER_TICK: usize = 64;
@@ -82,10 +83,10 @@ impl ControllerConfig {
     }
 
     /// Checks every key; the message names it and its allowed range.
-    pub fn validate(&self) -> Result<(), String> {
+    pub fn validate(&self) -> Result<(), InvalidSetting> {
         let k = "[controller]";
         if !(self.rate_hz.is_finite() && (250.0..=8000.0).contains(&self.rate_hz)) {
-            return Err(format!("{k} rate_hz = {}: must lie in [250, 8000] Hz", self.rate_hz));
+            return Err(InvalidSetting::new("controller", format!("{k} rate_hz = {}: must lie in [250, 8000] Hz", self.rate_hz)));
         }
         for (key, v, hi) in [
             ("joint_state_timeout", self.joint_state_timeout, 10.0),
@@ -98,15 +99,21 @@ impl ControllerConfig {
             ("approach_orientation_tolerance", self.approach_orientation_tolerance, 1.0),
         ] {
             if !(v.is_finite() && (0.0..=hi).contains(&v)) {
-                return Err(format!("{k} {key} = {v}: must lie in [0, {hi}]"));
+                return Err(InvalidSetting::new("controller", format!("{k} {key} = {v}: must lie in [0, {hi}]")));
             }
         }
         if !(self.approach_speed_fraction > 0.0 && self.approach_speed_fraction <= 1.0) {
-            return Err(format!("{k} approach_speed_fraction = {}: must lie in (0, 1]", self.approach_speed_fraction));
+            return Err(InvalidSetting::new(
+                "controller",
+                format!("{k} approach_speed_fraction = {}: must lie in (0, 1]", self.approach_speed_fraction),
+            ));
         }
         for i in 0..3 {
             if !(self.bounds_min[i].is_finite() && self.bounds_max[i].is_finite() && self.bounds_min[i] < self.bounds_max[i]) {
-                return Err(format!("{k} bounds_min/bounds_max: axis {i} must be finite with min < max"));
+                return Err(InvalidSetting::new(
+                    "controller",
+                    format!("{k} bounds_min/bounds_max: axis {i} must be finite with min < max"),
+                ));
             }
         }
         Ok(())
@@ -386,10 +393,22 @@ impl TickOutput {
     }
 }
 
-/// Why the controller could not be built.
+/// Why the controller could not be built: which section of its settings, and why.
 #[derive(Debug, thiserror::Error)]
-#[error("{0}")]
-pub struct ControllerError(pub String);
+pub enum ControllerError {
+    /// A `[controller]` or `[base]` value is out of range.
+    #[error("{0}")]
+    Setting(#[from] InvalidSetting),
+    /// A `[path]` value is out of range.
+    #[error("[path] {0}")]
+    Path(#[from] InvalidPathConfig),
+    /// A `[clik]` value is out of range.
+    #[error("[clik] {0}")]
+    Clik(#[from] InvalidClikConfig),
+    /// An `[extruder]` value is out of range (the message names the key).
+    #[error("[extruder] {0}")]
+    Extruder(&'static str),
+}
 
 /// The parts of the service config the controller uses.
 #[derive(Clone, Debug, PartialEq)]

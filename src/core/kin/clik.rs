@@ -48,6 +48,7 @@ use super::geom;
 use super::model::{JointVector, MAX_JOINTS, RobotModel};
 use super::svd::{MAX_TASK, Svd, identity_start, svd};
 use super::task::{Task, TaskJacobian, manipulability_gradient};
+use crate::setting::InvalidSetting;
 
 /// How the position and orientation rows share the joints when they cannot both be met.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Deserialize, serde::Serialize)]
@@ -127,28 +128,28 @@ impl Default for ClikConfig {
 
 impl ClikConfig {
     /// Checks ranges; the error names the offending key.
-    pub fn validate(&self) -> Result<(), String> {
+    pub fn validate(&self) -> Result<(), InvalidSetting> {
         let pos = |v: f64| v.is_finite() && v >= 0.0;
         if let Some(i) = self.gains.iter().position(|g| !(g.is_finite() && *g > 0.0)) {
-            return Err(format!("clik.gains[{i}] = {} must be finite and > 0 (1/s)", self.gains[i]));
+            return Err(InvalidSetting::new("clik", format!("clik.gains[{i}] = {} must be finite and > 0 (1/s)", self.gains[i])));
         }
         if !(self.sigma_threshold.is_finite() && self.sigma_threshold > 0.0) {
-            return Err(format!("clik.sigma_threshold = {} must be finite and > 0", self.sigma_threshold));
+            return Err(InvalidSetting::new("clik", format!("clik.sigma_threshold = {} must be finite and > 0", self.sigma_threshold)));
         }
         if !(self.damping_max.is_finite() && self.damping_max > 0.0) {
-            return Err(format!("clik.damping_max = {} must be finite and > 0", self.damping_max));
+            return Err(InvalidSetting::new("clik", format!("clik.damping_max = {} must be finite and > 0", self.damping_max)));
         }
         for (key, v) in [("clik.manipulability_gain", self.manipulability_gain), ("clik.joint_limit_gain", self.joint_limit_gain)] {
             if !pos(v) {
-                return Err(format!("{key} = {v} must be finite and ≥ 0"));
+                return Err(InvalidSetting::new("clik", format!("{key} = {v} must be finite and ≥ 0")));
             }
         }
         if !(self.joint_limit_margin >= 0.0 && self.joint_limit_margin <= 0.5) {
-            return Err(format!("clik.joint_limit_margin = {} must lie in [0, 0.5]", self.joint_limit_margin));
+            return Err(InvalidSetting::new("clik", format!("clik.joint_limit_margin = {} must lie in [0, 0.5]", self.joint_limit_margin)));
         }
         for (key, v) in [("clik.max_correction_speed", self.max_correction_speed), ("clik.max_correction_rate", self.max_correction_rate)] {
             if !(v.is_finite() && v > 0.0) {
-                return Err(format!("{key} = {v} must be finite and > 0"));
+                return Err(InvalidSetting::new("clik", format!("{key} = {v} must be finite and > 0")));
             }
         }
         for (key, v) in [
@@ -156,11 +157,14 @@ impl ClikConfig {
             ("clik.max_correction_angular_acceleration", self.max_correction_angular_acceleration),
         ] {
             if !pos(v) {
-                return Err(format!("{key} = {v} must be finite and ≥ 0 (0: no limit)"));
+                return Err(InvalidSetting::new("clik", format!("{key} = {v} must be finite and ≥ 0 (0: no limit)")));
             }
         }
         if !(self.nullspace_speed_fraction >= 0.0 && self.nullspace_speed_fraction <= 1.0) {
-            return Err(format!("clik.nullspace_speed_fraction = {} must lie in [0, 1]", self.nullspace_speed_fraction));
+            return Err(InvalidSetting::new(
+                "clik",
+                format!("clik.nullspace_speed_fraction = {} must lie in [0, 1]", self.nullspace_speed_fraction),
+            ));
         }
         Ok(())
     }
@@ -348,7 +352,7 @@ pub(super) fn braking_speed(d: f64, acc: f64, dt: f64) -> f64 {
 /// A [`ClikConfig`] that failed [`ClikConfig::validate`]; the message names the key.
 #[derive(Debug, thiserror::Error)]
 #[error("{0}")]
-pub struct InvalidClikConfig(pub String);
+pub struct InvalidClikConfig(pub InvalidSetting);
 
 /// Per-joint velocity boxes for one tick (rad/s or m/s).
 struct Boxes {

@@ -18,4 +18,4 @@ pub mod segfile;
 pub mod timing;
 
 pub use bed::{BedConfig, BedTransform};
-pub use load::{BaseTrajectory, LayeredSegments, load_segments, to_wire, wire_job};
+pub use load::{BaseTrajectory, JobError, LayeredSegments, load_segments, to_wire, wire_job};

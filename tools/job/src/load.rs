@@ -10,9 +10,40 @@ use nalgebra::{UnitQuaternion, Vector3};
 use strand_ipc as ipc;
 
 use crate::bed::BedTransform;
+use crate::gcode::GcodeError;
 use crate::gcode::{GcodeOptions, parse_file};
-use crate::segfile;
+use crate::segfile::{self, SegfileError};
 use strand_core::Segment;
+
+/// Why a job, or a planned base trajectory, cannot be read (or a segment file written). Every
+/// variant names the file, and the line where there is one.
+#[derive(Debug, thiserror::Error)]
+pub enum JobError {
+    /// The G-code program is not valid (file, line and column in the message).
+    #[error(transparent)]
+    Gcode(#[from] GcodeError),
+    /// The segment file is not valid (file and line in the message).
+    #[error(transparent)]
+    Segments(#[from] SegfileError),
+    /// The file cannot be opened, read or written, or holds nothing usable.
+    #[error("{file}: {message}")]
+    File {
+        /// The file as given.
+        file: String,
+        /// What went wrong (the system's error, or what is missing).
+        message: String,
+    },
+    /// A line of a CSV file is not valid.
+    #[error("{file}: line {line}: {message}")]
+    Line {
+        /// The file as given.
+        file: String,
+        /// Line (1-based).
+        line: usize,
+        /// What is wrong, naming the column.
+        message: String,
+    },
+}
 
 /// Core segment (W) → wire segment.
 pub fn to_wire(s: &Segment) -> ipc::Segment {
@@ -53,22 +84,22 @@ pub type LayeredSegments = Vec<(Segment, Option<i32>)>;
 /// slicer layer, and the reader's warnings (one line each, naming the file). The job is a G-code
 /// program or a segment file ([`crate::segfile`], told apart by its header line, whatever the file
 /// is called); both are in bed coordinates. An error if it has no motion.
-pub fn load_segments(path: &Path, bed: &BedTransform) -> Result<(LayeredSegments, Vec<String>), String> {
+pub fn load_segments(path: &Path, bed: &BedTransform) -> Result<(LayeredSegments, Vec<String>), JobError> {
     let (all, warnings) = if segfile::is_segment_file(path) {
-        let file = segfile::read_path(path, 1).map_err(|e| e.to_string())?;
+        let file = segfile::read_path(path, 1)?;
         (file.segments.iter().map(|(s, layer)| (bed.segment(s), *layer)).collect(), Vec::new())
     } else {
         let options = GcodeOptions { first_seq: 1, ..GcodeOptions::for_path(path) };
-        let mut parser = parse_file(path, options).map_err(|e| e.to_string())?;
+        let mut parser = parse_file(path, options)?;
         let mut all = Vec::new();
         for item in parser.by_ref() {
-            let g = item.map_err(|e| e.to_string())?;
+            let g = item?;
             all.push((bed.segment(&g.segment), g.tags.layer));
         }
         (all, parser.warnings().iter().map(|w| format!("{}: {w}", path.display())).collect())
     };
     if all.is_empty() {
-        return Err(format!("{}: no motion in the program", path.display()));
+        return Err(JobError::File { file: path.display().to_string(), message: "no motion in the program".into() });
     }
     Ok((all, warnings))
 }
@@ -96,22 +127,24 @@ impl BaseTrajectory {
 
     /// Reads a CSV with a header naming `t`, `base_x`, `base_y` and optionally `base_theta`;
     /// `theta` (rad) is used where the file has no angle. Errors name the file and the line.
-    pub fn load(path: &Path, theta: f64) -> Result<Self, String> {
-        let file = path.display();
-        let mut rd = csv::Reader::from_path(path).map_err(|e| format!("{file}: {e}"))?;
-        let header = rd.headers().map_err(|e| format!("{file}: {e}"))?.clone();
+    pub fn load(path: &Path, theta: f64) -> Result<Self, JobError> {
+        let file = path.display().to_string();
+        let whole = |e: &dyn std::fmt::Display| JobError::File { file: file.clone(), message: e.to_string() };
+        let at = |line: usize, message: String| JobError::Line { file: file.clone(), line, message };
+        let mut rd = csv::Reader::from_path(path).map_err(|e| whole(&e))?;
+        let header = rd.headers().map_err(|e| whole(&e))?.clone();
         let col = |name: &str| header.iter().position(|h| h.trim() == name);
         let (Some(ct), Some(cx), Some(cy)) = (col("t"), col("base_x"), col("base_y")) else {
-            return Err(format!("{file}: line 1: the header must name t, base_x and base_y (and optionally base_theta)"));
+            return Err(at(1, "the header must name t, base_x and base_y (and optionally base_theta)".into()));
         };
         let cth = col("base_theta");
         let mut samples: Vec<[f64; 4]> = Vec::new();
         for (i, rec) in rd.records().enumerate() {
             let line = i + 2;
-            let rec = rec.map_err(|e| format!("{file}: line {line}: {e}"))?;
-            let num = |c: usize, name: &str| -> Result<f64, String> {
-                let v: f64 = rec.get(c).unwrap_or("").trim().parse().map_err(|_| format!("{file}: line {line}: {name} is not a number"))?;
-                if v.is_finite() { Ok(v) } else { Err(format!("{file}: line {line}: {name} is not finite")) }
+            let rec = rec.map_err(|e| at(line, e.to_string()))?;
+            let num = |c: usize, name: &str| -> Result<f64, JobError> {
+                let v: f64 = rec.get(c).unwrap_or("").trim().parse().map_err(|_| at(line, format!("{name} is not a number")))?;
+                if v.is_finite() { Ok(v) } else { Err(at(line, format!("{name} is not finite"))) }
             };
             let s = [
                 num(ct, "t")?,
@@ -123,12 +156,12 @@ impl BaseTrajectory {
                 },
             ];
             if samples.last().is_some_and(|p| s[0] <= p[0]) {
-                return Err(format!("{file}: line {line}: t = {} does not increase", s[0]));
+                return Err(at(line, format!("t = {} does not increase", s[0])));
             }
             samples.push(s);
         }
         if samples.is_empty() {
-            return Err(format!("{file}: no samples"));
+            return Err(whole(&"no samples"));
         }
         Ok(BaseTrajectory { samples })
     }

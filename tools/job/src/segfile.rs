@@ -358,9 +358,10 @@ pub fn write<W: Write>(out: W, segments: &[Segment], note: &str) -> io::Result<(
 }
 
 /// [`write`] to a file; the error names it.
-pub fn write_path(path: &Path, segments: &[Segment], note: &str) -> Result<(), String> {
-    let f = File::create(path).map_err(|e| format!("{}: {e}", path.display()))?;
-    write(f, segments, note).map_err(|e| format!("{}: {e}", path.display()))
+pub fn write_path(path: &Path, segments: &[Segment], note: &str) -> Result<(), crate::load::JobError> {
+    let failed = |e: std::io::Error| crate::load::JobError::File { file: path.display().to_string(), message: e.to_string() };
+    let f = File::create(path).map_err(failed)?;
+    write(f, segments, note).map_err(failed)
 }
 
 /// One segment as a JSON object. Floats use Rust's shortest round-trip form (valid JSON for finite

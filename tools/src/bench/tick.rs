@@ -97,7 +97,8 @@ pub fn run(opts: &TickOptions) -> Result<TickReport, String> {
     let mut clik = Clik::new(cfg.clik).map_err(|e| e.to_string())?;
     let mut extruder = Extruder::new(&cfg.extruder, dt).map_err(|e| e.to_string())?;
     let mut state = ChainState::new(n);
-    let (segments, _) = load_segments(&opts.root.join(BENCH_JOB), &cfg.bed_transform()?)?;
+    let (segments, _) =
+        load_segments(&opts.root.join(BENCH_JOB), &cfg.bed_transform().map_err(|e| e.to_string())?).map_err(|e| e.to_string())?;
     let segments: Vec<Segment> = segments.into_iter().map(|(s, _)| s).collect();
     let mut next_core = 0usize;
 

@@ -388,7 +388,7 @@ fn check(
     let trajectory = flyer.map(|f| f.trajectory).filter(|t| !t.as_os_str().is_empty());
     let name = job.display().to_string();
     let check_job = strand::check::CheckJob { file: &name, segments: &loaded.segments, layers: &loaded.layers };
-    let report = strand::check::check_with_trajectory(&check_job, cfg, trajectory.as_deref(), None)?;
+    let report = strand::check::check_with_trajectory(&check_job, cfg, trajectory.as_deref(), None).map_err(|e| e.to_string())?;
     Ok(if report.clean { Ok(report) } else { Err(report.summary()) })
 }
 

@@ -148,7 +148,7 @@ fn check(job: &Job, cli: &Cli, cfg: &Config) -> Result<Option<String>, String> {
     let started = Instant::now();
     let name = cli.file.display().to_string();
     let check_job = strand::check::CheckJob { file: &name, segments: &job.segments, layers: &job.layers };
-    let report = strand::check::check_with_trajectory(&check_job, cfg, cli.base_trajectory.as_deref(), None)?;
+    let report = strand::check::check_with_trajectory(&check_job, cfg, cli.base_trajectory.as_deref(), None).map_err(|e| e.to_string())?;
     if !report.clean {
         return Ok(Some(report.summary()));
     }

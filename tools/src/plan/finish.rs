@@ -179,7 +179,7 @@ pub fn run(args: &FinishArgs) -> Result<(), String> {
         "strand-plan finish: 002 Eqs. 20-21 finishing layer, z0 {} m, beta {} m, y ±{} m, width {} m, spacing {} m, layer {} m, feed {} m/s",
         f.z0, f.beta, f.half_length, f.width, f.spacing, f.layer_height, f.feed
     );
-    write_path(&args.output, &segments, &note)?;
+    write_path(&args.output, &segments, &note).map_err(|e| e.to_string())?;
     let tilt_max = (0..=2000).map(|k| f.slope(-f.half_length + f.half_length * k as f64 / 1000.0).atan().abs()).fold(0.0, f64::max);
     let length: f64 = segments.windows(2).map(|w| (w[1].end - w[0].end).norm()).sum();
     let filament: f64 = segments.iter().map(|s| s.filament).sum();

@@ -76,7 +76,7 @@ pub fn run(args: &TiltArgs) -> Result<(), String> {
         args.job.display(),
         alpha.to_degrees()
     );
-    write_path(&args.output, &segments, &note)?;
+    write_path(&args.output, &segments, &note).map_err(|e| e.to_string())?;
     println!("{}: {} segments, bed tilted {:.3}° about x", args.output.display(), segments.len(), alpha.to_degrees());
     Ok(())
 }

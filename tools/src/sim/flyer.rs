@@ -259,7 +259,7 @@ mod tests {
         assert_eq!(t.at(1.0), [0.5, 0.25, 0.1]);
         assert_eq!(t.at(5.0), [1.0, 0.5, 0.1]);
         std::fs::write(&p, "t,base_x,base_y\n0,0,0\n1,x,0\n").unwrap();
-        let e = BaseTrajectory::load(&p, 0.0).unwrap_err();
+        let e = BaseTrajectory::load(&p, 0.0).unwrap_err().to_string();
         assert!(e.contains("line 3") && e.contains("base_x"), "{e}");
         std::fs::remove_dir_all(&dir).unwrap();
     }

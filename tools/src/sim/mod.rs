@@ -147,7 +147,7 @@ impl Sim {
                 let trajectory = if f.trajectory.as_os_str().is_empty() {
                     BaseTrajectory::stationary(start_pose)
                 } else {
-                    BaseTrajectory::load(&f.trajectory, mount_yaw)?
+                    BaseTrajectory::load(&f.trajectory, mount_yaw).map_err(|e| e.to_string())?
                 };
                 Some(Flyer::new(f, trajectory, mount_position.z))
             }
