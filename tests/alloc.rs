@@ -98,7 +98,7 @@ fn path_engine_and_extruder_ticks_allocate_nothing() {
     let file = common::root().join("tests/data/gcode/slic3r/vase_cyl_spiral.gcode");
     // The first 3,000 segments, read before counting; fed under back-pressure while counting.
     let segments: Vec<_> = parse_file(&file, GcodeOptions::for_path(&file)).unwrap().take(3000).map(|s| s.unwrap().segment).collect();
-    for mode in [PlanningMode::Lookahead, PlanningMode::Rules004, PlanningMode::StopAndGo] {
+    for mode in [PlanningMode::Lookahead, PlanningMode::KnowledgeRules, PlanningMode::StopAndGo] {
         let config = PathConfig { mode, queue_capacity: 256, ..PathConfig::default() };
         let mut engine = PathEngine::new(&config, 1e-3, Vector3::zeros(), segments[0].orientation).unwrap();
         let mut extruder = Extruder::new(&ExtruderConfig::default(), 1e-3).unwrap();

@@ -120,7 +120,7 @@ fn rules_004_beats_stop_and_go_and_lookahead_beats_both_on_the_first_outer_wall(
         time_program(shifted, "outer wall", &config, &ExtruderConfig::default(), &bed, 1000.0, |_| {}).unwrap()
     };
     let stop_and_go = time(PlanningMode::StopAndGo);
-    let rules = time(PlanningMode::Rules004);
+    let rules = time(PlanningMode::KnowledgeRules);
     let lookahead = time(PlanningMode::Lookahead);
     println!(
         "first outer wall: stop-and-go {:.3} s, rules-004 {:.3} s, lookahead {:.3} s, bound {:.3} s",

@@ -43,7 +43,7 @@ fn check_limits(samples: &[PathSample], config: &PathConfig, jerk: bool) {
 
 #[test]
 fn square_runs_to_its_end_within_limits_in_every_mode() {
-    for mode in [PlanningMode::StopAndGo, PlanningMode::Rules004, PlanningMode::Lookahead] {
+    for mode in [PlanningMode::StopAndGo, PlanningMode::KnowledgeRules, PlanningMode::Lookahead] {
         let mut e = engine(mode);
         let pts = [[0.02, 0.0, 0.0], [0.02, 0.02, 0.0], [0.0, 0.02, 0.0], [0.0, 0.0, 0.0]];
         for (i, p) in pts.iter().enumerate() {
@@ -470,4 +470,23 @@ fn short_segments_into_a_near_reversal_keep_the_centripetal_limit_without_forced
         }
     }
     assert!(e.stats().forced_brakes <= 1, "{} forced brakes", e.stats().forced_brakes);
+}
+
+/// The three planning modes as the config files spell them (`mode = "rules-004"` was documented
+/// in every config but refused: serde spelled the variant `rules004`).
+#[test]
+fn every_documented_planning_mode_loads() {
+    let file = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("config/default.toml");
+    let text = std::fs::read_to_string(&file).unwrap();
+    let documented = text.lines().find(|l| l.starts_with("mode = ")).expect("the [path] mode line");
+    for (name, mode) in [
+        ("stop-and-go", strand::core::PlanningMode::StopAndGo),
+        ("rules-004", strand::core::PlanningMode::KnowledgeRules),
+        ("lookahead", strand::core::PlanningMode::Lookahead),
+    ] {
+        assert!(documented.contains(&format!("\"{name}\"")), "{documented}");
+        let cfg = strand::config::Config::load_with(&file, &[format!("path.mode={name}")]).unwrap();
+        assert_eq!(cfg.path.mode, mode);
+        assert_eq!(mode.name(), name);
+    }
 }

@@ -350,7 +350,7 @@ fn every_stream_finishes_within_its_bound_and_keeps_every_limit() {
         prop::collection::vec(op_strategy(), 0..200),
         schedule_strategy(),
         prop::collection::vec((0..20_000u64, prop_oneof![1 => 0.2..1.0f64, 1 => 1.0..2.0f64]), 0..4),
-        prop_oneof![6 => Just(PlanningMode::Lookahead), 1 => Just(PlanningMode::StopAndGo), 1 => Just(PlanningMode::Rules004)],
+        prop_oneof![6 => Just(PlanningMode::Lookahead), 1 => Just(PlanningMode::StopAndGo), 1 => Just(PlanningMode::KnowledgeRules)],
         prop_oneof![1 => Just(1.0 / 250.0), 2 => Just(1.0 / 1000.0)],
     );
     let worst = std::cell::Cell::new(0.0f64);
@@ -383,7 +383,7 @@ fn consecutive_dwells_and_retractions_run_through() {
         Op::Dwell { duration: 0.0, filament: 0.0 },
         Op::Line { delta: [0.0, 0.0, 0.005], feed: 0.05, filament: 0.0 },
     ];
-    for mode in [PlanningMode::Lookahead, PlanningMode::StopAndGo, PlanningMode::Rules004] {
+    for mode in [PlanningMode::Lookahead, PlanningMode::StopAndGo, PlanningMode::KnowledgeRules] {
         let run = run_case(&ops, &[(usize::MAX, 0)], &[], mode, 1e-3).unwrap();
         // 1.564 s of dwells plus about 0.5 s of motion.
         assert!(run.ticks > 1564 && run.ticks < 2300, "{mode:?}: {} ticks", run.ticks);

@@ -10,7 +10,9 @@ pub enum PlanningMode {
     StopAndGo,
     /// 004's knowledge-based planning: Table I decides from ζ and cos φ which junctions are passed at
     /// speed; trapezoidal time scaling (Eqs. 3-6), acceleration-limited only, as in the paper.
-    Rules004,
+    /// Config value `rules-004` (the paper's number stays in the config, not in the type).
+    #[serde(rename = "rules-004", alias = "rules004")]
+    KnowledgeRules,
     /// Corners blended within a deviation tolerance, junction speeds from the centripetal limit, a
     /// backward pass over the lookahead window, jerk-limited speed along the path (rsruckig).
     #[default]
@@ -22,7 +24,7 @@ impl PlanningMode {
     pub fn name(self) -> &'static str {
         match self {
             PlanningMode::StopAndGo => "stop-and-go",
-            PlanningMode::Rules004 => "rules-004",
+            PlanningMode::KnowledgeRules => "rules-004",
             PlanningMode::Lookahead => "lookahead",
         }
     }

@@ -30,7 +30,7 @@ struct Cli {
 enum Mode {
     StopAndGo,
     #[value(name = "rules-004")]
-    Rules004,
+    KnowledgeRules,
     Lookahead,
 }
 
@@ -157,7 +157,7 @@ fn main() -> ExitCode {
     if let Some(mode) = mode {
         path.mode = match mode {
             Mode::StopAndGo => PlanningMode::StopAndGo,
-            Mode::Rules004 => PlanningMode::Rules004,
+            Mode::KnowledgeRules => PlanningMode::KnowledgeRules,
             Mode::Lookahead => PlanningMode::Lookahead,
         };
     }

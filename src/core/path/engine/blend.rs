@@ -40,8 +40,8 @@ impl PathEngine {
                     let turn = angle_between(&tail.direction_out, &direction_in);
                     match self.config.mode {
                         PlanningMode::StopAndGo => junction_cap = 0.0,
-                        PlanningMode::Rules004 => {
-                            if !self.rules_004_continue(&tail, zeta, turn) {
+                        PlanningMode::KnowledgeRules => {
+                            if !self.knowledge_rules_pass(&tail, zeta, turn) {
                                 junction_cap = 0.0;
                             }
                         }
@@ -129,7 +129,7 @@ impl PathEngine {
 
     /// 004 Table I: does the tool pass from the tail segment s_i into the new one s_{i+1} at speed?
     /// Phases (1) and (2) continue; (3), (1)+(3) and segments no rule covers stop at the end.
-    pub(super) fn rules_004_continue(&self, tail: &Tail, zeta_next: f64, turn: f64) -> bool {
+    pub(super) fn knowledge_rules_pass(&self, tail: &Tail, zeta_next: f64, turn: f64) -> bool {
         let cos_phi = libm::cos(turn);
         let eps = self.config.corner_cosine;
         let (z_prev, z_i, z_next) = (tail.zeta_previous, tail.zeta, zeta_next);
