@@ -4,7 +4,7 @@
 ``StrandClient(prefix)`` is a feeder and monitor: it publishes segment batches and control commands
 (each send followed by a notify on the event service of the same name, as the Rust ports do) and
 subscribes to the status and the joint commands. Services are opened with ``open_or_create`` and the
-same quality of service as ``src/io/ports.rs``, so either side may start first.
+same quality of service as ``ipc/src/ports.rs``, so either side may start first.
 
 Back-pressure is credit-based: ``send_segments`` sends segment sequence numbers only up to
 ``Status.last_received_seq + Status.queue_free`` of the newest Status, waiting for newer statuses
@@ -49,7 +49,7 @@ from strand_ipc import (  # noqa: E402
     service_names,
 )
 
-# Quality of service, identical to src/io/ports.rs: (buffer, history, max_publishers, max_subscribers).
+# Quality of service, identical to ipc/src/ports.rs: (buffer, history, max_publishers, max_subscribers).
 SEGMENTS_QOS = (256, 0, 4, 8)
 CONTROL_QOS = (64, 0, 4, 8)
 MEASUREMENT_QOS = (16, 0, 4, 8)

@@ -45,7 +45,8 @@ def _rust_structs(src: str) -> dict[str, tuple[str, list[tuple[str, str]]]]:
 
 def _rust_enums(src: str) -> dict[str, dict[str, int]]:
     out = {}
-    for m in re.finditer(r"#\[repr\(u32\)\].*?pub enum (\w+) \{(.*?)\n\}", src, re.S):
+    # The wire enums are declared through `wire_enum! { ... pub enum Name { Variant = N, ... } }`.
+    for m in re.finditer(r"pub enum (\w+) \{(.*?)\n\s*\}", src, re.S):
         body = re.sub(r"//[^\n]*", "", m[2])
         out[m[1]] = {n: int(v) for n, v in re.findall(r"(\w+) = (\d+),", body)}
     return out

@@ -6,7 +6,5 @@ pub mod feed;
 pub mod jobs;
 pub mod plan;
 pub mod replay;
-pub mod replay_plot;
 pub mod robot_arg;
 pub mod sim;
-pub mod truss;

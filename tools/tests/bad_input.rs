@@ -370,7 +370,7 @@ fn strand_kin_check_config_and_sim_refuse_bad_files() {
     assert_all(failures);
 }
 
-/// Once panics (an overflowing tick cap in src/plan.rs) and hangs: a far move is refused by the
+/// Once panics (an overflowing tick cap in the path timing, now tools/job/src/timing.rs) and hangs: a far move is refused by the
 /// parser (coordinates beyond 1e6 m), a move of 1e20 s by strand-plan time, naming the line.
 #[test]
 fn absurd_moves_are_refused_not_timed() {

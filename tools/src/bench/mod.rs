@@ -152,7 +152,7 @@ pub fn plot_histograms(path: &Path, title: &str, series: &[(&str, &Histogram)]) 
     let x_max = all.clone().map(|p| p.0).fold(1.0, f64::max) * 1.5;
     let x_min = all.clone().map(|p| p.0).fold(f64::INFINITY, f64::min).min(x_max / 10.0) / 1.5;
     let y_max = all.map(|p| p.1).fold(1.0, f64::max) * 2.0;
-    crate::replay_plot::register_font()?;
+    crate::replay::plot::register_font()?;
     let root = BitMapBackend::new(path, (1000, 560)).into_drawing_area();
     let err = |e: &dyn std::fmt::Display| format!("{}: {e}", path.display());
     root.fill(&WHITE).map_err(|e| err(&e))?;

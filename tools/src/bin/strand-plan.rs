@@ -122,7 +122,7 @@ fn main() -> ExitCode {
         Command::Strips(args) => return report("strips", strand_tools::plan::strips::run(&args)),
         Command::Surface(args) => return report("surface", strand_tools::plan::surface::run(&args)),
         Command::Truss { length, width, pitch, layer_height, strand, filament, speed, output } => {
-            let t = strand_tools::truss::Truss { length, width, pitch, layer_height, strand, filament, speed };
+            let t = strand_tools::plan::truss::Truss { length, width, pitch, layer_height, strand, filament, speed };
             if let Err(e) = t.validate() {
                 eprintln!("strand-plan truss: {e}");
                 return ExitCode::from(2);

@@ -8,7 +8,7 @@ use std::process::ExitCode;
 use clap::{Parser, Subcommand};
 use strand::log::reader::LogFile;
 use strand::log::replay::{Verdict, verify};
-use strand_tools::{replay, replay_plot};
+use strand_tools::replay::{self, plot as replay_plot};
 
 #[derive(Parser)]
 #[command(name = "strand-replay", version, about = "Replay, summarise, export, plot and recover strand MCAP logs")]

@@ -341,7 +341,7 @@ pub fn write_trajectory(path: &Path, tcp: &TcpSeries, plan: &BasePlan, mount: [f
 
 /// 000 Fig. 4 as a PNG: a_max, r_max and W_FF against f_c, the chosen f_c marked.
 pub fn plot_sweep(path: &Path, rows: &[BasePlan], reach: &Reach, chosen: Option<f64>) -> Result<(), String> {
-    crate::replay_plot::register_font()?;
+    crate::replay::plot::register_font()?;
     let e = |e: &dyn std::fmt::Display| format!("{}: {e}", path.display());
     let root = BitMapBackend::new(path, (1500, 450)).into_drawing_area();
     root.fill(&WHITE).map_err(|x| e(&x))?;
@@ -376,7 +376,7 @@ pub fn plot_sweep(path: &Path, rows: &[BasePlan], reach: &Reach, chosen: Option<
 
 /// 000 Fig. 5 as a PNG: the TCP path in x–y with the base path (filtered, offset removed) over it.
 pub fn plot_paths(path: &Path, tcp: &TcpSeries, plan: &BasePlan) -> Result<(), String> {
-    crate::replay_plot::register_font()?;
+    crate::replay::plot::register_font()?;
     let e = |e: &dyn std::fmt::Display| format!("{}: {e}", path.display());
     let root = BitMapBackend::new(path, (1400, 500)).into_drawing_area();
     root.fill(&WHITE).map_err(|x| e(&x))?;

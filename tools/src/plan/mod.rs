@@ -8,6 +8,7 @@ pub mod finish;
 pub mod strips;
 pub mod surface;
 pub mod tilt;
+pub mod truss;
 
 /// Filament per metre of deposited bead (m/m): Slic3r's bead cross-section, a rectangle with round
 /// ends, A = h·(w − h) + π(h/2)², over the filament's section π(d/2)². `line_width` w, `layer_height`

@@ -24,7 +24,7 @@ fn shown_layers(n: usize) -> Vec<usize> {
 /// PNG like 000's Fig. 13: the nominal job from above (left), and the split job layer by layer
 /// (right; one colour per strip, a shade per path, the nominal boundaries dashed).
 pub fn plot_png(job: &Job, plan: &Plan, path: &Path) -> Result<(), String> {
-    crate::replay_plot::register_font()?;
+    crate::replay::plot::register_font()?;
     draw(job, plan, path).map_err(|e| format!("{}: {e}", path.display()))
 }
 

@@ -18,7 +18,7 @@ pub struct Panel<'a> {
 /// Draws each path in the (u, v) plane side by side, samples as dots, the start as a green dot, proper
 /// crossings as red circles and touchings as orange ones.
 pub fn plot_png(file: &Path, title: &str, labels: (&str, &str), cloud: &PointCloud, panels: &[Panel]) -> Result<(), String> {
-    crate::replay_plot::register_font()?;
+    crate::replay::plot::register_font()?;
     draw(file, title, labels, cloud, panels).map_err(|e| format!("{}: {e}", file.display()))
 }
 

@@ -2,6 +2,8 @@
 //! per channel (`export`) and plots (`plot`). Everything is computed from the logged ticks and the
 //! logged configuration, so a log is read the same way on any machine.
 
+pub mod plot;
+
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};

@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 use plotters::prelude::*;
 use strand::core::kin::RobotModel;
 
-use crate::replay::Series;
+use super::Series;
 
 type PlotResult = Result<(), Box<dyn std::error::Error>>;
 
