@@ -177,23 +177,13 @@ impl Controller {
     /// One control tick.
     pub fn step(&mut self, input: &TickInput) -> TickOutput {
         let mut out = TickOutput {
-            joint_command: ipc::JointCommand::default(),
-            extruder: ipc::ExtruderCommand::default(),
-            status: ipc::Status::default(),
-            events: [Event::Clamped { joint: 0 }; MAX_EVENTS],
-            event_count: 0,
-            events_dropped: 0,
             diagnostics: TickDiagnostics {
-                tcp_target_world: Vector3::zeros(),
-                tcp_target_orientation: UnitQuaternion::identity(),
-                tcp_command_world: Vector3::zeros(),
                 base: self.base.at(input.time_ns),
                 clik_scale: 1.0,
                 path_scale: 1.0,
-                sigma_min: 0.0,
-                path_speed: 0.0,
-                tcp_error: 0.0,
+                ..TickDiagnostics::default()
             },
+            ..TickOutput::default()
         };
         self.transition_count = 0;
         self.take_joint_state(input, &mut out);

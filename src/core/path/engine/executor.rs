@@ -271,8 +271,7 @@ impl PathEngine {
         if k >= self.pieces.tail {
             return 0.0;
         }
-        let p = self.pieces.get(k);
-        self.braking.reach(p.length - hop_margin(p.length), self.boundary_speed(k + 1), p.vcap)
+        hop_speed(&self.braking, self.pieces.get(k), self.boundary_speed(k + 1))
     }
 
     /// The speed a forced brake aims at from `state`: `speed`, lowered to the boundary speed of

@@ -50,7 +50,7 @@ impl PathEngine {
             // do; the executor follows the one that allows more.
             let next_vb = if k + 1 < end { self.pieces.get(k + 1).vb } else { 0.0 };
             let p = self.pieces.get(k);
-            let hop = braking.reach(p.length - hop_margin(p.length), next_vb, p.vcap);
+            let hop = hop_speed(&braking, p, next_vb);
             let chain = braking.w_inverse(later_min - p.start);
             let vb = p.vcap.min(hop.max(chain));
             let via_chain = chain > hop;
@@ -100,6 +100,13 @@ impl PathEngine {
 /// the piece, a degenerate problem there, comes out a hair too long or not at all.
 pub(super) fn hop_margin(length: f64) -> f64 {
     1e-9 + 1e-6 * length
+}
+
+/// The highest speed (m/s) at the start of piece `p`, arriving at zero acceleration, from which the
+/// tool still slows to `next_vb` within the piece (less [`hop_margin`]): the exact "hop" of the
+/// backward pass, and the executor's bound on a too-fast arrival.
+pub(super) fn hop_speed(braking: &Braking, p: &Piece, next_vb: f64) -> f64 {
+    braking.reach(p.length - hop_margin(p.length), next_vb, p.vcap)
 }
 
 /// The speed cap inside a piece (m/s): feed × override, the geometric cap.

@@ -65,7 +65,7 @@ mod executor;
 mod lookahead;
 mod ring;
 
-use lookahead::{hop_margin, piece_cap};
+use lookahead::{hop_speed, piece_cap};
 use ring::Ring;
 
 /// How many boundaries the executor looks past for a binding one before it settles for a

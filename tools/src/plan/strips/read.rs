@@ -180,10 +180,9 @@ pub fn flatten_arc(start: &Vector3<f64>, s: &Segment, tolerance: f64) -> Result<
         return Err("the arc tolerance must be positive".into());
     }
     // The core's geometry of the arc (the one the path engine runs): equal steps of θ along it.
-    let Some(geometry) = arc_geometry(start, s) else {
+    let Some(geometry @ Geometry::Arc { radius, radius_rate, sweep, .. }) = arc_geometry(start, s) else {
         return Ok(vec![s.end]);
     };
-    let Geometry::Arc { radius, radius_rate, sweep, .. } = geometry else { unreachable!("arc_geometry gives an arc") };
     let r = radius.max(radius + radius_rate * sweep);
     let step =
         if tolerance >= r { std::f64::consts::FRAC_PI_2 } else { (2.0 * (1.0 - tolerance / r).acos()).min(std::f64::consts::FRAC_PI_2) };
