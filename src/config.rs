@@ -254,10 +254,10 @@ impl<R> ConfigFile<R> {
         self.service.validate().map_err(|m| ConfigError::new(path, m.to_string()))?;
         self.realtime.validate().map_err(|m| ConfigError::new(path, m.to_string()))?;
         self.path.validate().map_err(|m| ConfigError::new(path, m.to_string()))?;
-        self.extruder.validate().map_err(|m| ConfigError::new(path, m))?;
+        self.extruder.validate().map_err(|m| ConfigError::new(path, m.message))?;
         self.log.validate().map_err(|m| ConfigError::new(path, m.to_string()))?;
         self.check.validate().map_err(|m| ConfigError::new(path, m.to_string()))?;
-        BedTransform::new(&self.bed).map_err(|m| ConfigError::new(path, m))?;
+        BedTransform::new(&self.bed).map_err(|m| ConfigError::new(path, m.message))?;
         Ok(())
     }
 
@@ -282,7 +282,7 @@ impl<R> ConfigFile<R> {
 impl Config {
     /// The `[bed]` transform (checked at load, so an error here names the file and the section).
     pub fn bed_transform(&self) -> Result<BedTransform, ConfigError> {
-        BedTransform::new(&self.bed).map_err(|e| ConfigError::new(&self.file, format!("[bed] {e}")))
+        BedTransform::new(&self.bed).map_err(|e| ConfigError::new(&self.file, e.message))
     }
 
     /// Reads and validates a config file and the robot file it names.

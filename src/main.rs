@@ -229,7 +229,7 @@ fn check_job(file: &Path, config: Option<&Path>, set: &[String], json: bool, png
                     eprintln!("wrote {}", f.display());
                 }
             }
-            Err(e) => return bad(e),
+            Err(e) => return bad(e.to_string()),
         }
     }
     if report.clean { ExitCode::SUCCESS } else { ExitCode::from(3) }

@@ -5,7 +5,9 @@
 //!   printing or tracing;
 //! - the client crate (`strand-ipc`) depends on iceoryx2 and nothing of the controller;
 //! - the offline job crate (`strand-job`) does not depend on the service crate;
-//! - the service's folders (check, config, io, log) import each other without a loop.
+//! - the service's folders (check, config, io, log) import each other without a loop;
+//! - the tools' `bin/` mains are thin (the command line and the exit code; the work is in the tool's
+//!   module), and no library code returns a bare `String` error (typed errors; text at the edge).
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
@@ -129,4 +131,43 @@ fn the_service_folders_import_each_other_without_a_loop() {
     for m in modules {
         visit(m, &graph, &mut Vec::new(), &mut done);
     }
+}
+
+#[test]
+fn the_tool_mains_are_thin() {
+    let mut mains = Vec::new();
+    rust_files(&root().join("tools/src/bin"), &mut mains);
+    assert!(mains.len() >= 7, "{mains:?}");
+    for main in mains {
+        let text = std::fs::read_to_string(&main).unwrap();
+        let lines = text.lines().count();
+        // A main holds its clap types, the mapping to the tool's options and the exit codes: a
+        // screen or four. More means the tool's work has crept back into the binary.
+        assert!(lines <= 250, "{}: {lines} lines; move the work into the tool's module under tools/src/", main.display());
+        let functions = text.lines().filter(|l| l.trim_start().starts_with("fn ") || l.trim_start().starts_with("pub fn ")).count();
+        assert!(functions <= 4, "{}: {functions} functions; a main parses, calls the tool and reports", main.display());
+    }
+}
+
+#[test]
+fn library_code_returns_typed_errors() {
+    // `Result<_, String>` in a public signature of a library crate (the core, the client crate, the
+    // job crate, the service's library and the tools' modules) hides what failed from the caller.
+    let mut files = Vec::new();
+    for dir in ["src/core", "ipc/src", "tools/job/src", "src/check", "src/config", "src/io", "src/log", "tools/src"] {
+        rust_files(&root().join(dir), &mut files);
+    }
+    files.extend(["src/lib.rs", "src/config.rs"].map(|f| root().join(f)));
+    let mut offenders = Vec::new();
+    for file in files.iter().filter(|f| !f.starts_with(root().join("tools/src/bin"))) {
+        let text = std::fs::read_to_string(file).unwrap();
+        let code = text.split("#[cfg(test)]").next().unwrap_or("");
+        for (n, line) in code.lines().enumerate() {
+            let line = line.trim_start();
+            if line.starts_with("pub fn ") && line.contains(", String>") && line.contains("Result<") {
+                offenders.push(format!("{}:{}: {line}", file.display(), n + 1));
+            }
+        }
+    }
+    assert!(offenders.is_empty(), "public functions with a String error:\n{}", offenders.join("\n"));
 }

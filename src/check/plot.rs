@@ -2,7 +2,7 @@
 //! its limits over the job (normalised, so one chart shows them all), and the Cartesian following
 //! error against `tcp_error_limit`. Also the one font lookup every strand plot uses.
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 use plotters::prelude::*;
 use plotters::style::FontStyle;
@@ -18,9 +18,17 @@ const FONT_PATHS: &[&str] = &[
     "/usr/share/fonts/truetype/liberation/LiberationSans-Regular.ttf",
 ];
 
+/// No font to draw text with: plotters needs a TrueType file.
+#[derive(Clone, Debug, thiserror::Error)]
+#[error("no TrueType font found (tried {tried}); install fonts-dejavu-core or set STRAND_PLOT_FONT")]
+pub struct NoFont {
+    /// The files tried, comma-separated.
+    pub tried: String,
+}
+
 /// Registers the first TrueType font found (`$STRAND_PLOT_FONT`, then [`FONT_PATHS`]) as plotters'
 /// "sans-serif"; an error names every file tried.
-pub fn register_font() -> Result<(), String> {
+pub fn register_font() -> Result<(), NoFont> {
     let env = std::env::var("STRAND_PLOT_FONT").ok();
     for p in env.iter().map(String::as_str).chain(FONT_PATHS.iter().copied()) {
         if let Ok(bytes) = std::fs::read(p) {
@@ -30,7 +38,32 @@ pub fn register_font() -> Result<(), String> {
             }
         }
     }
-    Err(format!("no TrueType font found (tried {}); install fonts-dejavu-core or set STRAND_PLOT_FONT", FONT_PATHS.join(", ")))
+    let tried = env.iter().map(String::as_str).chain(FONT_PATHS.iter().copied()).collect::<Vec<_>>().join(", ");
+    Err(NoFont { tried })
+}
+
+/// A picture that could not be written.
+#[derive(Debug, thiserror::Error)]
+pub enum PlotError {
+    /// No font for its text.
+    #[error(transparent)]
+    NoFont(#[from] NoFont),
+    /// Its folder could not be created.
+    #[error("{}: {source}", path.display())]
+    Folder {
+        /// The folder.
+        path: PathBuf,
+        /// What the system said.
+        source: std::io::Error,
+    },
+    /// plotters could not draw or write it.
+    #[error("{}: cannot draw: {why}", path.display())]
+    Draw {
+        /// The picture's file.
+        path: PathBuf,
+        /// What plotters said.
+        why: String,
+    },
 }
 
 /// Writes `joints.png` and `tcp_error.png` into `dir` (created if missing); returns their paths.
@@ -41,13 +74,14 @@ pub fn write(
     limits: &[JointLimits],
     names: &[String],
     tcp_limit: f64,
-) -> Result<Vec<std::path::PathBuf>, String> {
+) -> Result<Vec<PathBuf>, PlotError> {
     register_font()?;
-    std::fs::create_dir_all(dir).map_err(|e| format!("{}: {e}", dir.display()))?;
+    std::fs::create_dir_all(dir).map_err(|source| PlotError::Folder { path: dir.to_path_buf(), source })?;
     let joints = dir.join("joints.png");
     let error = dir.join("tcp_error.png");
-    plot_joints(&joints, report, series, limits, names).map_err(|e| format!("{}: {e}", joints.display()))?;
-    plot_error(&error, report, series, tcp_limit).map_err(|e| format!("{}: {e}", error.display()))?;
+    let draw = |path: &Path, e: Box<dyn std::error::Error>| PlotError::Draw { path: path.to_path_buf(), why: e.to_string() };
+    plot_joints(&joints, report, series, limits, names).map_err(|e| draw(&joints, e))?;
+    plot_error(&error, report, series, tcp_limit).map_err(|e| draw(&error, e))?;
     Ok(vec![joints, error])
 }
 

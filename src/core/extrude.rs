@@ -9,6 +9,7 @@
 use serde::{Deserialize, Serialize};
 
 use crate::path::{Motion, PathSample};
+use crate::setting::InvalidSetting;
 
 /// `[extruder]`.
 #[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
@@ -45,24 +46,24 @@ impl Default for ExtruderConfig {
 
 impl ExtruderConfig {
     /// Checks every value; the error names the key.
-    pub fn validate(&self) -> Result<(), &'static str> {
+    pub fn validate(&self) -> Result<(), InvalidSetting> {
         if !(self.drive_wheel_radius.is_finite() && self.drive_wheel_radius > 0.0) {
-            return Err("[extruder] drive_wheel_radius: must be finite and > 0");
+            return Err(InvalidSetting::new("extruder", "[extruder] drive_wheel_radius: must be finite and > 0".to_string()));
         }
         if !(self.filament_diameter.is_finite() && self.filament_diameter > 0.0) {
-            return Err("[extruder] filament_diameter: must be finite and > 0");
+            return Err(InvalidSetting::new("extruder", "[extruder] filament_diameter: must be finite and > 0".to_string()));
         }
         if !(self.pressure_advance.is_finite() && (0.0..1.0).contains(&self.pressure_advance)) {
-            return Err("[extruder] pressure_advance: must be in [0, 1) s");
+            return Err(InvalidSetting::new("extruder", "[extruder] pressure_advance: must be in [0, 1) s".to_string()));
         }
         if !(self.max_pressure_advance.is_finite() && (0.0..1.0).contains(&self.max_pressure_advance)) {
-            return Err("[extruder] max_pressure_advance: must be in [0, 1) s");
+            return Err(InvalidSetting::new("extruder", "[extruder] max_pressure_advance: must be in [0, 1) s".to_string()));
         }
         if !(self.retract_length.is_finite() && (0.0..0.05).contains(&self.retract_length)) {
-            return Err("[extruder] retract_length: must be in [0, 0.05) m");
+            return Err(InvalidSetting::new("extruder", "[extruder] retract_length: must be in [0, 0.05) m".to_string()));
         }
         if !(self.retract_speed.is_finite() && self.retract_speed > 0.0) {
-            return Err("[extruder] retract_speed: must be finite and > 0");
+            return Err(InvalidSetting::new("extruder", "[extruder] retract_speed: must be finite and > 0".to_string()));
         }
         Ok(())
     }
@@ -99,7 +100,7 @@ pub struct Extruder {
 
 impl Extruder {
     /// An extruder ticking every `dt` seconds.
-    pub fn new(config: &ExtruderConfig, dt: f64) -> Result<Self, &'static str> {
+    pub fn new(config: &ExtruderConfig, dt: f64) -> Result<Self, InvalidSetting> {
         config.validate()?;
         let r = 0.5 * config.filament_diameter;
         Ok(Extruder { config: config.clone(), dt, area: std::f64::consts::PI * r * r, pending: 0.0, retracted: false, position: 0.0 })

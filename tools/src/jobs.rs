@@ -25,7 +25,7 @@ pub const DEMO_TRUSS: &str = "tests/data/gcode/truss/truss_200mm.gcode";
 /// A folder under which every path of [`FILES`] exists: the working directory when it has them (the
 /// repository root), else the built-in copy written to the cache folder of
 /// `strand::config::locate` (`jobs-<version>-<hash>`).
-pub fn root() -> Result<PathBuf, String> {
+pub fn root() -> Result<PathBuf, strand::config::ConfigError> {
     if FILES.iter().all(|(rel, _)| Path::new(rel).is_file()) {
         return Ok(PathBuf::from("."));
     }
@@ -36,5 +36,5 @@ pub fn root() -> Result<PathBuf, String> {
         }
     }
     let leaf = format!("jobs-{}-{hash:016x}", env!("CARGO_PKG_VERSION"));
-    strand::config::locate::materialise(&leaf, FILES).map_err(|e| e.to_string())
+    strand::config::locate::materialise(&leaf, FILES)
 }

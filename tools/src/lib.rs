@@ -1,10 +1,23 @@
-//! Shared pieces of the strand command-line tools.
+//! The strand command-line tools' code, one module per tool (the ripgrep way: the `bin/` mains
+//! only turn the command line into an options struct, call the tool and turn its result into
+//! output and an exit code). Every function here returns a typed [`error::ToolError`]; text is
+//! made only at the edge.
+//!
+//! - [`demo`] — strand-demo: the service, the sim and the feeder on a bundled job, then a summary.
+//! - [`feed`] — strand-feed: a job loaded, checked and streamed within the controller's credit.
+//! - [`sim`] — strand-sim: the plant (robot, free flyer, tracker, extruder) and its process loop.
+//! - [`kin`] — strand-kin: a robot chain checked and evaluated.
+//! - [`plan`] — strand-plan: timing a job, and the papers' offline planners.
+//! - [`replay`] — strand-replay: what a log says (summary, CSV, plots).
+//! - [`bench`] — strand-bench: jitter, latency, tick cost and logger throughput as distributions.
+//! - [`jobs`] — the bundled jobs the demo and the benches run when given none.
 
 pub mod bench;
 pub mod demo;
+pub mod error;
 pub mod feed;
 pub mod jobs;
+pub mod kin;
 pub mod plan;
 pub mod replay;
-pub mod robot_arg;
 pub mod sim;

@@ -406,8 +406,8 @@ pub enum ControllerError {
     #[error("[clik] {0}")]
     Clik(#[from] InvalidClikConfig),
     /// An `[extruder]` value is out of range (the message names the key).
-    #[error("[extruder] {0}")]
-    Extruder(&'static str),
+    #[error("{0}")]
+    Extruder(InvalidSetting),
 }
 
 /// The parts of the service config the controller uses.

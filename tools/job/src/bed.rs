@@ -6,7 +6,7 @@ use nalgebra::{Rotation3, UnitQuaternion, Vector3};
 use serde::{Deserialize, Serialize};
 
 use strand_core::kin::geom;
-use strand_core::{Segment, SegmentKind};
+use strand_core::{InvalidSetting, Segment, SegmentKind};
 
 /// `[bed]`: where the print bed is in W and how far it is tilted.
 #[derive(Clone, Debug, Default, Deserialize, Serialize, PartialEq)]
@@ -28,12 +28,12 @@ pub struct BedTransform {
 
 impl BedTransform {
     /// The transform for a bed config; errors name the key.
-    pub fn new(config: &BedConfig) -> Result<Self, &'static str> {
+    pub fn new(config: &BedConfig) -> Result<Self, InvalidSetting> {
         if !(config.tilt.is_finite() && config.tilt.abs() < std::f64::consts::FRAC_PI_2) {
-            return Err("[bed] tilt: must be finite and below 90° (π/2 rad) in magnitude");
+            return Err(InvalidSetting::new("bed", "[bed] tilt: must be finite and below 90° (π/2 rad) in magnitude".to_string()));
         }
         if !config.offset.iter().all(|x| x.is_finite()) {
-            return Err("[bed] offset: must be finite");
+            return Err(InvalidSetting::new("bed", "[bed] offset: must be finite".to_string()));
         }
         let rotation = geom::axis_angle(&Vector3::x(), config.tilt);
         let flip = geom::axis_angle(&Vector3::y(), std::f64::consts::PI);

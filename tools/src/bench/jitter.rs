@@ -17,6 +17,7 @@ use strand::io::rt::{self, RealtimeConfig};
 use strand::io::runner::{JointFeedback, NullSink, Runner, StopWhen};
 
 use super::{Dist, bench_job, ratio, stream_job};
+use crate::error::{Result, ToolError};
 
 /// What to run.
 #[derive(Clone, Debug)]
@@ -87,14 +88,14 @@ fn realtime(opts: &JitterOptions) -> RealtimeConfig {
 }
 
 /// Runs the cycle runner, then the empty-loop baseline, then cyclictest.
-pub fn run(opts: &JitterOptions) -> Result<JitterReport, String> {
+pub fn run(opts: &JitterOptions) -> Result<JitterReport> {
     let config = match &opts.with_controller {
         Some(c) => c.clone(),
-        None => strand::config::locate::find(strand::config::locate::DEFAULT).map_err(|e| e.to_string())?,
+        None => strand::config::locate::find(strand::config::locate::DEFAULT)?,
     };
-    let mut cfg = Config::load(&config).map_err(|e| e.to_string())?;
+    let mut cfg = Config::load(&config)?;
     cfg.controller.rate_hz = opts.rate_hz;
-    cfg.controller.validate().map_err(|e| e.to_string())?;
+    cfg.controller.validate()?;
     let prefix = format!("strand/bench-jitter-{}", std::process::id());
     cfg.service.prefix = prefix.clone();
     cfg.service.clock = ClockMode::Timer;
@@ -103,10 +104,10 @@ pub fn run(opts: &JitterOptions) -> Result<JitterReport, String> {
     // With --rt the runner's set-up holds /dev/cpu_dma_latency at 0 for the rest of the process (as
     // cyclictest does for itself), so the baselines after it run under the same PM QoS.
     let ticks = (opts.seconds * opts.rate_hz).round().max(1.0) as u64;
-    let model = cfg.robot.build_model().map_err(|e| e.to_string())?;
+    let model = cfg.robot.build_model()?;
     let robot = model.name().to_string();
-    let controller = Controller::new(&cfg.controller_settings(), model).map_err(|e| e.to_string())?;
-    let mut runner = Runner::new(controller, &cfg.service, cfg.controller.joint_state_timeout, opts.rate_hz).map_err(|e| e.to_string())?;
+    let controller = Controller::new(&cfg.controller_settings(), model)?;
+    let mut runner = Runner::new(controller, &cfg.service, cfg.controller.joint_state_timeout, opts.rate_hz)?;
 
     let stop_feed = AtomicBool::new(false);
     let stop_runner = AtomicBool::new(false);
@@ -135,7 +136,7 @@ pub fn run(opts: &JitterOptions) -> Result<JitterReport, String> {
                     realtime = summary.realtime.to_string();
                 }
                 Err(e) => {
-                    result = Err(e.to_string());
+                    result = Err(ToolError::from(e));
                     break;
                 }
             }
@@ -143,15 +144,15 @@ pub fn run(opts: &JitterOptions) -> Result<JitterReport, String> {
             if let Some(h) = cyclictest.as_mut() {
                 match run_cyclictest(period_ns, 1.0, opts.rt.then_some(opts.priority)) {
                     Ok(round) => h.merge(&round),
-                    Err(e) => cyclictest_note = Some(e),
+                    Err(e) => cyclictest_note = Some(e.to_string()),
                 }
             }
         }
         stop_feed.store(true, Ordering::Relaxed);
         if let Some(f) = feeder {
             match f.join() {
-                Ok(Err(e)) => return Err(format!("feeder: {e}")),
-                Err(_) => return Err("feeder panicked".to_string()),
+                Ok(Err(e)) => return Err(ToolError::Measurement(format!("feeder: {e}"))),
+                Err(_) => return Err(ToolError::Measurement("feeder panicked".to_string())),
                 Ok(Ok(_)) => {}
             }
         }
@@ -207,7 +208,7 @@ fn empty_loop(period_ns: u64, spin_ns: u64, ticks: u64, rt_cfg: &RealtimeConfig)
 
 /// Runs `cyclictest` (one thread, CLOCK_MONOTONIC, absolute sleeps, like the runner) for `seconds`
 /// and reads its histogram (µs buckets) into a histogram of ns.
-pub fn run_cyclictest(period_ns: u64, seconds: f64, priority: Option<u32>) -> Result<Histogram, String> {
+pub fn run_cyclictest(period_ns: u64, seconds: f64, priority: Option<u32>) -> Result<Histogram> {
     let interval_us = (period_ns / 1000).max(1);
     let mut cmd = Command::new("cyclictest");
     cmd.args(["--threads=1", "--clock=0", "--quiet", "--histogram=10000"])
@@ -216,10 +217,12 @@ pub fn run_cyclictest(period_ns: u64, seconds: f64, priority: Option<u32>) -> Re
     if let Some(p) = priority {
         cmd.arg(format!("--priority={p}")).arg("--mlockall");
     }
-    let out = cmd.output().map_err(|e| format!("cyclictest did not run ({e}); install it with `apt-get install rt-tests`"))?;
+    let out = cmd
+        .output()
+        .map_err(|e| ToolError::Measurement(format!("cyclictest did not run ({e}); install it with `apt-get install rt-tests`")))?;
     let text = String::from_utf8_lossy(&out.stdout);
     if !out.status.success() {
-        return Err(format!("cyclictest failed ({}): {}", out.status, String::from_utf8_lossy(&out.stderr).trim()));
+        return Err(ToolError::Measurement(format!("cyclictest failed ({}): {}", out.status, String::from_utf8_lossy(&out.stderr).trim())));
     }
     parse_cyclictest_histogram(&text)
 }
@@ -227,7 +230,7 @@ pub fn run_cyclictest(period_ns: u64, seconds: f64, priority: Option<u32>) -> Re
 /// cyclictest's `--histogram` output: `NNNNNN CCCCCC` lines (latency in µs, count), then `# ...`
 /// summary lines, among them `# Max Latencies: NNNNN` and `# Histogram Overflows: NNNNN`. Each
 /// count is recorded at the bucket's upper edge (µs + 1 − 1 ns), so a percentile never reads low.
-pub fn parse_cyclictest_histogram(text: &str) -> Result<Histogram, String> {
+pub fn parse_cyclictest_histogram(text: &str) -> Result<Histogram> {
     let mut h = Histogram::new();
     let mut max_us: Option<u64> = None;
     let mut overflows = 0u64;
@@ -258,7 +261,7 @@ pub fn parse_cyclictest_histogram(text: &str) -> Result<Histogram, String> {
         }
     }
     if h.count() == 0 {
-        return Err("cyclictest printed no histogram".to_string());
+        return Err(ToolError::Measurement("cyclictest printed no histogram".to_string()));
     }
     Ok(h)
 }
@@ -289,7 +292,7 @@ pub fn print(r: &JitterReport) {
 }
 
 /// Draws the report's histograms.
-pub fn plot(r: &JitterReport, path: &Path) -> Result<(), String> {
+pub fn plot(r: &JitterReport, path: &Path) -> Result<()> {
     let series: Vec<(&str, &Histogram)> = r.histograms.iter().map(|(n, h)| (n.as_str(), h)).collect();
     super::plot_histograms(path, &format!("wake-up lateness at {} Hz", r.rate_hz), &series)
 }

@@ -24,6 +24,7 @@ use strand_ipc::ServiceNames;
 use strand_ipc::ports::{ClientPorts, ClientRoles, ServicePorts};
 
 use super::{Dist, bench_job, stream_job};
+use crate::error::{Result, ToolError};
 
 /// What to run.
 #[derive(Clone, Debug)]
@@ -96,9 +97,9 @@ impl Reaped {
 }
 
 /// Ping-pong, then the service; see the module docs.
-pub fn run(opts: &LatencyOptions) -> Result<LatencyReport, String> {
-    let cfg = Config::load(&opts.config).map_err(|e| e.to_string())?;
-    let model = cfg.robot.build_model().map_err(|e| e.to_string())?;
+pub fn run(opts: &LatencyOptions) -> Result<LatencyReport> {
+    let cfg = Config::load(&opts.config)?;
+    let model = cfg.robot.build_model()?;
     let dof = model.dof();
     let mut q0 = [0.0; ipc::MAX_JOINTS];
     let middle = model.middle_configuration();
@@ -114,7 +115,7 @@ pub fn run(opts: &LatencyOptions) -> Result<LatencyReport, String> {
         .arg(format!("{}", opts.seconds + 30.0))
         .stdin(Stdio::null())
         .spawn()
-        .map_err(|e| format!("cannot start strand-bench pong: {e}"))?;
+        .map_err(|e| ToolError::Measurement(format!("cannot start strand-bench pong: {e}")))?;
     let pong = Reaped(pong);
     let (baseline, baseline_missed) = drive(&pong_prefix, dof, q0, opts.rate_hz, opts.seconds, false)?;
     pong.finish(Duration::from_secs(3));
@@ -133,7 +134,7 @@ pub fn run(opts: &LatencyOptions) -> Result<LatencyReport, String> {
         .stdout(Stdio::null())
         .stderr(Stdio::null())
         .spawn()
-        .map_err(|e| format!("cannot start strand: {e}"))?;
+        .map_err(|e| ToolError::Measurement(format!("cannot start strand: {e}")))?;
     let service = Reaped(service);
     let job = bench_job(&opts.root, &cfg)?;
     let stop_feed = AtomicBool::new(false);
@@ -141,7 +142,7 @@ pub fn run(opts: &LatencyOptions) -> Result<LatencyReport, String> {
         let feeder = scope.spawn(|| stream_job(&prefix, &job, &stop_feed));
         let driven = drive(&prefix, dof, q0, opts.rate_hz, opts.seconds, true);
         stop_feed.store(true, Ordering::Relaxed);
-        let fed = feeder.join().map_err(|_| "feeder panicked".to_string()).and_then(|r| r);
+        let fed = feeder.join().map_err(|_| ToolError::Measurement("feeder panicked".to_string())).and_then(|r| r);
         driven.and_then(|d| fed.map(|_| d))
     });
     // The driver has stopped: the service faults (JointStateLost), the job ends, it exits.
@@ -185,30 +186,22 @@ fn tick_costs(log: &Path) -> (Histogram, Histogram) {
 /// (until the next period) for the JointCommand answering it. `follow`: the next state is the last
 /// command (a robot that follows exactly, so the job moves). Waits up to 10 s for the first answer
 /// before it measures. Returns the round trips (ns) and the states not answered in time.
-fn drive(
-    prefix: &str,
-    dof: usize,
-    q0: [f64; ipc::MAX_JOINTS],
-    rate_hz: f64,
-    seconds: f64,
-    follow: bool,
-) -> Result<(Histogram, u64), String> {
+fn drive(prefix: &str, dof: usize, q0: [f64; ipc::MAX_JOINTS], rate_hz: f64, seconds: f64, follow: bool) -> Result<(Histogram, u64)> {
     let ports = ClientPorts::open(
         &ServiceNames::new(prefix),
         &format!("strand-bench-driver-{}", std::process::id()),
         ClientRoles { driver: true, ..Default::default() },
-    )
-    .map_err(|e| e.to_string())?;
+    )?;
     let period_ns = (1e9 / rate_hz).round() as u64;
     let mut q = q0;
     let mut seq = 0u64;
-    let exchange = |seq: u64, q: &mut [f64; ipc::MAX_JOINTS], wait_ns: u64| -> Result<Option<u64>, String> {
+    let exchange = |seq: u64, q: &mut [f64; ipc::MAX_JOINTS], wait_ns: u64| -> Result<Option<u64>> {
         let stamp = monotonic_ns();
         let state = ipc::JointState { seq, stamp_ns: stamp, dof: dof as u32, position: *q, ..Default::default() };
-        ports.send_joint_state(&state).map_err(|e| e.to_string())?;
+        ports.send_joint_state(&state)?;
         let until = stamp + wait_ns;
         loop {
-            while let Some(cmd) = ports.receive_joint_command().map_err(|e| e.to_string())? {
+            while let Some(cmd) = ports.receive_joint_command()? {
                 if cmd.state_seq == seq {
                     let round_trip = monotonic_ns() - stamp;
                     if follow && cmd.valid == 1 {
@@ -221,7 +214,7 @@ fn drive(
             if now >= until {
                 return Ok(None);
             }
-            ports.wait_joint_command(until - now).map_err(|e| e.to_string())?;
+            ports.wait_joint_command(until - now)?;
         }
     };
     // Until the other side answers (it may still be starting).
@@ -232,7 +225,7 @@ fn drive(
             break;
         }
         if Instant::now() > deadline {
-            return Err(format!("nothing answered the JointStates under {prefix} within 10 s"));
+            return Err(ToolError::Measurement(format!("nothing answered the JointStates under {prefix} within 10 s")));
         }
     }
     let mut h = Histogram::new();
@@ -253,14 +246,14 @@ fn drive(
 /// `strand-bench pong`: answers every JointState under `prefix` with a JointCommand at once, over the
 /// service's own ports (the baseline of `latency`). Ends `seconds` after it starts, or 2 s after the
 /// last state once states have come.
-pub fn pong(prefix: &str, seconds: f64) -> Result<(), String> {
-    let ports = ServicePorts::open(&ServiceNames::new(prefix), "strand-bench-pong").map_err(|e| e.to_string())?;
+pub fn pong(prefix: &str, seconds: f64) -> Result<()> {
+    let ports = ServicePorts::open(&ServiceNames::new(prefix), "strand-bench-pong")?;
     let end = Instant::now() + Duration::from_secs_f64(seconds);
     let mut last_state: Option<Instant> = None;
     let mut seq = 0;
     while Instant::now() < end && last_state.is_none_or(|t| t.elapsed() < Duration::from_secs(2)) {
-        ports.wait_joint_state(100_000_000).map_err(|e| e.to_string())?;
-        while let Some(js) = ports.receive_joint_state().map_err(|e| e.to_string())? {
+        ports.wait_joint_state(100_000_000)?;
+        while let Some(js) = ports.receive_joint_state()? {
             seq += 1;
             let cmd = ipc::JointCommand {
                 seq,
@@ -273,7 +266,7 @@ pub fn pong(prefix: &str, seconds: f64) -> Result<(), String> {
                 position: js.position,
                 ..Default::default()
             };
-            ports.publish_joint_command(&cmd).map_err(|e| e.to_string())?;
+            ports.publish_joint_command(&cmd)?;
             last_state = Some(Instant::now());
         }
     }
@@ -298,7 +291,7 @@ pub fn print(r: &LatencyReport) {
 }
 
 /// Draws the report's histograms.
-pub fn plot(r: &LatencyReport, path: &Path) -> Result<(), String> {
+pub fn plot(r: &LatencyReport, path: &Path) -> Result<()> {
     let series: Vec<(&str, &Histogram)> = r.histograms.iter().map(|(n, h)| (n.as_str(), h)).collect();
     super::plot_histograms(path, &format!("state in → command out at {} Hz", r.rate_hz), &series)
 }

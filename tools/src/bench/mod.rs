@@ -3,10 +3,12 @@
 //! because absolute times on a shared machine mean little. The modes live in their own modules:
 //! [`jitter`] (wake-up lateness of the cycle runner against a bare `clock_nanosleep` loop and
 //! cyclictest), [`latency`] (state in → command out against an iceoryx2 ping-pong), [`tick`] (cost
-//! per stage of one controller tick, allocations counted).
+//! per stage of one controller tick, allocations counted), [`log`] (the MCAP logger at a control
+//! rate). `strand-bench`'s main only parses the command line and prints.
 
 pub mod jitter;
 pub mod latency;
+pub mod log;
 pub mod tick;
 
 use std::path::{Path, PathBuf};
@@ -20,11 +22,12 @@ use strand_ipc as ipc;
 use strand_ipc::ServiceNames;
 use strand_ipc::ports::{ClientPorts, ClientRoles};
 
+use crate::error::{Result, ToolError};
 use crate::feed::{Job, batch, credit, load_gcode};
 
 /// The job a loaded controller prints in `jitter` and `latency`: 004's 35 mm box (PrusaSlicer),
 /// 16 k segments, 21 minutes of printing, far longer than any benchmark run.
-pub fn bench_job(root: &Path, cfg: &Config) -> Result<Job, String> {
+pub fn bench_job(root: &Path, cfg: &Config) -> Result<Job> {
     load_gcode(&root.join(BENCH_JOB), cfg, None)
 }
 
@@ -33,19 +36,18 @@ pub const BENCH_JOB: &str = "tests/data/gcode/prusaslicer/box35.gcode";
 
 /// The folder [`BENCH_JOB`] is relative to: the repository root when the working directory is
 /// one, else the built-in copy ([`crate::jobs::root`]).
-pub fn repo_root() -> Result<PathBuf, String> {
-    crate::jobs::root()
+pub fn repo_root() -> Result<PathBuf> {
+    Ok(crate::jobs::root()?)
 }
 
 /// Streams `job` to the service under `prefix` within its Status credit (a feeder, as strand-feed
 /// is), sends Start after the first batch, and returns when `stop` is set: the segments sent.
-pub fn stream_job(prefix: &str, job: &Job, stop: &AtomicBool) -> Result<usize, String> {
+pub fn stream_job(prefix: &str, job: &Job, stop: &AtomicBool) -> Result<usize> {
     let ports = ClientPorts::open(
         &ServiceNames::new(prefix),
         &format!("strand-bench-feed-{}", std::process::id()),
         ClientRoles { feeder: true, monitor: true, ..Default::default() },
-    )
-    .map_err(|e| e.to_string())?;
+    )?;
     let (first, last) = (job.segments[0].seq, job.segments[job.segments.len() - 1].seq);
     let (mut sent, mut started, mut batch_seq) = (0usize, false, 0u64);
     while !stop.load(Ordering::Relaxed) {
@@ -55,7 +57,7 @@ pub fn stream_job(prefix: &str, job: &Job, stop: &AtomicBool) -> Result<usize, S
         while sent < allowed {
             let n = (allowed - sent).min(ipc::SEGMENT_BATCH_CAPACITY);
             batch_seq += 1;
-            if ports.send_segments(&batch(&job.segments[sent..sent + n], batch_seq)).map_err(|e| e.to_string())? == 0 {
+            if ports.send_segments(&batch(&job.segments[sent..sent + n], batch_seq))? == 0 {
                 break; // nobody subscribed yet: not delivered, so resend later
             }
             sent += n;
@@ -68,7 +70,7 @@ pub fn stream_job(prefix: &str, job: &Job, stop: &AtomicBool) -> Result<usize, S
                 value: 0.0,
                 _reserved: 0,
             };
-            ports.send_control(&start).map_err(|e| e.to_string())?;
+            ports.send_control(&start)?;
             started = true;
         }
     }
@@ -116,6 +118,11 @@ impl Dist {
             && self.p9999_ns <= self.max_ns
     }
 
+    /// An error naming `what` unless [`Dist::is_sane`].
+    pub fn check(&self, what: &str) -> Result<()> {
+        if self.is_sane() { Ok(()) } else { Err(ToolError::Measurement(format!("{what}: implausible distribution {self:?}"))) }
+    }
+
     /// One table row: the name, then p50 … max in µs.
     pub fn row(&self, name: &str) -> String {
         let us = |v: u64| v as f64 * 1e-3;
@@ -143,7 +150,7 @@ pub fn ratio(a: u64, b: u64) -> f64 {
 
 /// Draws the histograms of `series` (name, histogram) into a PNG: x the duration (µs, log scale), y the
 /// count per bucket (log scale), one line per series, so a measurement and its baseline overlay.
-pub fn plot_histograms(path: &Path, title: &str, series: &[(&str, &Histogram)]) -> Result<(), String> {
+pub fn plot_histograms(path: &Path, title: &str, series: &[(&str, &Histogram)]) -> Result<()> {
     let buckets: Vec<Vec<(f64, f64)>> = series
         .iter()
         .map(|(_, h)| h.iter_buckets().map(|(lo, hi, c)| (((lo + hi) as f64 * 0.5 * 1e-3).max(1e-3), c as f64)).collect())
@@ -154,7 +161,7 @@ pub fn plot_histograms(path: &Path, title: &str, series: &[(&str, &Histogram)]) 
     let y_max = all.map(|p| p.1).fold(1.0, f64::max) * 2.0;
     crate::replay::plot::register_font()?;
     let root = BitMapBackend::new(path, (1000, 560)).into_drawing_area();
-    let err = |e: &dyn std::fmt::Display| format!("{}: {e}", path.display());
+    let err = |e: &dyn std::fmt::Display| ToolError::Plot { path: path.to_path_buf(), why: e.to_string() };
     root.fill(&WHITE).map_err(|e| err(&e))?;
     let mut chart = ChartBuilder::on(&root)
         .caption(title, ("sans-serif", 22))

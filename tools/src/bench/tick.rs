@@ -23,6 +23,7 @@ use strand::log::writer::{LogContext, Logger};
 use strand_ipc as ipc;
 
 use super::{BENCH_JOB, Dist, bench_job};
+use crate::error::{Result, ToolError};
 use crate::feed::load_segments;
 
 /// What to run.
@@ -76,9 +77,9 @@ pub struct TickReport {
 }
 
 /// Runs the stages and the whole step for `iterations` ticks.
-pub fn run(opts: &TickOptions) -> Result<TickReport, String> {
-    let cfg = Config::load(&opts.config).map_err(|e| e.to_string())?;
-    let model = cfg.robot.build_model().map_err(|e| e.to_string())?;
+pub fn run(opts: &TickOptions) -> Result<TickReport> {
+    let cfg = Config::load(&opts.config)?;
+    let model = cfg.robot.build_model()?;
     let n = model.dof();
     let dt = 1.0 / cfg.controller.rate_hz;
     let dt_ns = (dt * 1e9).round() as u64;
@@ -93,20 +94,19 @@ pub fn run(opts: &TickOptions) -> Result<TickReport, String> {
     let start_b = model.forward_kinematics(&q);
     let (start_w, start_q) =
         estimator.at(0).base_to_world(&start_b.translation.vector, &UnitQuaternion::from_rotation_matrix(&start_b.rotation));
-    let mut engine = PathEngine::new(&cfg.path, dt, start_w, start_q).map_err(|e| e.to_string())?;
-    let mut clik = Clik::new(cfg.clik).map_err(|e| e.to_string())?;
-    let mut extruder = Extruder::new(&cfg.extruder, dt).map_err(|e| e.to_string())?;
+    let mut engine = PathEngine::new(&cfg.path, dt, start_w, start_q)?;
+    let mut clik = Clik::new(cfg.clik)?;
+    let mut extruder = Extruder::new(&cfg.extruder, dt)?;
     let mut state = ChainState::new(n);
-    let (segments, _) =
-        load_segments(&opts.root.join(BENCH_JOB), &cfg.bed_transform().map_err(|e| e.to_string())?).map_err(|e| e.to_string())?;
+    let (segments, _) = load_segments(&opts.root.join(BENCH_JOB), &cfg.bed_transform()?)?;
     let segments: Vec<Segment> = segments.into_iter().map(|(s, _)| s).collect();
     let mut next_core = 0usize;
 
     // The whole controller, on the same job over the wire types, with its log.
-    let mut ctl = Controller::new(&cfg.controller_settings(), model.clone()).map_err(|e| e.to_string())?;
+    let mut ctl = Controller::new(&cfg.controller_settings(), model.clone())?;
     let job = bench_job(&opts.root, &cfg)?;
     let log_path = std::env::temp_dir().join(format!("strand-bench-tick-{}.mcap", std::process::id()));
-    let logger = Logger::start_at(&cfg.log, LogContext::new(&cfg, &model), &log_path).map_err(|e| e.to_string())?;
+    let logger = Logger::start_at(&cfg.log, LogContext::new(&cfg, &model), &log_path)?;
     let mut input = TickInput::new(0, 0);
     let mut q_ctl = [0.0; ipc::MAX_JOINTS];
     q_ctl[..n].copy_from_slice(&q.as_slice()[..n]);
@@ -125,7 +125,7 @@ pub fn run(opts: &TickOptions) -> Result<TickReport, String> {
         time_ns += dt_ns;
         // Keep the engine fed (outside the measurement), as the controller's intake does.
         while next_core < segments.len() && engine.free_space() > 0 {
-            engine.push(&segments[next_core]).map_err(|e| format!("segment {}: {e:?}", segments[next_core].seq))?;
+            engine.push(&segments[next_core]).map_err(|e| ToolError::Measurement(format!("segment {}: {e:?}", segments[next_core].seq)))?;
             next_core += 1;
         }
         let mut stage = 0;
@@ -213,6 +213,23 @@ pub fn run(opts: &TickOptions) -> Result<TickReport, String> {
 }
 
 /// Writes the report as a table.
+impl TickReport {
+    /// The benchmark's rules: sane distributions and no allocation in `Controller::step` or any
+    /// stage (the tick path must not allocate).
+    pub fn check(&self) -> Result<()> {
+        self.total.check("Controller::step")?;
+        let allocating: Vec<&str> = self.stages.iter().filter(|s| s.allocations > 0).map(|s| s.name.as_str()).collect();
+        if self.allocations > 0 || !allocating.is_empty() {
+            return Err(ToolError::Measurement(format!(
+                "the tick allocated: Controller::step {} times; stages {allocating:?}",
+                self.allocations
+            )));
+        }
+        Ok(())
+    }
+}
+
+/// Prints the report as a table.
 pub fn print(r: &TickReport) {
     println!(
         "strand-bench tick: {} ({} joints), {} ticks of 004's box, {} of them on the path",
@@ -226,7 +243,7 @@ pub fn print(r: &TickReport) {
 }
 
 /// Draws the whole step's histogram with the stages'.
-pub fn plot(r: &TickReport, path: &std::path::Path) -> Result<(), String> {
+pub fn plot(r: &TickReport, path: &std::path::Path) -> Result<()> {
     let series: Vec<(&str, &Histogram)> = r.histograms.iter().map(|(n, h)| (n.as_str(), h)).collect();
     super::plot_histograms(path, &format!("tick cost, {}", r.robot), &series)
 }

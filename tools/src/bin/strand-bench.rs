@@ -5,24 +5,18 @@
 //! in `strand_tools::bench`. `--json` prints one object per mode with `samples, p50_ns, p99_ns,
 //! p999_ns, p9999_ns, max_ns`; `--png FILE` draws the histograms.
 //!
-//! The `log` mode measures the MCAP logger at a control rate: a real controller prints an endless square job on a robot
-//! that follows its commands, paced by the service's own timer clock, and every tick goes through
-//! `Logger::push` to the writer thread. It reports the enqueue cost per record (p50 … max), drops
-//! (the aim is 0), the writer thread's CPU share and the bytes written per second.
+//! The `log` mode measures the MCAP logger at a control rate (enqueue cost, drops, writer CPU,
+//! bytes per second). This main owns the command line and the counting allocator; the
+//! measurements are `strand_tools::bench`.
 
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
-use strand::config::{Config, locate};
-use strand::core::{Controller, MAX_SEGMENTS_PER_TICK, TickInput};
+use strand::config::locate;
 use strand::io::alloc_count::{self, Counting};
-use strand::io::clock::{TimerClock, monotonic_ns};
-use strand::io::histogram::Histogram;
-use strand::log::messages::TickTiming;
-use strand::log::writer::{LogContext, Logger, thread_cpu_s};
-use strand_ipc as ipc;
-use strand_tools::bench::{self, Dist, jitter, latency, tick};
+use strand_tools::bench::{self, jitter, latency, log, tick};
+use strand_tools::error::Result;
 
 /// Counts allocations, for `tick` (the tick path must not allocate).
 #[global_allocator]
@@ -139,174 +133,19 @@ enum Mode {
 
 /// A robot by NAME (`iiwa7` → iiwa7.toml by the search order of `strand::config::locate`), or a
 /// config file as it is (which must exist).
-fn robot_config(robot: &str) -> Result<PathBuf, String> {
-    locate::service_config(Some(Path::new(robot))).map_err(|e| e.to_string())
+fn robot_config(robot: &str) -> Result<PathBuf> {
+    Ok(locate::service_config(Some(Path::new(robot)))?)
 }
 
-fn emit<T: serde::Serialize>(json: bool, report: &T, table: impl Fn(&T)) -> Result<(), String> {
+/// The report as one JSON line, or as `table` prints it; then its PNG, if asked for.
+fn emit<T: serde::Serialize>(json: bool, report: &T, table: fn(&T), png: Option<&Path>, plot: fn(&T, &Path) -> Result<()>) -> Result<()> {
     if json {
-        println!("{}", serde_json::to_string(report).map_err(|e| e.to_string())?);
+        println!("{}", serde_json::to_string(report).expect("a report serialises"));
     } else {
         table(report);
     }
-    Ok(())
-}
-
-fn check_sane(what: &str, d: &Dist) -> Result<(), String> {
-    if d.is_sane() { Ok(()) } else { Err(format!("{what}: implausible distribution {d:?}")) }
-}
-
-const DOWN: [f64; 4] = [0.0, 0.0, 1.0, 0.0];
-
-/// The k-th segment of an endless 30 mm square at 30 mm/s (segment 0 is the travel to its corner).
-fn square_segment(k: u64) -> ipc::Segment {
-    let (x, y, z, side) = (0.45, -0.02, 0.2, 0.03);
-    let corners = [[x + side, y, z], [x + side, y + side, z], [x, y + side, z], [x, y, z]];
-    let (end, feed, filament, flags) = if k == 0 {
-        ([x, y, z], 0.1, 0.0, ipc::segment_flags::TRAVEL)
-    } else {
-        (corners[((k - 1) % 4) as usize], 0.03, side * 0.033, ipc::segment_flags::EXTRUDE)
-    };
-    ipc::Segment { seq: k + 1, kind: ipc::SegmentKind::Line as u32, flags, end, orientation: DOWN, feed, filament, ..Default::default() }
-}
-
-fn log_mode(
-    rate: f64,
-    seconds: f64,
-    config: Option<PathBuf>,
-    out: Option<PathBuf>,
-    json: bool,
-    png: Option<PathBuf>,
-) -> Result<(), String> {
-    let mut cfg = locate::service_config(config.as_deref()).and_then(|c| Config::load(&c)).map_err(|e| e.to_string())?;
-    cfg.controller.rate_hz = rate;
-    cfg.controller.validate().map_err(|e| e.to_string())?;
-    let model = cfg.robot.build_model().map_err(|e| e.to_string())?;
-    let (path, temporary) = match out {
-        Some(p) => (p, false),
-        None => (std::env::temp_dir().join(format!("strand-bench-log-{}.mcap", std::process::id())), true),
-    };
-    let logger = Logger::start_at(&cfg.log, LogContext::new(&cfg, &model), &path).map_err(|e| e.to_string())?;
-    let mut ctl = Controller::new(&cfg.controller_settings(), model.clone()).map_err(|e| e.to_string())?;
-    let dt_ns = (1e9 / rate).round() as u64;
-    let ticks = (seconds * rate).round() as u64;
-    let mut clock = TimerClock::new(dt_ns, 0, 50_000);
-    let mut q = [0.0; 8];
-    let start = [0.0, 0.4, 0.0, -1.5, 0.0, 1.2, 0.0];
-    q[..model.dof().min(7)].copy_from_slice(&start[..model.dof().min(7)]);
-    let mut enqueue = Histogram::new();
-    let mut step = Histogram::new();
-    let mut next_segment = 0u64;
-    let mut free = 0u32;
-    let mut input = TickInput::new(0, 0);
-    let mut running_ticks = 0u64;
-    let wall0 = monotonic_ns();
-    let cpu0 = thread_cpu_s();
-    clock.start(monotonic_ns());
-    for tick in 0..ticks {
-        let wake = clock.wait();
-        input.reset(tick, wake.deadline_ns);
-        input.cycle.log_drops = logger.dropped();
-        input.cycle.log_state = logger.state();
-        input.joint_state =
-            Some(ipc::JointState { seq: tick + 1, stamp_ns: wake.deadline_ns, dof: model.dof() as u32, position: q, ..Default::default() });
-        if tick == 0 {
-            input.push_control(&ipc::Control {
-                seq: 1,
-                stamp_ns: wake.deadline_ns,
-                command: ipc::Command::Start as u32,
-                value: 0.0,
-                _reserved: 0,
-            });
-            free = 256;
-        }
-        // Keep the queue fed (credit from the last Status), a batch at a time.
-        while free > 0 && input.segment_count < 32.min(MAX_SEGMENTS_PER_TICK as u32) {
-            input.push_segment(&square_segment(next_segment));
-            next_segment += 1;
-            free -= 1;
-        }
-        let t0 = monotonic_ns();
-        let out = ctl.step(&input);
-        let t1 = monotonic_ns();
-        logger.push(&input, &out, &TickTiming { wake_lateness_ns: wake.lateness_ns, step_ns: t1 - t0, tick_ns: t1 - t0 });
-        let t2 = monotonic_ns();
-        step.record(t1 - t0);
-        enqueue.record(t2 - t1);
-        if out.joint_command.valid == 1 {
-            q = out.joint_command.position;
-        }
-        free = out.status.queue_free.saturating_sub(256);
-        running_ticks += (out.status.run_state == ipc::RunState::Running as u32) as u64;
-    }
-    let tick_wall_s = (monotonic_ns() - wall0) as f64 * 1e-9;
-    let tick_cpu_s = thread_cpu_s() - cpu0;
-    let report = logger.finish();
-    let wall = report.writer_wall_s.max(1e-9);
-    let ns = |v: u64| v as f64;
-    if json {
-        println!(
-            "{{\"mode\":\"log\",\"rate_hz\":{rate},\"seconds\":{seconds},\"ticks\":{ticks},\"running_ticks\":{running_ticks},\"samples\":{},\"p50_ns\":{},\"p99_ns\":{},\"p999_ns\":{},\"p9999_ns\":{},\"max_ns\":{},\"drops\":{},\"ticks_written\":{},\"bytes\":{},\"bytes_per_s\":{:.0},\"writer_cpu_s\":{:.3},\"writer_wall_s\":{:.3},\"writer_cpu_share\":{:.4},\"tick_thread_cpu_share\":{:.4},\"error\":{}}}",
-            enqueue.count(),
-            enqueue.percentile(50.0),
-            enqueue.percentile(99.0),
-            enqueue.percentile(99.9),
-            enqueue.percentile(99.99),
-            enqueue.max(),
-            report.drops,
-            report.ticks_written,
-            report.bytes,
-            report.bytes as f64 / wall,
-            report.writer_cpu_s,
-            report.writer_wall_s,
-            report.writer_cpu_s / wall,
-            tick_cpu_s / tick_wall_s,
-            report.error.as_ref().map_or("null".to_string(), |e| format!("{e:?}")),
-        );
-    } else {
-        println!("strand-bench log: {ticks} ticks at {rate} Hz ({seconds} s), {running_ticks} of them printing, {} joints", model.dof());
-        println!("{:<22} {:>9} {:>9} {:>9} {:>9} {:>9}", "per tick (ns)", "p50", "p99", "p99.9", "p99.99", "max");
-        for (name, h) in [("Logger::push", &enqueue), ("Controller::step", &step)] {
-            println!(
-                "{name:<22} {:>9.0} {:>9.0} {:>9.0} {:>9.0} {:>9.0}",
-                ns(h.percentile(50.0)),
-                ns(h.percentile(99.0)),
-                ns(h.percentile(99.9)),
-                ns(h.percentile(99.99)),
-                ns(h.max())
-            );
-        }
-        println!("drops                  {}", report.drops);
-        println!("ticks written          {}", report.ticks_written);
-        println!(
-            "bytes                  {} ({:.1} kB/s, {:.0} B/tick)",
-            report.bytes,
-            report.bytes as f64 / wall / 1e3,
-            report.bytes as f64 / ticks.max(1) as f64
-        );
-        println!(
-            "writer CPU             {:.2} s of {:.2} s ({:.1} % of one core)",
-            report.writer_cpu_s,
-            wall,
-            100.0 * report.writer_cpu_s / wall
-        );
-        println!("tick thread CPU        {:.1} % of one core", 100.0 * tick_cpu_s / tick_wall_s);
-        if let Some(e) = &report.error {
-            println!("write error            {e}");
-        }
-    }
-    if let Some(png) = png {
-        bench::plot_histograms(&png, &format!("Logger::push at {rate} Hz"), &[("Logger::push", &enqueue), ("Controller::step", &step)])?;
-    }
-    if temporary {
-        for f in &report.files {
-            let _ = std::fs::remove_file(f);
-        }
-    } else {
-        eprintln!("log: {}", report.files.iter().map(|f| f.display().to_string()).collect::<Vec<_>>().join(" "));
-    }
-    if report.drops > 0 || report.error.is_some() {
-        return Err(format!("{} ticks not logged", report.drops));
+    if let Some(path) = png {
+        plot(report, path)?;
     }
     Ok(())
 }
@@ -317,56 +156,46 @@ fn main() -> ExitCode {
     unsafe {
         libc::signal(libc::SIGPIPE, libc::SIG_DFL);
     }
-    let result = (|| match Cli::parse().command {
-        Mode::Log { rate, seconds, config, out, json, png } => log_mode(rate, seconds, config, out, json, png),
-        Mode::Jitter { rate, seconds, rt, priority, with_controller, cyclictest, json, png } => {
-            let opts = jitter::JitterOptions {
-                rate_hz: rate,
-                seconds,
-                rt,
-                priority,
-                with_controller: with_controller.map(|r| robot_config(&r)).transpose()?,
-                cyclictest,
-                root: bench::repo_root()?,
-            };
-            jitter::run(&opts).and_then(|r| {
-                emit(json, &r, jitter::print)?;
-                if let Some(p) = png {
-                    jitter::plot(&r, &p)?;
-                }
-                check_sane("lateness", &r.lateness)?;
-                check_sane("baseline", &r.baseline)
-            })
+    let result = (|| -> Result<()> {
+        match Cli::parse().command {
+            Mode::Log { rate, seconds, config, out, json, png } => {
+                let opts = log::LogOptions { rate_hz: rate, seconds, config: locate::service_config(config.as_deref())?, out };
+                let r = log::run(&opts)?;
+                emit(json, &r, log::print, png.as_deref(), log::plot)?;
+                r.check()
+            }
+            Mode::Jitter { rate, seconds, rt, priority, with_controller, cyclictest, json, png } => {
+                let opts = jitter::JitterOptions {
+                    rate_hz: rate,
+                    seconds,
+                    rt,
+                    priority,
+                    with_controller: with_controller.map(|r| robot_config(&r)).transpose()?,
+                    cyclictest,
+                    root: bench::repo_root()?,
+                };
+                let r = jitter::run(&opts)?;
+                emit(json, &r, jitter::print, png.as_deref(), jitter::plot)?;
+                r.lateness.check("lateness")?;
+                r.baseline.check("baseline")
+            }
+            Mode::Latency { rate, seconds, robot, json, png } => {
+                let bin_dir = std::env::current_exe().ok().and_then(|p| p.parent().map(PathBuf::from)).unwrap_or_default();
+                let opts =
+                    latency::LatencyOptions { rate_hz: rate, seconds, config: robot_config(&robot)?, root: bench::repo_root()?, bin_dir };
+                let r = latency::run(&opts)?;
+                emit(json, &r, latency::print, png.as_deref(), latency::plot)?;
+                r.latency.check("latency")?;
+                r.baseline.check("ping-pong")
+            }
+            Mode::Tick { robot, iterations, json, png } => {
+                let opts = tick::TickOptions { config: robot_config(&robot)?, iterations, root: bench::repo_root()?, allocations };
+                let r = tick::run(&opts)?;
+                emit(json, &r, tick::print, png.as_deref(), tick::plot)?;
+                r.check()
+            }
+            Mode::Pong { prefix, seconds } => latency::pong(&prefix, seconds),
         }
-        Mode::Latency { rate, seconds, robot, json, png } => {
-            let bin_dir = std::env::current_exe().ok().and_then(|p| p.parent().map(PathBuf::from)).unwrap_or_default();
-            let opts =
-                latency::LatencyOptions { rate_hz: rate, seconds, config: robot_config(&robot)?, root: bench::repo_root()?, bin_dir };
-            latency::run(&opts).and_then(|r| {
-                emit(json, &r, latency::print)?;
-                if let Some(p) = png {
-                    latency::plot(&r, &p)?;
-                }
-                check_sane("latency", &r.latency)?;
-                check_sane("ping-pong", &r.baseline)
-            })
-        }
-        Mode::Tick { robot, iterations, json, png } => {
-            let opts = tick::TickOptions { config: robot_config(&robot)?, iterations, root: bench::repo_root()?, allocations };
-            tick::run(&opts).and_then(|r| {
-                emit(json, &r, tick::print)?;
-                if let Some(p) = png {
-                    tick::plot(&r, &p)?;
-                }
-                check_sane("Controller::step", &r.total)?;
-                let allocating: Vec<&str> = r.stages.iter().filter(|s| s.allocations > 0).map(|s| s.name.as_str()).collect();
-                if r.allocations > 0 || !allocating.is_empty() {
-                    return Err(format!("the tick allocated: Controller::step {} times; stages {allocating:?}", r.allocations));
-                }
-                Ok(())
-            })
-        }
-        Mode::Pong { prefix, seconds } => latency::pong(&prefix, seconds),
     })();
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -6,9 +6,9 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
-use strand::log::reader::LogFile;
 use strand::log::replay::{Verdict, verify};
-use strand_tools::replay::{self, plot as replay_plot};
+use strand_tools::error::ToolError;
+use strand_tools::replay::{self, open_all, plot as replay_plot};
 
 #[derive(Parser)]
 #[command(name = "strand-replay", version, about = "Replay, summarise, export, plot and recover strand MCAP logs")]
@@ -60,35 +60,13 @@ enum Command {
     },
 }
 
-/// Opens the logs; an error for one without a tick (cut short before its first chunk was closed,
-/// or not a strand log), a note on stderr for one cut short (only its closed chunks are read).
-fn open_all(files: &[PathBuf]) -> Result<Vec<LogFile>, String> {
-    let logs: Vec<LogFile> = files.iter().map(|f| LogFile::open(f).map_err(|e| e.to_string())).collect::<Result<_, _>>()?;
-    for l in &logs {
-        if l.channel(strand::log::topics::TICK).next().is_none() {
-            return Err(format!(
-                "{}: no ticks in the log ({})",
-                l.path.display(),
-                if l.finished { "not a strand log, or a run of no tick" } else { "cut short before its first chunk was closed?" }
-            ));
-        }
-        if !l.finished {
-            eprintln!(
-                "strand-replay: note: {}: cut short (no footer): only its closed chunks are read; `strand-replay recover` rewrites it",
-                l.path.display()
-            );
-        }
-    }
-    Ok(logs)
-}
-
 fn main() -> ExitCode {
     // A closed pipe (`… | head`) ends the process quietly instead of a panic in println!.
     // SAFETY: setting a signal's disposition to the default before any thread starts.
     unsafe {
         libc::signal(libc::SIGPIPE, libc::SIG_DFL);
     }
-    let fail = |e: String| {
+    let fail = |e: ToolError| {
         eprintln!("strand-replay: {e}");
         ExitCode::from(2)
     };
@@ -107,7 +85,7 @@ fn main() -> ExitCode {
                     println!("diverged at tick {tick}: {field}: logged {logged}, replayed {replayed}");
                     ExitCode::from(1)
                 }
-                Err(e) => fail(e.to_string()),
+                Err(e) => fail(e.into()),
             }
         }
         Command::Info { files } => match open_all(&files).and_then(|l| replay::analyse(&l)) {
@@ -151,7 +129,7 @@ fn main() -> ExitCode {
                     );
                     ExitCode::SUCCESS
                 }
-                Err(e) => fail(e.to_string()),
+                Err(e) => fail(e.into()),
             }
         }
     }

@@ -37,6 +37,7 @@ use strand_job::gcode::{GcodeOptions, parse_file};
 use strand_job::timing::time_program;
 
 use super::filter::Butterworth2;
+use crate::error::{Result, ToolError};
 
 /// How the job's path becomes a time series.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum, Serialize)]
@@ -78,15 +79,15 @@ impl TcpSeries {
 
 /// Samples a job's TCP path. `config` gives the path engine's limits and rate for
 /// [`Timing::Controller`]; the job stays in its own (bed) frame.
-pub fn sample_job(job: &Path, timing: Timing, dt: f64, config: &Config) -> Result<TcpSeries, String> {
+pub fn sample_job(job: &Path, timing: Timing, dt: f64, config: &Config) -> Result<TcpSeries> {
     if !(dt.is_finite() && dt > 0.0) {
-        return Err(format!("--dt {dt}: must be positive"));
+        return Err(ToolError::Plan(format!("--dt {dt}: must be positive")));
     }
     let name = job.display().to_string();
-    let mut parser = parse_file(job, GcodeOptions::for_path(job)).map_err(|e| e.to_string())?.peekable();
+    let mut parser = parse_file(job, GcodeOptions::for_path(job))?.peekable();
     // strand_job::timing::time_program never ends on a program without a segment.
     if parser.peek().is_none() {
-        return Err(format!("{name}: no motion in the program"));
+        return Err(ToolError::Plan(format!("{name}: no motion in the program")));
     }
     let mut series = TcpSeries { dt, ..TcpSeries::default() };
     match timing {
@@ -104,19 +105,22 @@ pub fn sample_job(job: &Path, timing: Timing, dt: f64, config: &Config) -> Resul
                     next += 1;
                 }
                 tick += 1;
-            })
-            .map_err(|e| e.to_string())?;
+            })?;
         }
         Timing::Constant => {
             let mut segments = Vec::new();
             for g in parser {
-                segments.push(g.map_err(|e| e.to_string())?.segment);
+                segments.push(g?.segment);
             }
             constant_speed(&segments, dt, &mut series);
         }
     }
     if series.len() <= super::filter::PAD {
-        return Err(format!("{name}: {} samples at dt = {dt} s; the filter needs more than {}", series.len(), super::filter::PAD));
+        return Err(ToolError::Plan(format!(
+            "{name}: {} samples at dt = {dt} s; the filter needs more than {}",
+            series.len(),
+            super::filter::PAD
+        )));
     }
     Ok(series)
 }
@@ -207,7 +211,7 @@ pub struct BasePlan {
 }
 
 /// Filters `tcp` at `fc_hz` and measures the result.
-pub fn plan_at(tcp: &TcpSeries, fc_hz: f64, reach: &Reach, mass_kg: f64) -> Result<BasePlan, String> {
+pub fn plan_at(tcp: &TcpSeries, fc_hz: f64, reach: &Reach, mass_kg: f64) -> Result<BasePlan> {
     let filter = Butterworth2::lowpass(fc_hz, 1.0 / tcp.dt)?;
     let base_x = filter.filtfilt(&tcp.x)?;
     let base_y = filter.filtfilt(&tcp.y)?;
@@ -260,16 +264,16 @@ pub struct Search {
 
 /// Algorithm 1: from `fc_start` lower the cut-off by `fc_step` until the reach exceeds the limit
 /// and keep the previous cut-off. An error if `fc_start` already exceeds it.
-pub fn search(tcp: &TcpSeries, reach: &Reach, mass_kg: f64, fc_start: f64, fc_step: f64) -> Result<Search, String> {
+pub fn search(tcp: &TcpSeries, reach: &Reach, mass_kg: f64, fc_start: f64, fc_step: f64) -> Result<Search> {
     if !(fc_step.is_finite() && fc_step > 0.0) {
-        return Err(format!("--fc-step {fc_step}: must be positive"));
+        return Err(ToolError::Plan(format!("--fc-step {fc_step}: must be positive")));
     }
     let mut best: Option<BasePlan> = None;
     // fc = fc_start − k·Δfc, computed from k so the grid does not drift with rounding; k + 1 tried.
     for k in 0usize.. {
         let fc = fc_start - k as f64 * fc_step;
         if fc <= fc_step * 1e-9 {
-            let plan = best.ok_or_else(|| format!("--fc-start {fc_start}: no positive cut-off on the grid"))?;
+            let plan = best.ok_or_else(|| ToolError::Plan(format!("--fc-start {fc_start}: no positive cut-off on the grid")))?;
             return Ok(Search { plan, steps: k, floor_reached: true });
         }
         let steps = k + 1;
@@ -277,11 +281,11 @@ pub fn search(tcp: &TcpSeries, reach: &Reach, mass_kg: f64, fc_start: f64, fc_st
         if plan.r_max_m > reach.reach_limit_m {
             return match best {
                 Some(plan) => Ok(Search { plan, steps, floor_reached: false }),
-                None => Err(format!(
+                None => Err(ToolError::Plan(format!(
                     "--fc-start {fc_start} Hz already needs a reach of {:.1} mm, over --reach-limit {:.1} mm: raise --fc-start or the limit",
                     plan.r_max_m * 1e3,
                     reach.reach_limit_m * 1e3
-                )),
+                ))),
             };
         }
         best = Some(plan);
@@ -290,9 +294,9 @@ pub fn search(tcp: &TcpSeries, reach: &Reach, mass_kg: f64, fc_start: f64, fc_st
 }
 
 /// The figures of 000 Fig. 4 over a grid of cut-offs.
-pub fn sweep(tcp: &TcpSeries, reach: &Reach, mass_kg: f64, from: f64, to: f64, step: f64) -> Result<Vec<BasePlan>, String> {
+pub fn sweep(tcp: &TcpSeries, reach: &Reach, mass_kg: f64, from: f64, to: f64, step: f64) -> Result<Vec<BasePlan>> {
     if !(from > 0.0 && to >= from && step > 0.0) {
-        return Err(format!("sweep {from}..{to} Hz by {step}: needs 0 < from ≤ to and step > 0"));
+        return Err(ToolError::Plan(format!("sweep {from}..{to} Hz by {step}: needs 0 < from ≤ to and step > 0")));
     }
     let n = ((to - from) / step + 1e-9).floor() as usize + 1;
     (0..n)
@@ -306,8 +310,8 @@ pub fn sweep(tcp: &TcpSeries, reach: &Reach, mass_kg: f64, from: f64, to: f64, s
 }
 
 /// Writes t, tcp_x, tcp_y, base_x, base_y (s, m; base before the nominal-reach offset).
-pub fn write_csv(path: &Path, tcp: &TcpSeries, plan: &BasePlan) -> Result<(), String> {
-    let err = |e: &dyn std::fmt::Display| format!("{}: {e}", path.display());
+pub fn write_csv(path: &Path, tcp: &TcpSeries, plan: &BasePlan) -> Result<()> {
+    let err = |e: &dyn std::fmt::Display| ToolError::Write { path: path.to_path_buf(), why: e.to_string() };
     let mut w = csv::Writer::from_path(path).map_err(|e| err(&e))?;
     w.write_record(["t", "tcp_x", "tcp_y", "base_x", "base_y"]).map_err(|e| err(&e))?;
     for k in 0..tcp.len() {
@@ -321,8 +325,8 @@ pub fn write_csv(path: &Path, tcp: &TcpSeries, plan: &BasePlan) -> Result<(), St
 /// base_y (s, m, W). The base starts at the config's mount and moves as the filtered TCP does:
 /// base(t) = mount + filtered(t − delay) − filtered(0), held at the mount for the first `delay`
 /// seconds (the controller's approach to the first point; the job's clock starts after it).
-pub fn write_trajectory(path: &Path, tcp: &TcpSeries, plan: &BasePlan, mount: [f64; 2], delay: f64) -> Result<(), String> {
-    let err = |e: &dyn std::fmt::Display| format!("{}: {e}", path.display());
+pub fn write_trajectory(path: &Path, tcp: &TcpSeries, plan: &BasePlan, mount: [f64; 2], delay: f64) -> Result<()> {
+    let err = |e: &dyn std::fmt::Display| ToolError::Write { path: path.to_path_buf(), why: e.to_string() };
     let mut w = csv::Writer::from_path(path).map_err(|e| err(&e))?;
     w.write_record(["t", "base_x", "base_y"]).map_err(|e| err(&e))?;
     let (x0, y0) = (plan.base_x[0], plan.base_y[0]);
@@ -340,9 +344,9 @@ pub fn write_trajectory(path: &Path, tcp: &TcpSeries, plan: &BasePlan, mount: [f
 }
 
 /// 000 Fig. 4 as a PNG: a_max, r_max and W_FF against f_c, the chosen f_c marked.
-pub fn plot_sweep(path: &Path, rows: &[BasePlan], reach: &Reach, chosen: Option<f64>) -> Result<(), String> {
+pub fn plot_sweep(path: &Path, rows: &[BasePlan], reach: &Reach, chosen: Option<f64>) -> Result<()> {
     crate::replay::plot::register_font()?;
-    let e = |e: &dyn std::fmt::Display| format!("{}: {e}", path.display());
+    let e = |e: &dyn std::fmt::Display| ToolError::Plot { path: path.to_path_buf(), why: e.to_string() };
     let root = BitMapBackend::new(path, (1500, 450)).into_drawing_area();
     root.fill(&WHITE).map_err(|x| e(&x))?;
     let panels = root.split_evenly((1, 3));
@@ -375,9 +379,9 @@ pub fn plot_sweep(path: &Path, rows: &[BasePlan], reach: &Reach, chosen: Option<
 }
 
 /// 000 Fig. 5 as a PNG: the TCP path in x–y with the base path (filtered, offset removed) over it.
-pub fn plot_paths(path: &Path, tcp: &TcpSeries, plan: &BasePlan) -> Result<(), String> {
+pub fn plot_paths(path: &Path, tcp: &TcpSeries, plan: &BasePlan) -> Result<()> {
     crate::replay::plot::register_font()?;
-    let e = |e: &dyn std::fmt::Display| format!("{}: {e}", path.display());
+    let e = |e: &dyn std::fmt::Display| ToolError::Plot { path: path.to_path_buf(), why: e.to_string() };
     let root = BitMapBackend::new(path, (1400, 500)).into_drawing_area();
     root.fill(&WHITE).map_err(|x| e(&x))?;
     let (panel_xy, panel_t) = root.split_horizontally(700);
@@ -491,16 +495,15 @@ struct Summary<'a> {
 }
 
 /// Runs `strand-plan base`.
-pub fn run(args: &BaseArgs) -> Result<(), String> {
+pub fn run(args: &BaseArgs) -> Result<()> {
     super::positive("r-nom", args.r_nom)?;
     super::positive("reach-limit", args.reach_limit)?;
     super::positive("mass", args.mass)?;
     super::positive("fc-start", args.fc_start)?;
     if args.reach_limit < args.r_nom {
-        return Err(format!("--reach-limit {} m is below --r-nom {} m", args.reach_limit, args.r_nom));
+        return Err(ToolError::Plan(format!("--reach-limit {} m is below --r-nom {} m", args.reach_limit, args.r_nom)));
     }
-    let config =
-        locate::service_config_or(args.config.as_deref(), "free-flyer.toml").and_then(|c| Config::load(&c)).map_err(|e| e.to_string())?;
+    let config = locate::service_config_or(args.config.as_deref(), "free-flyer.toml").and_then(|c| Config::load(&c))?;
     let tcp = sample_job(&args.job, args.timing, args.dt, &config)?;
     let reach = Reach { r_nom_m: args.r_nom, reach_limit_m: args.reach_limit, direction_rad: args.direction_deg.to_radians() };
     let found = search(&tcp, &reach, args.mass, args.fc_start, args.fc_step)?;
@@ -510,7 +513,7 @@ pub fn run(args: &BaseArgs) -> Result<(), String> {
     }
     if let Some(p) = &args.trajectory {
         if !(args.start_delay.is_finite() && args.start_delay >= 0.0) {
-            return Err(format!("--start-delay {}: must be ≥ 0", args.start_delay));
+            return Err(ToolError::Plan(format!("--start-delay {}: must be ≥ 0", args.start_delay)));
         }
         let m = config.base.mount_xyz;
         write_trajectory(p, &tcp, &found.plan, [m[0], m[1]], args.start_delay)?;
@@ -534,7 +537,7 @@ pub fn run(args: &BaseArgs) -> Result<(), String> {
             mass_kg: args.mass,
             sweep: rows.as_deref(),
         };
-        println!("{}", serde_json::to_string(&s).map_err(|e| e.to_string())?);
+        println!("{}", serde_json::to_string(&s).expect("a plan serialises"));
         return Ok(());
     }
     let p = &found.plan;
@@ -619,7 +622,7 @@ mod tests {
         let k = (0.01 - found.plan.fc_hz) / 2e-4;
         assert!((k - k.round()).abs() < 1e-9 && found.steps == k.round() as usize + 2, "{k} {}", found.steps);
         // A start that already exceeds is an error naming the flag; a limit never reached stops at the floor.
-        let e = search(&tcp, &reach(0.2301), 266.7, 0.01, 2e-4).unwrap_err();
+        let e = search(&tcp, &reach(0.2301), 266.7, 0.01, 2e-4).unwrap_err().to_string();
         assert!(e.contains("--fc-start"), "{e}");
         let all = search(&tcp, &reach(10.0), 266.7, 0.001, 2e-4).unwrap();
         assert!(all.floor_reached && (all.plan.fc_hz - 2e-4).abs() < 1e-12);

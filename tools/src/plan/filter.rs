@@ -15,6 +15,8 @@
 //!   extended sample, the backward pass from the same steady state scaled by the forward pass's
 //!   last output, and the padding is cut off again. A signal must be longer than 9 samples.
 
+use crate::error::{Result, ToolError};
+
 /// Samples SciPy's `filtfilt` pads each end with for a second-order filter (3 · 3 taps).
 pub const PAD: usize = 9;
 
@@ -31,12 +33,12 @@ impl Butterworth2 {
     /// The digital Butterworth low-pass of order 2 with −3 dB at `fc_hz`, sampled at `fs_hz`: SciPy's
     /// `butter(2, fc_hz / (fs_hz / 2))`. With K = tan(π·fc/fs) (the pre-warped cut-off):
     /// b = K²·(1, 2, 1)/D, a = (1, 2(K² − 1)/D, (1 − √2·K + K²)/D), D = 1 + √2·K + K².
-    pub fn lowpass(fc_hz: f64, fs_hz: f64) -> Result<Self, String> {
+    pub fn lowpass(fc_hz: f64, fs_hz: f64) -> Result<Self> {
         if !(fs_hz.is_finite() && fs_hz > 0.0) {
-            return Err(format!("sample rate {fs_hz} Hz must be positive"));
+            return Err(ToolError::Usage(format!("sample rate {fs_hz} Hz must be positive")));
         }
         if !(fc_hz.is_finite() && fc_hz > 0.0 && fc_hz < fs_hz / 2.0) {
-            return Err(format!("cut-off {fc_hz} Hz must lie between 0 and the Nyquist frequency {} Hz", fs_hz / 2.0));
+            return Err(ToolError::Usage(format!("cut-off {fc_hz} Hz must lie between 0 and the Nyquist frequency {} Hz", fs_hz / 2.0)));
         }
         let k = (std::f64::consts::PI * fc_hz / fs_hz).tan();
         let k2 = k * k;
@@ -71,10 +73,10 @@ impl Butterworth2 {
 
     /// Zero-phase filtering with SciPy's `filtfilt` defaults (see the module doc). `x` must have
     /// more than [`PAD`] samples.
-    pub fn filtfilt(&self, x: &[f64]) -> Result<Vec<f64>, String> {
+    pub fn filtfilt(&self, x: &[f64]) -> Result<Vec<f64>> {
         let n = x.len();
         if n <= PAD {
-            return Err(format!("{n} samples: zero-phase filtering needs more than {PAD} (the edge padding)"));
+            return Err(ToolError::Plan(format!("{n} samples: zero-phase filtering needs more than {PAD} (the edge padding)")));
         }
         let (first, last) = (x[0], x[n - 1]);
         let mut ext = Vec::with_capacity(n + 2 * PAD);

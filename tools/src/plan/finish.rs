@@ -17,6 +17,7 @@ use strand::core::{Segment, SegmentFlags, SegmentKind};
 use strand_job::segfile::{tool_pointing, write_path};
 
 use super::surface::{Bump, Surface};
+use crate::error::{Result, ToolError};
 
 /// The profile of Eq. 20 and the raster laid over it (SI units).
 #[derive(Clone, Copy, Debug, PartialEq, clap::Args)]
@@ -55,7 +56,7 @@ pub struct Finish {
 
 impl Finish {
     /// Checks the parameters; the message names the flag.
-    pub fn validate(&self) -> Result<(), String> {
+    pub fn validate(&self) -> Result<()> {
         super::positive("beta", self.beta)?;
         super::positive("half-length", self.half_length)?;
         super::positive("width", self.width)?;
@@ -65,10 +66,13 @@ impl Finish {
         super::positive("filament", self.filament)?;
         super::positive("feed", self.feed)?;
         if !(self.z0.is_finite() && self.z_base.is_finite()) {
-            return Err("--z0 and --z-base must be finite".into());
+            return Err(ToolError::Usage("--z0 and --z-base must be finite".to_string()));
         }
         if self.spacing < self.layer_height {
-            return Err(format!("--spacing {} m is below --layer-height {} m: no strand is that narrow", self.spacing, self.layer_height));
+            return Err(ToolError::Usage(format!(
+                "--spacing {} m is below --layer-height {} m: no strand is that narrow",
+                self.spacing, self.layer_height
+            )));
         }
         Ok(())
     }
@@ -171,7 +175,7 @@ pub struct FinishArgs {
 }
 
 /// Runs `strand-plan finish`.
-pub fn run(args: &FinishArgs) -> Result<(), String> {
+pub fn run(args: &FinishArgs) -> Result<()> {
     let f = &args.finish;
     f.validate()?;
     let segments = f.segments();
@@ -179,7 +183,7 @@ pub fn run(args: &FinishArgs) -> Result<(), String> {
         "strand-plan finish: 002 Eqs. 20-21 finishing layer, z0 {} m, beta {} m, y ±{} m, width {} m, spacing {} m, layer {} m, feed {} m/s",
         f.z0, f.beta, f.half_length, f.width, f.spacing, f.layer_height, f.feed
     );
-    write_path(&args.output, &segments, &note).map_err(|e| e.to_string())?;
+    write_path(&args.output, &segments, &note)?;
     let tilt_max = (0..=2000).map(|k| f.slope(-f.half_length + f.half_length * k as f64 / 1000.0).atan().abs()).fold(0.0, f64::max);
     let length: f64 = segments.windows(2).map(|w| (w[1].end - w[0].end).norm()).sum();
     let filament: f64 = segments.iter().map(|s| s.filament).sum();
@@ -292,9 +296,9 @@ mod tests {
     fn bad_parameters_name_the_flag() {
         let mut f = paper();
         f.spacing = 0.1e-3;
-        assert!(f.validate().unwrap_err().contains("--spacing"));
+        assert!(f.validate().unwrap_err().to_string().contains("--spacing"));
         let mut f = paper();
         f.beta = 0.0;
-        assert!(f.validate().unwrap_err().contains("--beta"));
+        assert!(f.validate().unwrap_err().to_string().contains("--beta"));
     }
 }

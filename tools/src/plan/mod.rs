@@ -1,6 +1,9 @@
 //! The offline planners of `strand-plan` (DESIGN.md, "Offline planning"), one module per method:
 //! they turn a job or a surface into a job for strand-feed — G-code, or a segment file where the
-//! tool orientation matters — and never run on the tick path.
+//! tool orientation matters — and never run on the tick path. [`time`] times a program through the
+//! controller's own path engine. `strand-plan`'s main only parses the command line.
+
+use crate::error::{Result, ToolError};
 
 pub mod base;
 pub mod filter;
@@ -8,6 +11,7 @@ pub mod finish;
 pub mod strips;
 pub mod surface;
 pub mod tilt;
+pub mod time;
 pub mod truss;
 
 /// Filament per metre of deposited bead (m/m): Slic3r's bead cross-section, a rectangle with round
@@ -20,6 +24,6 @@ pub fn filament_per_metre(line_width: f64, layer_height: f64, filament_diameter:
 }
 
 /// `v` if it is finite and positive, else an error naming the flag: `--{flag} = {v}: must be positive`.
-pub fn positive(flag: &str, v: f64) -> Result<f64, String> {
-    if v.is_finite() && v > 0.0 { Ok(v) } else { Err(format!("--{flag} = {v}: must be positive")) }
+pub fn positive(flag: &str, v: f64) -> Result<f64> {
+    if v.is_finite() && v > 0.0 { Ok(v) } else { Err(ToolError::Usage(format!("--{flag} = {v}: must be positive"))) }
 }

@@ -9,6 +9,7 @@
 
 use std::path::PathBuf;
 
+use crate::error::{Result, ToolError};
 use strand::core::{Segment, SegmentFlags};
 use strand_job::bed::BedConfig;
 use strand_job::bed::BedTransform;
@@ -41,15 +42,16 @@ pub struct TiltArgs {
 }
 
 /// The job's segments on the tilted bed (the bed origin stays at the origin).
-pub fn tilt_job(job: &std::path::Path, alpha: f64) -> Result<(Vec<Segment>, Vec<String>), String> {
-    let bed = BedTransform::new(&BedConfig { tilt: alpha, offset: [0.0; 3] }).map_err(|e| e.replace("[bed] tilt", "--angle"))?;
-    let mut parser = parse_file(job, GcodeOptions { first_seq: 1, ..GcodeOptions::for_path(job) }).map_err(|e| e.to_string())?;
+pub fn tilt_job(job: &std::path::Path, alpha: f64) -> Result<(Vec<Segment>, Vec<String>)> {
+    let bed = BedTransform::new(&BedConfig { tilt: alpha, offset: [0.0; 3] })
+        .map_err(|e| ToolError::Usage(e.message.replace("[bed] tilt", "--angle")))?;
+    let mut parser = parse_file(job, GcodeOptions { first_seq: 1, ..GcodeOptions::for_path(job) })?;
     let mut out = Vec::new();
     for g in parser.by_ref() {
-        out.push(bed.segment(&g.map_err(|e| e.to_string())?.segment));
+        out.push(bed.segment(&g?.segment));
     }
     if out.is_empty() {
-        return Err(format!("{}: no motion in the program", job.display()));
+        return Err(ToolError::Plan(format!("{}: no motion in the program", job.display())));
     }
     let n = out.len();
     out[n - 1].flags = out[n - 1].flags.with(SegmentFlags::LAST);
@@ -57,15 +59,15 @@ pub fn tilt_job(job: &std::path::Path, alpha: f64) -> Result<(Vec<Segment>, Vec<
 }
 
 /// Runs `strand-plan tilt`.
-pub fn run(args: &TiltArgs) -> Result<(), String> {
+pub fn run(args: &TiltArgs) -> Result<()> {
     let alpha = match (args.angle_deg, args.bolt_height, args.bolt_distance) {
         (Some(a), _, _) => a.to_radians(),
         (None, Some(h), Some(d)) if h.is_finite() && d.is_finite() && d > 0.0 && h >= 0.0 => angle_from_bolts(h, d),
-        (None, Some(h), Some(d)) => return Err(format!("--bolt-height {h} / --bolt-distance {d}: need h ≥ 0 and d > 0")),
-        _ => return Err("give --angle or --bolt-height with --bolt-distance".into()),
+        (None, Some(h), Some(d)) => return Err(ToolError::Plan(format!("--bolt-height {h} / --bolt-distance {d}: need h ≥ 0 and d > 0"))),
+        _ => return Err(ToolError::Plan("give --angle or --bolt-height with --bolt-distance".to_string())),
     };
     if !(alpha.is_finite() && (0.0..std::f64::consts::FRAC_PI_2).contains(&alpha)) {
-        return Err(format!("--angle {:.3}°: must be at least 0° and below 90°", alpha.to_degrees()));
+        return Err(ToolError::Plan(format!("--angle {:.3}°: must be at least 0° and below 90°", alpha.to_degrees())));
     }
     let (segments, warnings) = tilt_job(&args.job, alpha)?;
     for w in &warnings {
@@ -76,7 +78,7 @@ pub fn run(args: &TiltArgs) -> Result<(), String> {
         args.job.display(),
         alpha.to_degrees()
     );
-    write_path(&args.output, &segments, &note).map_err(|e| e.to_string())?;
+    write_path(&args.output, &segments, &note)?;
     println!("{}: {} segments, bed tilted {:.3}° about x", args.output.display(), segments.len(), alpha.to_degrees());
     Ok(())
 }
@@ -122,6 +124,6 @@ mod tests {
     fn eq_7_gives_the_angle_from_the_bolts() {
         assert!((angle_from_bolts(0.1, 0.1) - std::f64::consts::FRAC_PI_4).abs() < 1e-15);
         assert!((angle_from_bolts(0.0, 0.2)).abs() < 1e-15);
-        assert!(tilt_job(&box35(), std::f64::consts::FRAC_PI_2).unwrap_err().contains("--angle"));
+        assert!(tilt_job(&box35(), std::f64::consts::FRAC_PI_2).unwrap_err().to_string().contains("--angle"));
     }
 }

@@ -12,6 +12,7 @@
 //! - layer 2: the cross beams, post – diagonal – post … from x = 0 to the far end;
 //! - layer 3: the chords again, starting where layer 2 ended.
 
+use crate::error::{Result, ToolError};
 use std::fmt::Write;
 
 /// Truss dimensions and process (SI units).
@@ -42,7 +43,7 @@ impl Default for Truss {
 
 impl Truss {
     /// Checks the dimensions; the message names the parameter.
-    pub fn validate(&self) -> Result<(), String> {
+    pub fn validate(&self) -> Result<()> {
         crate::plan::positive("length", self.length)?;
         crate::plan::positive("width", self.width)?;
         crate::plan::positive("pitch", self.pitch)?;
@@ -51,7 +52,7 @@ impl Truss {
         crate::plan::positive("filament", self.filament)?;
         crate::plan::positive("speed", self.speed)?;
         if self.pitch > self.length {
-            return Err(format!("--pitch = {} m is longer than --length = {} m", self.pitch, self.length));
+            return Err(ToolError::Usage(format!("--pitch = {} m is longer than --length = {} m", self.pitch, self.length)));
         }
         Ok(())
     }
@@ -96,6 +97,20 @@ impl Truss {
             }
         }
         total
+    }
+
+    /// Writes [`Truss::gcode`] to `output` (with a line on stderr: panels, strand length) or, with
+    /// None, to standard output.
+    pub fn write(&self, output: Option<&std::path::Path>) -> Result<()> {
+        let text = self.gcode();
+        match output {
+            Some(p) => {
+                std::fs::write(p, text).map_err(ToolError::file(p))?;
+                eprintln!("strand-plan truss: {} ({} panels, {:.3} m of strand)", p.display(), self.panels(), self.path_length());
+            }
+            None => print!("{text}"),
+        }
+        Ok(())
     }
 
     /// The program: mm, absolute positions, relative E (M83), layer comments PrusaSlicer-style.

@@ -17,6 +17,8 @@ use strand::log::dynamic::Schema;
 use strand::log::reader::LogFile;
 use strand_ipc::{FaultCode, JobOutcome, LogState, RunState};
 
+use crate::error::{Result, ToolError};
+
 /// Which ticks count for the TCP error: on the path for the whole tick (running before it and after
 /// it: the tick that leaves the approach has no path target yet), once the path has begun (a segment
 /// is executing: the settling on the first point, where a moving base is caught up with before the
@@ -103,10 +105,10 @@ pub struct Summary {
 }
 
 /// Reads a log (or its rotated parts) into series and a summary.
-pub fn analyse(files: &[LogFile]) -> Result<(Series, Summary, RobotModel), String> {
-    let first = files.first().ok_or("no file")?;
-    let cfg = first.config().map_err(|e| e.to_string())?;
-    let model = cfg.robot.build_model().map_err(|e| e.to_string())?;
+pub fn analyse(files: &[LogFile]) -> Result<(Series, Summary, RobotModel)> {
+    let first = files.first().ok_or_else(|| ToolError::Usage("no log file given".to_string()))?;
+    let cfg = first.config()?;
+    let model = cfg.robot.build_model()?;
     let dof = model.dof();
     let mut s = Series { q: vec![Vec::new(); dof], qd: vec![Vec::new(); dof], ..Default::default() };
     let mut sum = Summary {
@@ -137,7 +139,7 @@ pub fn analyse(files: &[LogFile]) -> Result<(Series, Summary, RobotModel), Strin
             *sum.topics.entry(m.channel.topic.clone()).or_default() += 1;
         }
         for tick in f.ticks() {
-            let tick = tick.map_err(|e| e.to_string())?;
+            let tick = tick?;
             let (i, o) = (&tick.input, &tick.output);
             if let Some(l) = last_tick {
                 sum.gaps += i.tick.saturating_sub(l + 1);
@@ -271,8 +273,8 @@ pub fn info_text(sum: &Summary) -> String {
 ///
 /// Two passes over the log, streaming: the first finds each channel's columns, the second writes the
 /// rows, so memory does not grow with the log (an hour at 1 kHz is millions of records).
-pub fn export_csv(files: &[LogFile], dir: &Path) -> Result<Vec<(PathBuf, u64)>, String> {
-    std::fs::create_dir_all(dir).map_err(|e| format!("{}: {e}", dir.display()))?;
+pub fn export_csv(files: &[LogFile], dir: &Path) -> Result<Vec<(PathBuf, u64)>> {
+    std::fs::create_dir_all(dir).map_err(ToolError::file(dir))?;
     struct Channel {
         schema: Schema,
         columns: Vec<String>,
@@ -286,16 +288,18 @@ pub fn export_csv(files: &[LogFile], dir: &Path) -> Result<Vec<(PathBuf, u64)>, 
         for m in f.messages() {
             let topic = &m.channel.topic;
             if !channels.contains_key(topic) {
-                let schema = m.channel.schema.as_ref().ok_or(format!("{}: {topic}: no schema", f.path.display()))?;
+                let schema =
+                    m.channel.schema.as_ref().ok_or_else(|| ToolError::Content(format!("{}: {topic}: no schema", f.path.display())))?;
                 let text = String::from_utf8_lossy(&schema.data);
-                let schema = Schema::parse(&schema.name, &text).map_err(|e| format!("{}: {topic}: {e}", f.path.display()))?;
+                let schema =
+                    Schema::parse(&schema.name, &text).map_err(|e| ToolError::Content(format!("{}: {topic}: {e}", f.path.display())))?;
                 let name = topic.trim_start_matches('/').replace('/', "_");
                 let path = dir.join(format!("{name}.csv"));
                 channels
                     .insert(topic.clone(), Channel { schema, columns: Vec::new(), index: BTreeMap::new(), path, writer: None, rows: 0 });
             }
             let c = channels.get_mut(topic).expect("inserted above");
-            for (k, _) in c.schema.decode(&m.data).map_err(|e| format!("{}: {topic}: {e}", f.path.display()))? {
+            for (k, _) in c.schema.decode(&m.data).map_err(|e| ToolError::Content(format!("{}: {topic}: {e}", f.path.display())))? {
                 if !c.index.contains_key(&k) {
                     c.index.insert(k.clone(), c.columns.len());
                     c.columns.push(k);
@@ -304,10 +308,10 @@ pub fn export_csv(files: &[LogFile], dir: &Path) -> Result<Vec<(PathBuf, u64)>, 
         }
     }
     for c in channels.values_mut() {
-        let mut w = csv::Writer::from_path(&c.path).map_err(|e| format!("{}: {e}", c.path.display()))?;
+        let mut w = csv::Writer::from_path(&c.path).map_err(|e| csv_error(&c.path, e))?;
         let mut header = vec!["log_time_ns".to_string()];
         header.extend(c.columns.iter().cloned());
-        w.write_record(&header).map_err(|e| e.to_string())?;
+        w.write_record(&header).map_err(|e| csv_error(&c.path, e))?;
         c.writer = Some(w);
     }
     let mut record: Vec<String> = Vec::new();
@@ -318,17 +322,49 @@ pub fn export_csv(files: &[LogFile], dir: &Path) -> Result<Vec<(PathBuf, u64)>, 
             record.truncate(c.columns.len() + 1);
             record.iter_mut().for_each(String::clear);
             record[0] = m.log_time.to_string();
-            for (k, v) in c.schema.decode(&m.data).map_err(|e| format!("{}: {}: {e}", f.path.display(), m.channel.topic))? {
+            for (k, v) in
+                c.schema.decode(&m.data).map_err(|e| ToolError::Content(format!("{}: {}: {e}", f.path.display(), m.channel.topic)))?
+            {
                 record[c.index[&k] + 1] = v.to_string();
             }
-            c.writer.as_mut().expect("opened above").write_record(&record).map_err(|e| e.to_string())?;
+            c.writer.as_mut().expect("opened above").write_record(&record).map_err(|e| csv_error(&c.path, e))?;
             c.rows += 1;
         }
     }
     let mut written = Vec::new();
     for c in channels.into_values() {
-        c.writer.expect("opened above").flush().map_err(|e| e.to_string())?;
+        c.writer.expect("opened above").flush().map_err(ToolError::file(&c.path))?;
         written.push((c.path, c.rows));
     }
     Ok(written)
+}
+
+/// Opens the logs; an error for one without a tick (cut short before its first chunk was closed,
+/// or not a strand log), a note on stderr for one cut short (only its closed chunks are read).
+pub fn open_all(files: &[PathBuf]) -> Result<Vec<LogFile>> {
+    let logs: Vec<LogFile> = files.iter().map(|f| LogFile::open(f)).collect::<Result<_, _>>()?;
+    for l in &logs {
+        if l.channel(strand::log::topics::TICK).next().is_none() {
+            return Err(ToolError::Content(format!(
+                "{}: no ticks in the log ({})",
+                l.path.display(),
+                if l.finished { "not a strand log, or a run of no tick" } else { "cut short before its first chunk was closed?" }
+            )));
+        }
+        if !l.finished {
+            eprintln!(
+                "strand-replay: note: {}: cut short (no footer): only its closed chunks are read; `strand-replay recover` rewrites it",
+                l.path.display()
+            );
+        }
+    }
+    Ok(logs)
+}
+
+/// A CSV file that could not be written.
+fn csv_error(path: &Path, e: csv::Error) -> ToolError {
+    match e.into_kind() {
+        csv::ErrorKind::Io(source) => ToolError::File { path: path.to_path_buf(), source },
+        other => ToolError::Content(format!("{}: {other:?}", path.display())),
+    }
 }

@@ -8,6 +8,7 @@ use plotters::prelude::*;
 use strand::core::kin::RobotModel;
 
 use super::Series;
+use crate::error::{Result, ToolError};
 
 type PlotResult = Result<(), Box<dyn std::error::Error>>;
 
@@ -46,9 +47,9 @@ fn stride(len: usize, n: usize) -> usize {
 }
 
 /// Draws every plot into `dir`; returns the files written.
-pub fn plot_all(s: &Series, model: &RobotModel, dir: &Path) -> Result<Vec<PathBuf>, String> {
+pub fn plot_all(s: &Series, model: &RobotModel, dir: &Path) -> Result<Vec<PathBuf>> {
     register_font()?;
-    std::fs::create_dir_all(dir).map_err(|e| format!("{}: {e}", dir.display()))?;
+    std::fs::create_dir_all(dir).map_err(ToolError::file(dir))?;
     let mut files = Vec::new();
     let jobs: [(&str, &dyn Fn(&Path) -> PlotResult); 5] = [
         ("tcp_path_top.png", &|p| tcp_path(s, p)),
@@ -59,7 +60,7 @@ pub fn plot_all(s: &Series, model: &RobotModel, dir: &Path) -> Result<Vec<PathBu
     ];
     for (name, draw) in jobs {
         let path = dir.join(name);
-        draw(&path).map_err(|e| format!("{}: {e}", path.display()))?;
+        draw(&path).map_err(ToolError::plot(&path))?;
         files.push(path);
     }
     Ok(files)

@@ -5,6 +5,7 @@
 use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
+use strand::core::InvalidSetting;
 
 /// A sim config file. Every section has defaults; units are SI.
 #[derive(Clone, Debug, PartialEq, Deserialize, Serialize)]
@@ -190,10 +191,10 @@ impl SimConfig {
     /// The plant that goes with a service config: `sim/free-flyer.toml` for a tracked base, else
     /// `sim/default.toml`, in the service config's folder if it is there, else by the search order
     /// of [`strand::config::locate`]. The error names the files tried.
-    pub fn default_path(service: &strand::config::Config) -> Result<PathBuf, String> {
+    pub fn default_path(service: &strand::config::Config) -> Result<PathBuf, strand::config::ConfigError> {
         let tracked = service.base.mode == strand::core::BaseMode::Tracked;
         let name = if tracked { "sim/free-flyer.toml" } else { "sim/default.toml" };
-        strand::config::locate::beside_or_find(&service.file, name).map_err(|e| e.to_string())
+        strand::config::locate::beside_or_find(&service.file, name)
     }
 
     /// Reads and checks a sim config; the flyer's trajectory path is resolved against the file.
@@ -206,18 +207,19 @@ impl SimConfig {
         {
             f.trajectory = path.parent().unwrap_or(Path::new(".")).join(&f.trajectory);
         }
-        cfg.validate().map_err(err)?;
+        cfg.validate().map_err(|e| err(e.message))?;
         Ok(cfg)
     }
 
     /// Checks every key; the message names it and its range.
-    pub fn validate(&self) -> Result<(), String> {
+    pub fn validate(&self) -> Result<(), InvalidSetting> {
+        let invalid = |message: String| InvalidSetting::new("sim", message);
         let range = |key: &str, v: f64, lo: f64, hi: f64| {
-            if v.is_finite() && v >= lo && v <= hi { Ok(()) } else { Err(format!("{key} = {v}: must lie in [{lo}, {hi}]")) }
+            if v.is_finite() && v >= lo && v <= hi { Ok(()) } else { Err(invalid(format!("{key} = {v}: must lie in [{lo}, {hi}]"))) }
         };
         let j = &self.joints;
         if j.latency_ticks > 64 {
-            return Err(format!("joints.latency_ticks = {}: must lie in [0, 64]", j.latency_ticks));
+            return Err(invalid(format!("joints.latency_ticks = {}: must lie in [0, 64]", j.latency_ticks)));
         }
         range("joints.lag", j.lag, 0.0, 1.0)?;
         range("joints.noise", j.noise, 0.0, 0.01)?;
@@ -244,17 +246,17 @@ impl SimConfig {
             range("flyer.residual_time", f.residual_time, 0.001, 1e4)?;
             for (key, v) in [("flyer.pid_xy", f.pid_xy), ("flyer.pid_theta", f.pid_theta)] {
                 if v.iter().any(|g| !(g.is_finite() && *g >= 0.0)) {
-                    return Err(format!("{key} = {v:?}: gains must be finite and ≥ 0"));
+                    return Err(invalid(format!("{key} = {v:?}: gains must be finite and ≥ 0")));
                 }
             }
             for (key, v) in [("flyer.base_offset", f.base_offset), ("flyer.residual", f.residual)] {
                 if v.iter().any(|x| !x.is_finite()) {
-                    return Err(format!("{key}: values must be finite"));
+                    return Err(invalid(format!("{key}: values must be finite")));
                 }
             }
             for (i, b) in f.bumps.iter().enumerate() {
                 if !(b.radius.is_finite() && b.radius > 0.0) || b.centre.iter().chain(&b.accel).any(|x| !x.is_finite()) {
-                    return Err(format!("flyer.bumps[{i}]: radius must be > 0 and every value finite"));
+                    return Err(invalid(format!("flyer.bumps[{i}]: radius must be > 0 and every value finite")));
                 }
             }
         }

@@ -9,6 +9,7 @@
 pub mod config;
 pub mod flyer;
 pub mod plant;
+pub mod process;
 pub mod tracker;
 
 use nalgebra::{UnitQuaternion, Vector3};
@@ -19,6 +20,7 @@ use strand::core::BaseMode;
 use strand::core::kin::{JointVector, RobotModel};
 use strand_ipc as ipc;
 
+use crate::error::{Result, ToolError};
 use config::SimConfig;
 use flyer::{BaseTrajectory, Flyer};
 use plant::{ExtruderPlant, JointPlant};
@@ -128,11 +130,11 @@ pub struct Sim {
 impl Sim {
     /// A plant for the service config `cfg` (robot, rate, base mode and mount), at rest at `start`
     /// joint positions, its clock starting at `start_ns`.
-    pub fn new(cfg: &Config, sim: &SimConfig, start: &[f64], start_ns: u64) -> Result<Self, String> {
-        let model = cfg.robot.build_model().map_err(|e| e.to_string())?;
+    pub fn new(cfg: &Config, sim: &SimConfig, start: &[f64], start_ns: u64) -> Result<Self> {
+        let model = cfg.robot.build_model()?;
         let n = model.dof();
         if start.len() != n {
-            return Err(format!("start posture has {} values; the robot has {n} joints", start.len()));
+            return Err(ToolError::Usage(format!("start posture has {} values; the robot has {n} joints", start.len())));
         }
         let dt = 1.0 / cfg.controller.rate_hz;
         let dt_ns = (1e9 / cfg.controller.rate_hz).round() as u64;
@@ -147,7 +149,7 @@ impl Sim {
                 let trajectory = if f.trajectory.as_os_str().is_empty() {
                     BaseTrajectory::stationary(start_pose)
                 } else {
-                    BaseTrajectory::load(&f.trajectory, mount_yaw).map_err(|e| e.to_string())?
+                    BaseTrajectory::load(&f.trajectory, mount_yaw)?
                 };
                 Some(Flyer::new(f, trajectory, mount_position.z))
             }

@@ -1,6 +1,7 @@
 //! The paper's Eqs. 2-4 (W ≤ R/2, N ≤ ⌊W/L⌋, N ≤ ⌊R/(2L)⌋), checked per strip and reported together,
 //! so that a refused plan names every violated equation with its numbers.
 
+use crate::error::{Result, ToolError};
 use serde::Serialize;
 
 /// Relative slack on the floors of Eqs. 3 and 4.
@@ -49,7 +50,7 @@ fn floor_ratio(a: f64, b: f64) -> u64 {
 
 /// Evaluates Eqs. 2-4 for strips of nominal `widths`, N = `layers`, L = `overlap`, R = `reach`.
 /// Err lists every violated equation with its numbers and strip (1-based).
-pub fn check_equations(widths: &[f64], layers: usize, overlap: f64, reach: f64) -> Result<Checks, String> {
+pub fn check_equations(widths: &[f64], layers: usize, overlap: f64, reach: f64) -> Result<Checks> {
     let (widest, width) = widths.iter().copied().enumerate().fold((0, f64::NEG_INFINITY), |m, (k, w)| if w > m.1 { (k, w) } else { m });
     let half = reach / 2.0;
     let eq2 = Eq2 { strip: widest + 1, width_m: width, half_reach_m: half, ok: width <= half * (1.0 + FLOOR_SLACK) };
@@ -83,7 +84,7 @@ pub fn check_equations(widths: &[f64], layers: usize, overlap: f64, reach: f64) 
         ));
     }
     let checks = Checks { layers, eq2, eq3, eq4 };
-    if errors.is_empty() { Ok(checks) } else { Err(errors.join("; ")) }
+    if errors.is_empty() { Ok(checks) } else { Err(ToolError::Usage(errors.join("; "))) }
 }
 
 #[cfg(test)]
@@ -92,7 +93,7 @@ mod tests {
 
     #[test]
     fn eq2_names_the_widest_strip_and_the_reach() {
-        let e = check_equations(&[0.043, 0.06, 0.047], 4, 0.005, 0.1).unwrap_err();
+        let e = check_equations(&[0.043, 0.06, 0.047], 4, 0.005, 0.1).unwrap_err().to_string();
         assert!(e.starts_with("Eq. 2 (W ≤ R/2) violated: strip 2 is W = 0.06 m wide"), "{e}");
         assert!(e.contains("--reach 0.1 m / 2 = 0.05 m"), "{e}");
         assert!(!e.contains("Eq. 3") && !e.contains("Eq. 4"), "{e}");
@@ -104,7 +105,7 @@ mod tests {
     #[test]
     fn eq3_names_each_strip_too_narrow_for_the_layers() {
         // ⌊43/15⌋ = 2, ⌊60/15⌋ = 4, ⌊47/15⌋ = 3 against N = 4; ⌊120/30⌋ = 4 keeps Eq. 4.
-        let e = check_equations(&[0.043, 0.06, 0.047], 4, 0.015, 0.12).unwrap_err();
+        let e = check_equations(&[0.043, 0.06, 0.047], 4, 0.015, 0.12).unwrap_err().to_string();
         assert!(e.contains("Eq. 3 (N ≤ ⌊W/L⌋) violated: strip 1 (W = 0.043 m) with --overlap 0.015 m allows ⌊0.043/0.015⌋ = 2 layers, the job has N = 4"), "{e}");
         assert!(e.contains("strip 3 (W = 0.047 m) with --overlap 0.015 m allows ⌊0.047/0.015⌋ = 3 layers"), "{e}");
         assert!(!e.contains("strip 2 (") && !e.contains("Eq. 2") && !e.contains("Eq. 4"), "{e}");
@@ -118,7 +119,7 @@ mod tests {
     fn eq4_bounds_the_layers_by_reach_and_overlap() {
         // R = 0.1, L = 0.015: ⌊0.1/0.03⌋ = 3 < 4. Eq. 4 follows from Eqs. 2 and 3, so one of them
         // fails too: here Eq. 2 (60 mm > 50 mm), while ⌊0.06/0.015⌋ = 4 keeps Eq. 3.
-        let e = check_equations(&[0.06], 4, 0.015, 0.1).unwrap_err();
+        let e = check_equations(&[0.06], 4, 0.015, 0.1).unwrap_err().to_string();
         assert!(
             e.contains(
                 "Eq. 4 (N ≤ ⌊R/(2L)⌋) violated: --reach 0.1 m and --overlap 0.015 m allow ⌊0.1/(2·0.015)⌋ = 3 layers, the job has N = 4"

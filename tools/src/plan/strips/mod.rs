@@ -74,6 +74,7 @@ mod output;
 mod plot;
 mod read;
 
+use crate::error::{Result, ToolError};
 pub use chaining::chain;
 pub use equations::{Checks, Eq2, Eq3, Eq4, check_equations};
 pub use joint::{BOUNDARY_EPS, cut, layer_bounds};
@@ -183,7 +184,7 @@ pub const MAX_STRIPS: usize = 10_000;
 
 /// Splits `job` per `spec`: nominal strips, Eqs. 2-4, the staggered boundaries, cutting, chaining.
 /// Errors name the flag.
-pub fn plan(job: &Job, spec: &StripSpec) -> Result<Plan, String> {
+pub fn plan(job: &Job, spec: &StripSpec) -> Result<Plan> {
     let axis = spec.axis.index();
     let a = spec.axis.name();
     let (mut lo, mut hi, mut lo_line, mut hi_line) = (f64::INFINITY, f64::NEG_INFINITY, 0, 0);
@@ -199,16 +200,19 @@ pub fn plan(job: &Job, spec: &StripSpec) -> Result<Plan, String> {
     }
     let origin = spec.origin.unwrap_or(lo);
     if lo < origin - BOUNDARY_EPS {
-        return Err(format!("--origin {origin} m: the job extrudes at {a} = {lo} m ({}:{lo_line}), before the origin", job.name));
+        return Err(ToolError::Plan(format!(
+            "--origin {origin} m: the job extrudes at {a} = {lo} m ({}:{lo_line}), before the origin",
+            job.name
+        )));
     }
     let widths: Vec<f64> = match &spec.widths {
         Widths::Uniform(w) => {
             let n = (((hi - origin) - BOUNDARY_EPS) / w).ceil().max(1.0);
             if n.is_nan() || n > MAX_STRIPS as f64 {
-                return Err(format!(
+                return Err(ToolError::Plan(format!(
                     "--width {w} m: the job extrudes from {a} = {origin} m to {a} = {hi} m ({}:{hi_line}), {n} strips; at most {MAX_STRIPS}",
                     job.name
-                ));
+                )));
             }
             vec![*w; n as usize]
         }
@@ -220,10 +224,10 @@ pub fn plan(job: &Job, spec: &StripSpec) -> Result<Plan, String> {
     }
     let end = *bounds.last().expect("origin");
     if hi > end + BOUNDARY_EPS {
-        return Err(format!(
+        return Err(ToolError::Plan(format!(
             "--widths: the strips end at {a} = {end} m but the job extrudes up to {a} = {hi} m ({}:{hi_line}); add a strip or widen them",
             job.name
-        ));
+        )));
     }
     let layers = job.layers.len();
     let checks = check_equations(&widths, layers, spec.overlap, spec.reach)?;
@@ -319,12 +323,12 @@ pub struct StripsArgs {
     pub json: bool,
 }
 
-fn non_negative(flag: &str, v: f64) -> Result<(), String> {
-    if v.is_finite() && v >= 0.0 { Ok(()) } else { Err(format!("--{flag} {v}: must be finite and ≥ 0")) }
+fn non_negative(flag: &str, v: f64) -> Result<()> {
+    if v.is_finite() && v >= 0.0 { Ok(()) } else { Err(ToolError::Usage(format!("--{flag} {v}: must be finite and ≥ 0"))) }
 }
 
 impl StripsArgs {
-    fn spec(&self) -> Result<StripSpec, String> {
+    fn spec(&self) -> Result<StripSpec> {
         let widths = match (&self.width.width, &self.width.widths) {
             (Some(w), _) => {
                 super::positive("width", *w)?;
@@ -332,14 +336,14 @@ impl StripsArgs {
             }
             (None, Some(ws)) => {
                 if ws.is_empty() {
-                    return Err("--widths: give at least one width".into());
+                    return Err(ToolError::Usage("--widths: give at least one width".to_string()));
                 }
                 for (k, w) in ws.iter().enumerate() {
                     super::positive(&format!("widths (strip {})", k + 1), *w)?;
                 }
                 Widths::List(ws.clone())
             }
-            (None, None) => return Err("give --width or --widths".into()),
+            (None, None) => return Err(ToolError::Usage("give --width or --widths".to_string())),
         };
         super::positive("overlap", self.overlap)?;
         super::positive("reach", self.reach)?;
@@ -352,11 +356,11 @@ impl StripsArgs {
         if let Some(o) = self.origin
             && !o.is_finite()
         {
-            return Err(format!("--origin {o}: must be finite"));
+            return Err(ToolError::Usage(format!("--origin {o}: must be finite")));
         }
         let start = match self.start.as_slice() {
             [x, y] if x.is_finite() && y.is_finite() => [*x, *y],
-            _ => return Err(format!("--start {:?}: expected X,Y in metres", self.start)),
+            _ => return Err(ToolError::Usage(format!("--start {:?}: expected X,Y in metres", self.start))),
         };
         Ok(StripSpec {
             axis: self.axis,
@@ -456,21 +460,21 @@ pub fn report(job: &Job, plan: &Plan, written: &Written) -> serde_json::Value {
 }
 
 /// Runs `strand-plan strips`.
-pub fn run(args: &StripsArgs) -> Result<(), String> {
+pub fn run(args: &StripsArgs) -> Result<()> {
     let spec = args.spec()?;
     let name = args.job.display().to_string();
-    let mut parser = parse_file(&args.job, GcodeOptions::for_path(&args.job)).map_err(|e| e.to_string())?;
+    let mut parser = parse_file(&args.job, GcodeOptions::for_path(&args.job))?;
     let job = read_job(&mut parser, &name, &ReadOptions { arc_tolerance: args.arc_tolerance, keep_skirt: args.keep_skirt })?;
     let plan = plan(&job, &spec)?;
     let travel = Travel { speed: args.travel_speed, retract: args.retract, retract_speed: args.retract_speed, z_hop: args.z_hop };
     let (text, written) = write_gcode(&plan, &travel, &args.header(&job, &plan));
     match &args.output {
-        Some(p) => std::fs::write(p, &text).map_err(|e| format!("--output {}: {e}", p.display()))?,
+        Some(p) => std::fs::write(p, &text).map_err(|e| ToolError::Plan(format!("--output {}: {e}", p.display())))?,
         None if !args.json => print!("{text}"),
         None => {}
     }
     if let Some(p) = &args.png {
-        plot_png(&job, &plan, p).map_err(|e| format!("--png {e}"))?;
+        plot_png(&job, &plan, p).map_err(|e| ToolError::Plan(format!("--png {e}")))?;
     }
     if args.json {
         println!("{}", report(&job, &plan, &written));

@@ -6,6 +6,7 @@ use std::path::Path;
 use plotters::prelude::*;
 
 use super::{Axis, Job, Plan};
+use crate::error::{Result, ToolError};
 
 type PlotResult = Result<(), Box<dyn std::error::Error>>;
 
@@ -23,9 +24,9 @@ fn shown_layers(n: usize) -> Vec<usize> {
 
 /// PNG like 000's Fig. 13: the nominal job from above (left), and the split job layer by layer
 /// (right; one colour per strip, a shade per path, the nominal boundaries dashed).
-pub fn plot_png(job: &Job, plan: &Plan, path: &Path) -> Result<(), String> {
+pub fn plot_png(job: &Job, plan: &Plan, path: &Path) -> Result<()> {
     crate::replay::plot::register_font()?;
-    draw(job, plan, path).map_err(|e| format!("{}: {e}", path.display()))
+    draw(job, plan, path).map_err(|e| ToolError::Plan(format!("{}: {e}", path.display())))
 }
 
 fn draw(job: &Job, plan: &Plan, path: &Path) -> PlotResult {

@@ -5,6 +5,7 @@
 use std::collections::HashMap;
 use std::io::BufRead;
 
+use crate::error::{Result, ToolError};
 use nalgebra::Vector3;
 use strand::core::{Geometry, Segment, SegmentKind, arc_geometry};
 use strand_job::gcode::{GcodeOptions, Parser};
@@ -100,12 +101,12 @@ fn is_skirt(feature: Option<&str>) -> bool {
 
 /// Reads the extruding lines of a job, grouped per layer (by the slicer's layer markers if every kept
 /// line has one, else by the height of the line's end, to 1 µm). Errors name file and line.
-pub fn read_job<R: BufRead>(parser: &mut Parser<R>, name: &str, options: &ReadOptions) -> Result<Job, String> {
+pub fn read_job<R: BufRead>(parser: &mut Parser<R>, name: &str, options: &ReadOptions) -> Result<Job> {
     let mut start = GcodeOptions::default().start;
     let mut raw: Vec<(Option<i32>, Option<f64>, Line)> = Vec::new();
     let (mut arcs, mut skirt_lines, mut skirt_filament) = (0usize, 0usize, 0.0);
     for item in parser.by_ref() {
-        let g = item.map_err(|e| e.to_string())?;
+        let g = item?;
         let s = &g.segment;
         let from = start;
         start = s.end;
@@ -125,7 +126,7 @@ pub fn read_job<R: BufRead>(parser: &mut Parser<R>, name: &str, options: &ReadOp
             SegmentKind::Arc => {
                 arcs += 1;
                 let points = flatten_arc(&from, s, options.arc_tolerance)
-                    .map_err(|e| format!("{name}:{}: {e} (--arc-tolerance {} m)", g.line, options.arc_tolerance))?;
+                    .map_err(|e| ToolError::Plan(format!("{name}:{}: {e} (--arc-tolerance {} m)", g.line, options.arc_tolerance)))?;
                 let mut prev = from;
                 let chords: Vec<(Vector3<f64>, Vector3<f64>)> = points
                     .iter()
@@ -147,10 +148,10 @@ pub fn read_job<R: BufRead>(parser: &mut Parser<R>, name: &str, options: &ReadOp
         }
     }
     if raw.is_empty() {
-        return Err(format!(
+        return Err(ToolError::Plan(format!(
             "{name}: no extruding lines{}",
             if skirt_lines > 0 { format!(" besides {skirt_lines} skirt/brim lines (--keep-skirt keeps them)") } else { String::new() }
-        ));
+        )));
     }
     let by_tag = raw.iter().all(|r| r.0.is_some());
     let mut index: HashMap<i64, usize> = HashMap::new();
@@ -175,9 +176,9 @@ pub fn read_job<R: BufRead>(parser: &mut Parser<R>, name: &str, options: &ReadOp
 
 /// Points after `start` along an arc segment, ending exactly at its end, such that each chord's
 /// sagitta is at most `tolerance` (and each chord spans at most a quarter turn).
-pub fn flatten_arc(start: &Vector3<f64>, s: &Segment, tolerance: f64) -> Result<Vec<Vector3<f64>>, String> {
+pub fn flatten_arc(start: &Vector3<f64>, s: &Segment, tolerance: f64) -> Result<Vec<Vector3<f64>>> {
     if tolerance.is_nan() || tolerance <= 0.0 {
-        return Err("the arc tolerance must be positive".into());
+        return Err(ToolError::Plan("the arc tolerance must be positive".to_string()));
     }
     // The core's geometry of the arc (the one the path engine runs): equal steps of θ along it.
     let Some(geometry @ Geometry::Arc { radius, radius_rate, sweep, .. }) = arc_geometry(start, s) else {
@@ -188,7 +189,7 @@ pub fn flatten_arc(start: &Vector3<f64>, s: &Segment, tolerance: f64) -> Result<
         if tolerance >= r { std::f64::consts::FRAC_PI_2 } else { (2.0 * (1.0 - tolerance / r).acos()).min(std::f64::consts::FRAC_PI_2) };
     let count = (sweep / step).ceil().max(1.0);
     if count > 1e6 {
-        return Err(format!("an arc of radius {r} m would need {count} chords"));
+        return Err(ToolError::Plan(format!("an arc of radius {r} m would need {count} chords")));
     }
     let count = count as usize;
     let length = geometry.length(0.0);

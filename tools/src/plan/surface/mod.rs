@@ -44,6 +44,7 @@ use std::f64::consts::PI;
 use std::path::PathBuf;
 use std::time::Instant;
 
+use crate::error::{Result, ToolError};
 use serde::Serialize;
 
 mod intersect;
@@ -219,7 +220,7 @@ pub struct SurfaceArgs {
 
 impl SurfaceArgs {
     /// The surface the flags describe, with its defaults filled in; errors name the flag and value.
-    pub fn surface(&self) -> Result<Box<dyn Surface>, String> {
+    pub fn surface(&self) -> Result<Box<dyn Surface>> {
         let length = super::positive("length", self.length.unwrap_or(0.1))?;
         let width = super::positive("width", self.width.unwrap_or(0.1))?;
         let radius = super::positive("radius", self.radius.unwrap_or(0.05))?;
@@ -227,21 +228,23 @@ impl SurfaceArgs {
         Ok(match self.shape {
             Shape::CurvedRect => {
                 if sweep > 2.0 * PI {
-                    return Err(format!("--sweep = {sweep} rad: the bend must stay below 2π (the sheet would pass through itself)"));
+                    return Err(ToolError::Plan(format!(
+                        "--sweep = {sweep} rad: the bend must stay below 2π (the sheet would pass through itself)"
+                    )));
                 }
                 Box::new(CurvedRect { width: length, radius, bend: sweep })
             }
             Shape::Plane => Box::new(Plane { length, width, z: 0.0 }),
             Shape::Cylinder => {
                 if sweep >= 2.0 * PI {
-                    return Err(format!("--sweep = {sweep} rad: a patch must span less than 2π"));
+                    return Err(ToolError::Plan(format!("--sweep = {sweep} rad: a patch must span less than 2π")));
                 }
                 Box::new(Cylinder { radius, length, sweep })
             }
             Shape::Bump => {
                 let height = self.height.unwrap_or(3.0e-3);
                 if !height.is_finite() {
-                    return Err(format!("--height = {height}: must be finite"));
+                    return Err(ToolError::Plan(format!("--height = {height}: must be finite")));
                 }
                 Box::new(Bump { length, width, height, beta: super::positive("beta", self.beta.unwrap_or(18.0e-3))? })
             }
@@ -249,12 +252,12 @@ impl SurfaceArgs {
                 let hub = super::positive("hub-radius", self.hub_radius)?;
                 let tip = super::positive("tip-radius", self.tip_radius)?;
                 if tip <= hub {
-                    return Err(format!("--tip-radius = {tip} m must exceed --hub-radius = {hub} m"));
+                    return Err(ToolError::Plan(format!("--tip-radius = {tip} m must exceed --hub-radius = {hub} m")));
                 }
                 let chord = super::positive("chord", self.chord)?;
                 let pitch = super::positive("pitch", self.pitch)?;
                 if !(self.camber.is_finite() && self.camber.abs() <= 1.0) {
-                    return Err(format!("--camber = {}: must lie in [-1, 1]", self.camber));
+                    return Err(ToolError::Plan(format!("--camber = {}: must lie in [-1, 1]", self.camber)));
                 }
                 Box::new(Blade { hub_radius: hub, tip_radius: tip, chord, pitch, camber: self.camber, lift: chord })
             }
@@ -262,18 +265,18 @@ impl SurfaceArgs {
     }
 
     /// The sampling request; errors name the flag.
-    pub fn sampling(&self) -> Result<Sampling, String> {
+    pub fn sampling(&self) -> Result<Sampling> {
         if !(self.spacing.is_finite() && self.spacing > 0.0) {
-            return Err(format!("--spacing = {}: must be positive", self.spacing));
+            return Err(ToolError::Usage(format!("--spacing = {}: must be positive", self.spacing)));
         }
         if !(self.tolerance.is_finite() && self.tolerance > 0.0 && self.tolerance < 1.0) {
-            return Err(format!("--tolerance = {}: must lie in (0, 1)", self.tolerance));
+            return Err(ToolError::Usage(format!("--tolerance = {}: must lie in (0, 1)", self.tolerance)));
         }
         Ok(Sampling { spacing_u: self.spacing, spacing_v: self.spacing, tolerance: self.tolerance, mode: self.sampling })
     }
 
     /// The deposition parameters; errors name the flag.
-    pub fn deposition(&self) -> Result<Deposition, String> {
+    pub fn deposition(&self) -> Result<Deposition> {
         let d = Deposition {
             line_width: self.line_width,
             layer_height: self.layer_height,
@@ -310,27 +313,33 @@ fn shape_name(shape: Shape) -> &'static str {
 
 /// `strand-plan surface`: samples, plans, reports (summary or `--json`), and writes the segment file and
 /// the PNG if asked.
-pub fn run(args: &SurfaceArgs) -> Result<(), String> {
+pub fn run(args: &SurfaceArgs) -> Result<()> {
     let surface = args.surface()?;
     let sampling = args.sampling()?;
     let deposition = args.deposition()?;
     if let Some(w) = args.weight
         && !(w.is_finite() && w >= 0.0)
     {
-        return Err(format!("--weight = {w}: must be a non-negative length (m)"));
+        return Err(ToolError::Plan(format!("--weight = {w}: must be a non-negative length (m)")));
     }
     if args.neighbours == 0 {
-        return Err("--neighbours = 0: the 2-opt needs at least one candidate per sample".to_string());
+        return Err(ToolError::Plan("--neighbours = 0: the 2-opt needs at least one candidate per sample".to_string()));
     }
     let algorithms = args.algorithms();
     if args.output.is_some() && algorithms.len() != 1 {
-        return Err("--output writes one path: give one --algorithm (greedy, weighted-u, weighted-v or tsp), not all".to_string());
+        return Err(ToolError::Plan(
+            "--output writes one path: give one --algorithm (greedy, weighted-u, weighted-v or tsp), not all".to_string(),
+        ));
     }
     let t0 = Instant::now();
-    let cloud = sample(surface.as_ref(), &sampling).map_err(|e| format!("--spacing = {} m: {e}", args.spacing))?;
+    let cloud = sample(surface.as_ref(), &sampling).map_err(|e| ToolError::Plan(format!("--spacing = {} m: {e}", args.spacing)))?;
     let sampling_s = t0.elapsed().as_secs_f64();
     if cloud.samples.len() < 2 {
-        return Err(format!("--spacing = {} m leaves {} sample(s) on the surface: nothing to print", args.spacing, cloud.samples.len()));
+        return Err(ToolError::Plan(format!(
+            "--spacing = {} m leaves {} sample(s) on the surface: nothing to print",
+            args.spacing,
+            cloud.samples.len()
+        )));
     }
     let mut results = Vec::new();
     for &a in &algorithms {
@@ -360,7 +369,7 @@ pub fn run(args: &SurfaceArgs) -> Result<(), String> {
         let mut algos = serde_json::Map::new();
         for (path, contacts) in &results {
             let report = AlgorithmReport::new(path, contacts);
-            algos.insert(path.algorithm.name().to_string(), serde_json::to_value(report).map_err(|e| e.to_string())?);
+            algos.insert(path.algorithm.name().to_string(), serde_json::to_value(report).expect("a report serialises"));
         }
         let out = serde_json::json!({
             "shape": name,
@@ -469,15 +478,15 @@ mod tests {
 
     #[test]
     fn flags_are_checked_by_name() {
-        assert!(args(&["--spacing=-0.01"]).sampling().unwrap_err().contains("--spacing = -0.01"));
-        assert!(args(&["--tolerance", "2"]).sampling().unwrap_err().contains("--tolerance"));
-        assert!(args(&["--shape", "cylinder", "--sweep", "7"]).surface().err().unwrap().contains("--sweep = 7"));
-        assert!(args(&["--shape", "blade", "--tip-radius", "0.01"]).surface().err().unwrap().contains("--tip-radius"));
-        assert!(args(&["--shape", "bump", "--beta", "0"]).surface().err().unwrap().contains("--beta = 0"));
-        assert!(args(&["--line-width", "0.1e-3"]).deposition().unwrap_err().contains("--layer-height"));
-        assert!(run(&args(&["--output", "/nonexistent/x.jsonl"])).unwrap_err().contains("--output"));
-        assert!(run(&args(&["--neighbours", "0"])).unwrap_err().contains("--neighbours"));
-        assert!(run(&args(&["--weight=-1"])).unwrap_err().contains("--weight = -1"));
+        assert!(args(&["--spacing=-0.01"]).sampling().unwrap_err().to_string().contains("--spacing = -0.01"));
+        assert!(args(&["--tolerance", "2"]).sampling().unwrap_err().to_string().contains("--tolerance"));
+        assert!(args(&["--shape", "cylinder", "--sweep", "7"]).surface().err().unwrap().to_string().contains("--sweep = 7"));
+        assert!(args(&["--shape", "blade", "--tip-radius", "0.01"]).surface().err().unwrap().to_string().contains("--tip-radius"));
+        assert!(args(&["--shape", "bump", "--beta", "0"]).surface().err().unwrap().to_string().contains("--beta = 0"));
+        assert!(args(&["--line-width", "0.1e-3"]).deposition().unwrap_err().to_string().contains("--layer-height"));
+        assert!(run(&args(&["--output", "/nonexistent/x.jsonl"])).unwrap_err().to_string().contains("--output"));
+        assert!(run(&args(&["--neighbours", "0"])).unwrap_err().to_string().contains("--neighbours"));
+        assert!(run(&args(&["--weight=-1"])).unwrap_err().to_string().contains("--weight = -1"));
         // Defaults are 003's and 002's.
         let a = args(&["--shape", "bump"]);
         assert_eq!(a.spacing, 0.01);

@@ -7,6 +7,7 @@ use std::path::Path;
 use strand::core::{Segment, SegmentFlags, SegmentKind};
 
 use super::PointCloud;
+use crate::error::{Result, ToolError};
 
 /// Bead and motion parameters for the segment stream (SI).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -49,17 +50,20 @@ impl Deposition {
     }
 
     /// Checks the values; the message names the flag.
-    pub fn validate(&self) -> Result<(), String> {
+    pub fn validate(&self) -> Result<()> {
         crate::plan::positive("line-width", self.line_width)?;
         crate::plan::positive("layer-height", self.layer_height)?;
         crate::plan::positive("filament-diameter", self.filament_diameter)?;
         crate::plan::positive("speed", self.speed)?;
         crate::plan::positive("travel-speed", self.travel_speed)?;
         if self.layer_height > self.line_width {
-            return Err(format!("--layer-height = {} m is more than --line-width = {} m", self.layer_height, self.line_width));
+            return Err(ToolError::Usage(format!(
+                "--layer-height = {} m is more than --line-width = {} m",
+                self.layer_height, self.line_width
+            )));
         }
         if !self.standoff.is_finite() {
-            return Err(format!("--standoff = {}: must be finite", self.standoff));
+            return Err(ToolError::Usage(format!("--standoff = {}: must be finite", self.standoff)));
         }
         Ok(())
     }
@@ -93,8 +97,8 @@ pub fn segments(cloud: &PointCloud, order: &[usize], dep: &Deposition) -> Vec<Se
 
 /// Writes the segments as a segment file (`strand_job::segfile`). The one place this module touches that
 /// format.
-pub fn write_segments(path: &Path, segments: &[Segment], note: &str) -> Result<(), String> {
-    strand_job::segfile::write_path(path, segments, note).map_err(|e| e.to_string())
+pub fn write_segments(path: &Path, segments: &[Segment], note: &str) -> Result<()> {
+    Ok(strand_job::segfile::write_path(path, segments, note)?)
 }
 
 #[cfg(test)]

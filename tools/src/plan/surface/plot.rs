@@ -6,6 +6,7 @@ use std::path::Path;
 use plotters::prelude::*;
 
 use super::{Contact, ContactKind, PlannedPath, PointCloud};
+use crate::error::{Result, ToolError};
 
 /// One panel of the figure.
 pub struct Panel<'a> {
@@ -17,9 +18,9 @@ pub struct Panel<'a> {
 
 /// Draws each path in the (u, v) plane side by side, samples as dots, the start as a green dot, proper
 /// crossings as red circles and touchings as orange ones.
-pub fn plot_png(file: &Path, title: &str, labels: (&str, &str), cloud: &PointCloud, panels: &[Panel]) -> Result<(), String> {
+pub fn plot_png(file: &Path, title: &str, labels: (&str, &str), cloud: &PointCloud, panels: &[Panel]) -> Result<()> {
     crate::replay::plot::register_font()?;
-    draw(file, title, labels, cloud, panels).map_err(|e| format!("{}: {e}", file.display()))
+    draw(file, title, labels, cloud, panels).map_err(|e| ToolError::Plan(format!("{}: {e}", file.display())))
 }
 
 fn draw(file: &Path, title: &str, labels: (&str, &str), cloud: &PointCloud, panels: &[Panel]) -> Result<(), Box<dyn std::error::Error>> {

@@ -5,6 +5,7 @@
 use nalgebra::Vector3;
 
 use super::{Domain, Surface};
+use crate::error::{Result, ToolError};
 
 /// One sample of the point cloud (003's `Sample` object, less the FreeCAD sub-object reference).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -161,38 +162,38 @@ impl<S: Surface + ?Sized> Evaluator<'_, S> {
 
 /// Samples `surface` by Algorithm 1 (with Algorithm 2's calibration) at the spacing and in the mode given.
 /// Errors when the request is invalid or the face would need more than [`MAX_SAMPLES`] samples.
-pub fn sample<S: Surface + ?Sized>(surface: &S, sampling: &Sampling) -> Result<PointCloud, String> {
+pub fn sample<S: Surface + ?Sized>(surface: &S, sampling: &Sampling) -> Result<PointCloud> {
     let d = surface.domain();
     if !(d.span_u() > 0.0 && d.span_v() > 0.0 && d.span_u().is_finite() && d.span_v().is_finite()) {
-        return Err(format!("the surface's parameter domain u {:?}, v {:?} is empty", d.u, d.v));
+        return Err(ToolError::Plan(format!("the surface's parameter domain u {:?}, v {:?} is empty", d.u, d.v)));
     }
     for (name, x) in [("spacing u", sampling.spacing_u), ("spacing v", sampling.spacing_v)] {
         if !(x.is_finite() && x > 0.0) {
-            return Err(format!("{name} = {x} m: must be positive"));
+            return Err(ToolError::Plan(format!("{name} = {x} m: must be positive")));
         }
     }
     if !(sampling.tolerance.is_finite() && sampling.tolerance > 0.0 && sampling.tolerance < 1.0) {
-        return Err(format!("tolerance = {}: must lie in (0, 1)", sampling.tolerance));
+        return Err(ToolError::Plan(format!("tolerance = {}: must lie in (0, 1)", sampling.tolerance)));
     }
     let estimate = estimated_samples(surface, &d, sampling);
     if estimate > MAX_SAMPLES as f64 {
-        return Err(format!(
+        return Err(ToolError::Plan(format!(
             "about {estimate:.1e} samples, more than {MAX_SAMPLES}: the spacing ({} m, {} m) is too small for this surface",
             sampling.spacing_u, sampling.spacing_v
-        ));
+        )));
     }
     let mut eval = Evaluator { surface, evaluations: 0 };
     let mut cloud = PointCloud::default();
     let (mut sum_u, mut n_u, mut sum_v, mut n_v) = (0.0, 0usize, 0.0, 0usize);
-    let add = |cloud: &mut PointCloud, eval: &mut Evaluator<S>, u: f64, v: f64| -> Result<(), String> {
+    let add = |cloud: &mut PointCloud, eval: &mut Evaluator<S>, u: f64, v: f64| -> Result<()> {
         if !surface.contains(u, v) {
             return Ok(());
         }
         if cloud.samples.len() >= MAX_SAMPLES {
-            return Err(format!(
+            return Err(ToolError::Plan(format!(
                 "more than {MAX_SAMPLES} samples: the spacing ({} m, {} m) is too small for this surface",
                 sampling.spacing_u, sampling.spacing_v
-            ));
+            )));
         }
         let point = eval.point(u, v);
         if let Some(normal) = sample_normal(surface, &d, u, v)
@@ -207,10 +208,10 @@ pub fn sample<S: Surface + ?Sized>(surface: &S, sampling: &Sampling) -> Result<P
     // Guards the paper mode's loops: a step that has shrunk to nothing would never leave the domain.
     let max_steps = 4 * MAX_SAMPLES;
     let mut steps = 0usize;
-    let step = |steps: &mut usize| -> Result<(), String> {
+    let step = |steps: &mut usize| -> Result<()> {
         *steps += 1;
         if *steps > max_steps {
-            Err(format!("sampling did not terminate within {max_steps} steps (the calibrated step collapsed)"))
+            Err(ToolError::Plan(format!("sampling did not terminate within {max_steps} steps (the calibrated step collapsed)")))
         } else {
             Ok(())
         }
@@ -223,7 +224,7 @@ pub fn sample<S: Surface + ?Sized>(surface: &S, sampling: &Sampling) -> Result<P
                     step(&mut steps)?;
                     let av = eval.calibrate_paper(uc, vc, Dir::V, sampling.spacing_v, tol);
                     if av.is_nan() || av <= 0.0 {
-                        return Err(format!("Algorithm 2 found no positive v step at (u, v) = ({uc}, {vc})"));
+                        return Err(ToolError::Plan(format!("Algorithm 2 found no positive v step at (u, v) = ({uc}, {vc})")));
                     }
                     vc += av;
                     (sum_v, n_v) = (sum_v + av, n_v + 1);
@@ -233,7 +234,7 @@ pub fn sample<S: Surface + ?Sized>(surface: &S, sampling: &Sampling) -> Result<P
                 step(&mut steps)?;
                 let au = eval.calibrate_paper(uc, vc, Dir::U, sampling.spacing_u, tol);
                 if au.is_nan() || au <= 0.0 {
-                    return Err(format!("Algorithm 2 found no positive u step at (u, v) = ({uc}, {vc})"));
+                    return Err(ToolError::Plan(format!("Algorithm 2 found no positive u step at (u, v) = ({uc}, {vc})")));
                 }
                 uc += au;
                 (sum_u, n_u) = (sum_u + au, n_u + 1);
@@ -446,8 +447,8 @@ mod tests {
         assert!(sample(&Dot, &robust(0.01)).unwrap().samples.is_empty());
         // Bad requests are refused with the quantity named.
         let bad = Sampling { spacing_u: 0.0, ..robust(0.01) };
-        assert!(sample(&Fan, &bad).unwrap_err().contains("spacing u"));
+        assert!(sample(&Fan, &bad).unwrap_err().to_string().contains("spacing u"));
         let tiny = Sampling { spacing_u: 1e-7, spacing_v: 1e-7, ..robust(0.01) };
-        assert!(sample(&Plane { length: 1.0, width: 1.0, z: 0.0 }, &tiny).unwrap_err().contains("too small"));
+        assert!(sample(&Plane { length: 1.0, width: 1.0, z: 0.0 }, &tiny).unwrap_err().to_string().contains("too small"));
     }
 }

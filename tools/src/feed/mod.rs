@@ -1,16 +1,22 @@
 //! What `strand-feed` sends: a G-code program read with `strand_job::gcode` or a segment file read with
 //! `strand_job::segfile`, put on the bed with the config's `[bed]` transform, numbered, flagged (the
-//! last segment LAST) and converted to the wire `Segment`; and how a run ends, as an exit code. The streaming itself (credit from Status, never
-//! a dropped segment) is in the binary.
+//! last segment LAST) and converted to the wire `Segment`; and how a run ends, as an exit code. The
+//! streaming itself (credit from Status, never a dropped segment, Ctrl-C as a controlled stop) is
+//! [`stream`]; the job check before it, [`check`].
+
+mod stream;
+
+pub use stream::{StreamOptions, check, stream};
 
 use std::path::Path;
 
 use strand::config::Config;
 use strand::core::{Segment, SegmentFlags, SegmentKind};
 use strand_ipc as ipc;
-use strand_job::bed::BedTransform;
 use strand_job::gcode::GcodeOptions;
 pub use strand_job::load::{LayeredSegments, load_segments, to_wire};
+
+use crate::error::{Result, ToolError};
 
 /// A job ready to stream.
 #[derive(Clone, Debug)]
@@ -40,14 +46,14 @@ pub fn batch(segments: &[ipc::Segment], batch_seq: u64) -> ipc::SegmentBatch {
 /// Reads a job (G-code or segment file) for the cell described by `cfg`. Segment numbers start at 1 (the
 /// program's first segment); `resume_from = Some(n)` drops segments before `n` and starts with a
 /// travel (numbered `n − 1`) to where segment `n` starts, so a job interrupted at `n` can go on.
-pub fn load_gcode(path: &Path, cfg: &Config, resume_from: Option<u64>) -> Result<Job, String> {
-    let (mut all, warnings) = load_segments(path, &cfg.bed_transform().map_err(|e| e.to_string())?).map_err(|e| e.to_string())?;
-    let bed = BedTransform::new(&cfg.bed).map_err(|e| format!("{}: [bed] {e}", cfg.file.display()))?;
+pub fn load_gcode(path: &Path, cfg: &Config, resume_from: Option<u64>) -> Result<Job> {
+    let bed = cfg.bed_transform()?;
+    let (mut all, warnings) = load_segments(path, &bed)?;
     let mut start = bed.point(&GcodeOptions::default().start);
     let mut skipped = 0;
     if let Some(n) = resume_from {
         let Some(k) = all.iter().position(|(s, _)| s.seq >= n) else {
-            return Err(format!("--resume-from {n}: the program has only {} segments", all.len()));
+            return Err(ToolError::Usage(format!("--resume-from {n}: the program has only {} segments", all.len())));
         };
         if k > 0 {
             let (prev, layer) = all[k - 1];

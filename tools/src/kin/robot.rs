@@ -8,6 +8,8 @@ use std::path::Path;
 use strand::config::{RobotConfig, locate};
 use strand::core::kin::RobotModel;
 
+use crate::error::{Result, ToolError};
+
 /// A loaded robot and what the tool should warn about how it was given.
 pub struct LoadedRobot {
     /// The chain.
@@ -17,19 +19,22 @@ pub struct LoadedRobot {
 }
 
 /// Loads `arg`: a robot NAME, a `.toml` robot file, or a URDF with `root` and `tip`.
-pub fn load_robot(arg: &Path, root: Option<&str>, tip: Option<&str>) -> Result<LoadedRobot, String> {
-    let path = &locate::robot_file(arg).map_err(|e| e.to_string())?;
+pub fn load_robot(arg: &Path, root: Option<&str>, tip: Option<&str>) -> Result<LoadedRobot> {
+    let path = &locate::robot_file(arg)?;
     if path.extension().is_some_and(|e| e == "toml") {
         if root.is_some() || tip.is_some() {
-            return Err(format!("{}: a robot file names its own root and tip links; drop --root/--tip", path.display()));
+            return Err(ToolError::Usage(format!("{}: a robot file names its own root and tip links; drop --root/--tip", path.display())));
         }
-        let cfg = RobotConfig::load(path).map_err(|e| e.to_string())?;
-        let model = cfg.build_model().map_err(|e| e.to_string())?;
+        let cfg = RobotConfig::load(path)?;
+        let model = cfg.build_model()?;
         return Ok(LoadedRobot { model, from_config: true });
     }
     let (Some(root), Some(tip)) = (root, tip) else {
-        return Err(format!("{}: a URDF needs --root LINK and --tip LINK (or pass a robot .toml from config/robots)", path.display()));
+        return Err(ToolError::Usage(format!(
+            "{}: a URDF needs --root LINK and --tip LINK (or pass a robot .toml from config/robots)",
+            path.display()
+        )));
     };
-    let model = strand::config::robot_model_from_urdf_file(path, root, tip).map_err(|e| e.to_string())?;
+    let model = strand::config::robot_model_from_urdf_file(path, root, tip)?;
     Ok(LoadedRobot { model, from_config: false })
 }

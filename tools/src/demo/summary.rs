@@ -13,6 +13,7 @@ use strand::log::reader::LogFile;
 use strand::log::replay::{Verdict, verify};
 use strand_ipc::RunState;
 
+use crate::error::{Result, ToolError};
 use crate::replay::{PathTicks, tcp_world};
 use crate::sim::Truth;
 
@@ -116,19 +117,23 @@ pub struct Report {
 }
 
 /// Reads the truth CSV written by `strand-sim --truth`.
-pub fn read_truth(path: &Path) -> Result<Vec<Truth>, String> {
-    let mut rd = csv::Reader::from_path(path).map_err(|e| format!("{}: {e}", path.display()))?;
+pub fn read_truth(path: &Path) -> Result<Vec<Truth>> {
+    let mut rd = csv::Reader::from_path(path).map_err(|e| ToolError::Content(format!("{}: {e}", path.display())))?;
     let mut rows = Vec::new();
     for (i, rec) in rd.records().enumerate() {
-        let rec = rec.map_err(|e| format!("{}: line {}: {e}", path.display(), i + 2))?;
-        let f = |k: usize| -> Result<f64, String> {
+        let rec = rec.map_err(|e| ToolError::Content(format!("{}: line {}: {e}", path.display(), i + 2)))?;
+        let f = |k: usize| -> Result<f64> {
             rec.get(k)
                 .unwrap_or("")
                 .parse::<f64>()
-                .map_err(|_| format!("{}: line {}: column {} is not a number", path.display(), i + 2, k + 1))
+                .map_err(|_| ToolError::Content(format!("{}: line {}: column {} is not a number", path.display(), i + 2, k + 1)))
         };
         rows.push(Truth {
-            time_ns: rec.get(0).unwrap_or("").parse().map_err(|_| format!("{}: line {}: time_ns", path.display(), i + 2))?,
+            time_ns: rec
+                .get(0)
+                .unwrap_or("")
+                .parse()
+                .map_err(|_| ToolError::Content(format!("{}: line {}: time_ns is not a whole number", path.display(), i + 2)))?,
             tcp: [f(1)?, f(2)?, f(3)?],
             base: [f(4)?, f(5)?, f(6)?],
             base_theta: f(7)?,
@@ -142,11 +147,11 @@ pub fn read_truth(path: &Path) -> Result<Vec<Truth>, String> {
 }
 
 /// Joins the log with the truth and replays the log. `flyer`: report the base's error.
-pub fn report(log: &Path, truth: &[Truth], flyer: bool) -> Result<Report, String> {
-    let file = LogFile::open(log).map_err(|e| e.to_string())?;
-    let cfg = file.config().map_err(|e| e.to_string())?;
+pub fn report(log: &Path, truth: &[Truth], flyer: bool) -> Result<Report> {
+    let file = LogFile::open(log)?;
+    let cfg = file.config()?;
     let dt_ns = (1e9 / cfg.controller.rate_hz).round() as u64;
-    let model = cfg.robot.build_model().map_err(|e| e.to_string())?;
+    let model = cfg.robot.build_model()?;
     let by_time: HashMap<u64, &Truth> = truth.iter().map(|t| (t.time_ns, t)).collect();
     let mut r = Report {
         robot: model.name().to_string(),
@@ -163,7 +168,7 @@ pub fn report(log: &Path, truth: &[Truth], flyer: bool) -> Result<Report, String
     let mut measured: Option<strand::core::kin::JointVector> = None;
     let dof = model.dof();
     for tick in file.ticks() {
-        let tick = tick.map_err(|e| e.to_string())?;
+        let tick = tick?;
         let (i, o) = (&tick.input, &tick.output);
         r.ticks += 1;
         step.record(tick.timing.step_ns);

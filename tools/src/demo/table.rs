@@ -1,0 +1,88 @@
+//! The demo's summary as a table on stdout: one row per measurement, the units in the text.
+
+use std::path::Path;
+
+use super::summary::{Report, Spread};
+
+fn mm(s: &Spread) -> String {
+    format!("mean {:.3} mm, p99 {:.3} mm, max {:.3} mm", s.mean * 1e3, s.p99 * 1e3, s.max * 1e3)
+}
+
+fn us(s: &Spread) -> String {
+    format!("p50 {:.1} µs, p99 {:.1} µs, max {:.1} µs", s.p50 * 1e6, s.p99 * 1e6, s.max * 1e6)
+}
+
+/// Prints the summary of a run `r` that took `wall` seconds, its log and the sim's round trip.
+pub(crate) fn print_table(r: &Report, wall: f64, log: &Path, log_bytes: u64, sim: Option<&serde_json::Value>) {
+    let mut rows: Vec<(String, String)> = vec![
+        ("robot".into(), format!("{} at {} Hz", r.robot, r.rate_hz)),
+        (
+            "job".into(),
+            match r.job_outcome.as_str() {
+                "Faulted" => format!(
+                    "FAULTED: {} after {:.1} s of robot time",
+                    r.faults.first().map_or("fault not in the log".to_string(), |(t, c)| format!("{c} at tick {t}")),
+                    r.job_time_s
+                ),
+                outcome => format!(
+                    "{}{}, {:.1} s of robot time in {wall:.1} s wall ({:.1}× real time)",
+                    if outcome == "Finished" { "" } else { "NOT FINISHED: " },
+                    outcome,
+                    r.job_time_s,
+                    r.job_time_s / wall.max(1e-9)
+                ),
+            },
+        ),
+        ("segments".into(), format!("{} accepted, {} rejected, {} underruns", r.segments_accepted, r.segments_rejected, r.underruns)),
+        ("TCP error (sim truth)".into(), format!("{} over {} ticks", mm(&r.tcp_error_m), r.tcp_error_m.samples)),
+        ("TCP error (controller's view)".into(), mm(&r.tcp_error_estimated_m)),
+        (
+            "TCP error watchdog".into(),
+            format!(
+                "max {:.3} mm = {:.0} % of tcp_error_limit {:.1} mm",
+                r.tcp_error_fault_m * 1e3,
+                100.0 * r.tcp_error_fault_m / r.tcp_error_limit_m.max(1e-12),
+                r.tcp_error_limit_m * 1e3
+            ),
+        ),
+    ];
+    if let Some(b) = &r.base_error_m {
+        rows.push(("base vs its plan".into(), mm(b)));
+    }
+    rows.push((
+        "flow error".into(),
+        format!(
+            "mean {:.1} %, p99 {:.1} % of the mean flow {:.2} mm³/s; deposited {:.1} % of commanded",
+            100.0 * r.flow_error_m3s.mean / r.flow_mean_m3s.max(1e-30),
+            100.0 * r.flow_error_m3s.p99 / r.flow_mean_m3s.max(1e-30),
+            r.flow_mean_m3s * 1e9,
+            100.0 * r.volume_ratio
+        ),
+    ));
+    rows.push(("controller step".into(), us(&r.step_s)));
+    rows.push(("tick (wake → publish)".into(), us(&r.tick_s)));
+    if let Some(rt) = sim.and_then(|s| s.get("round_trip")) {
+        let f = |k: &str| rt.get(k).and_then(|v| v.as_f64()).unwrap_or(0.0) * 1e-3;
+        rows.push((
+            "state → command (sim)".into(),
+            format!("p50 {:.1} µs, p99 {:.1} µs, max {:.1} µs", f("p50_ns"), f("p99_ns"), f("max_ns")),
+        ));
+    }
+    rows.push(("lateness".into(), format!("{} (robot clock: the tick waits for the robot)", us(&r.lateness_s))));
+    rows.push(("overruns / late / clamps".into(), format!("{} / {} / {}", r.overruns, r.late_wakeups, r.clamps)));
+    rows.push((
+        "faults".into(),
+        if r.faults.is_empty() {
+            "none".into()
+        } else {
+            r.faults.iter().map(|(t, c)| format!("{c} at tick {t}")).collect::<Vec<_>>().join(", ")
+        },
+    ));
+    rows.push(("log".into(), format!("{} ({} ticks, {:.1} MB, {} dropped)", log.display(), r.ticks, log_bytes as f64 / 1e6, r.log_drops)));
+    rows.push(("strand-replay verify".into(), r.verify.clone()));
+    let w = rows.iter().map(|(k, _)| k.chars().count()).max().unwrap_or(0);
+    println!();
+    for (k, v) in rows {
+        println!("  {k:<w$}  {v}");
+    }
+}

@@ -1,0 +1,196 @@
+//! Streaming a job to the service: never past the credit the controller announces in Status, so
+//! nothing is ever dropped; a progress bar (segments, layer, ETA) or a line per 10 %; the caller's
+//! Ctrl-C count turned into a controlled stop, then an emergency stop; and the job's end read from
+//! Status, as an [`Ending`].
+
+use std::path::Path;
+use std::sync::atomic::{AtomicU32, Ordering};
+use std::time::{Duration, Instant};
+
+use indicatif::{ProgressBar, ProgressStyle};
+use strand::check::CheckReport;
+use strand::config::Config;
+use strand_ipc as ipc;
+use strand_ipc::ports::{ClientPorts, ClientRoles};
+use strand_ipc::{Command, JobOutcome, RunState, SEGMENT_BATCH_CAPACITY, ServiceNames};
+
+use super::{Ending, Job, batch, credit};
+use crate::error::{Result, ToolError};
+
+/// Where and how to stream.
+#[derive(Clone, Debug)]
+pub struct StreamOptions {
+    /// The service prefix.
+    pub prefix: String,
+    /// How long to wait for the service's first Status (s).
+    pub wait_service: f64,
+    /// No progress bar: one line per 10 % on stderr instead.
+    pub quiet: bool,
+}
+
+/// The job check before streaming (`strand check-job`'s, with the base trajectory of a tracked
+/// base): the report (`clean` says whether the job may stream); an error for a job the check
+/// cannot run.
+pub fn check(job: &Job, file: &Path, base_trajectory: Option<&Path>, cfg: &Config) -> Result<CheckReport> {
+    let name = file.display().to_string();
+    let check_job = strand::check::CheckJob { file: &name, segments: &job.segments, layers: &job.layers };
+    Ok(strand::check::check_with_trajectory(&check_job, cfg, base_trajectory, None)?)
+}
+
+/// Streams `job` to the service under `opts.prefix` within the credit its Status announces, until
+/// the job ends (how: the [`Ending`]). Each increment of `interrupts` (the caller's Ctrl-C count)
+/// sends a controlled stop, the second an emergency stop. An error: no service, a service in
+/// fault or with a job in progress, a service that went away, a port that failed.
+pub fn stream(job: &Job, opts: &StreamOptions, interrupts: &AtomicU32) -> Result<Ending> {
+    let prefix = opts.prefix.as_str();
+    let names = ServiceNames::new(prefix);
+    let ports = ClientPorts::open(&names, "strand-feed", ClientRoles { feeder: true, monitor: true, ..Default::default() })?;
+    // Wait for the service.
+    let deadline = Instant::now() + Duration::from_secs_f64(opts.wait_service);
+    let mut status = loop {
+        if let Some(s) = ports.latest_status() {
+            break s;
+        }
+        if Instant::now() >= deadline {
+            return Err(ToolError::Measurement(format!("no Status from a service under {prefix} within {} s", opts.wait_service)));
+        }
+        let _ = ports.wait_status(20_000_000);
+    };
+    if matches!(RunState::from_u32(status.run_state), Some(RunState::Fault)) {
+        return Err(ToolError::Measurement(format!(
+            "the controller is in fault {:?}; clear it first",
+            ipc::FaultCode::from_u32(status.fault)
+        )));
+    }
+    if status.job_outcome == JobOutcome::InProgress as u32 {
+        return Err(ToolError::Measurement("the controller already has a job in progress".to_string()));
+    }
+    let segments = &job.segments;
+    let (first_seq, last_seq) = (segments[0].seq, segments[segments.len() - 1].seq);
+    let total_length: f64 = job.lengths.iter().sum();
+    let bar = progress_bar(segments.len() as u64, opts.quiet);
+    let started_at = Instant::now();
+    let mut sent = 0usize;
+    let mut started = false;
+    let mut job_seen = false;
+    let mut batch_seq = 0u64;
+    let mut control_seq = 0u64;
+    let mut interrupts_handled = 0;
+    let mut last_quiet_decile = 0;
+    let mut silent_since: Option<Instant> = None;
+    let send_control = |seq: &mut u64, command: Command| {
+        *seq += 1;
+        let c = ipc::Control { seq: *seq, stamp_ns: strand::io::clock::monotonic_ns(), command: command as u32, value: 0.0, _reserved: 0 };
+        ports.send_control(&c)
+    };
+    loop {
+        if let Some(s) = ports.latest_status() {
+            status = s;
+            silent_since = None;
+        }
+        // Ctrl-C: first a controlled stop, then an emergency stop.
+        let pending = interrupts.load(Ordering::Relaxed);
+        while interrupts_handled < pending {
+            interrupts_handled += 1;
+            let command = if interrupts_handled == 1 { Command::Stop } else { Command::EmergencyStop };
+            bar.suspend(|| eprintln!("strand-feed: {command:?} sent"));
+            send_control(&mut control_seq, command)?;
+        }
+        // A rejection of one of ours ends the job: stop the rest.
+        if started && status.last_rejected_seq >= first_seq && status.last_rejected_seq <= last_seq && status.rejected > 0 {
+            if job_seen && status.job_outcome == JobOutcome::InProgress as u32 {
+                let _ = send_control(&mut control_seq, Command::Stop);
+            }
+            bar.abandon();
+            return Ok(Ending::Rejected { seq: status.last_rejected_seq, reason: status.last_reject_reason });
+        }
+        // Send what the credit allows, a batch at a time.
+        if interrupts_handled == 0 {
+            let allowed = credit(&status, first_seq, last_seq, started).min(segments.len() as u64) as usize;
+            while sent < allowed {
+                let n = (allowed - sent).min(SEGMENT_BATCH_CAPACITY);
+                batch_seq += 1;
+                if ports.send_segments(&batch(&segments[sent..sent + n], batch_seq))? == 0 {
+                    break; // nobody subscribed yet: not delivered, so resend later
+                }
+                sent += n;
+                if !started {
+                    send_control(&mut control_seq, Command::Start)?;
+                    started = true;
+                }
+            }
+        }
+        // Progress.
+        job_seen |= started && status.job_outcome == JobOutcome::InProgress as u32;
+        let done = if job_seen && status.executing_seq >= first_seq { (status.executing_seq - first_seq) as usize } else { 0 };
+        let done_length: f64 = job.lengths[..done.min(job.lengths.len())].iter().sum();
+        let layer = job.layers.get(done).copied().flatten().map_or("-".to_string(), |l| l.to_string());
+        let fraction = if total_length > 0.0 { done_length / total_length } else { 0.0 };
+        bar.set_position(done as u64);
+        bar.set_message(format!(
+            "layer {layer} | sent {sent} | {:?}{}",
+            RunState::from_u32(status.run_state).unwrap_or_default(),
+            eta(started_at.elapsed(), fraction)
+        ));
+        if opts.quiet && (fraction * 10.0) as u32 > last_quiet_decile {
+            last_quiet_decile = (fraction * 10.0) as u32;
+            eprintln!("strand-feed: {} % (segment {}, layer {layer})", last_quiet_decile * 10, status.executing_seq);
+        }
+        // The end.
+        if job_seen {
+            let outcome = JobOutcome::from_u32(status.job_outcome);
+            let state = RunState::from_u32(status.run_state);
+            if matches!(state, Some(RunState::Idle | RunState::Fault)) {
+                let ending = match outcome {
+                    Some(JobOutcome::Finished) => Some(Ending::Finished),
+                    Some(JobOutcome::Stopped) => Some(Ending::Stopped),
+                    Some(JobOutcome::Faulted) => {
+                        Some(Ending::Faulted { code: status.fault, seq: status.executing_seq, line: status.executing_line })
+                    }
+                    _ => None,
+                };
+                if let Some(e) = ending {
+                    if e == Ending::Finished {
+                        bar.finish();
+                    } else {
+                        bar.abandon();
+                    }
+                    return Ok(e);
+                }
+            }
+        }
+        // A service that went away.
+        if ports.status_publishers() == 0 {
+            let since = *silent_since.get_or_insert_with(Instant::now);
+            if since.elapsed() > Duration::from_secs(1) {
+                bar.abandon();
+                return Err(ToolError::Measurement(format!(
+                    "the service under {prefix} went away (last state {:?})",
+                    RunState::from_u32(status.run_state)
+                )));
+            }
+        }
+        let _ = ports.wait_status(10_000_000);
+    }
+}
+
+fn eta(elapsed: Duration, fraction: f64) -> String {
+    if fraction <= 0.01 {
+        return String::new();
+    }
+    let left = elapsed.as_secs_f64() * (1.0 - fraction) / fraction;
+    format!(" | ETA {:.0} s", left)
+}
+
+fn progress_bar(len: u64, quiet: bool) -> ProgressBar {
+    if quiet {
+        return ProgressBar::hidden();
+    }
+    let bar = ProgressBar::new(len);
+    bar.set_style(
+        ProgressStyle::with_template("{spinner} [{elapsed_precise}] {bar:40} {pos}/{len} segments | {msg}")
+            .unwrap_or_else(|_| ProgressStyle::default_bar()),
+    );
+    bar.enable_steady_tick(Duration::from_millis(200));
+    bar
+}
