@@ -40,7 +40,7 @@ use super::filter::Butterworth2;
 use crate::error::{Result, ToolError};
 
 /// How the job's path becomes a time series.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum, Serialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum Timing {
     /// The controller's own path engine (junction blending, jerk-limited time scaling).
@@ -424,56 +424,41 @@ pub fn plot_paths(path: &Path, tcp: &TcpSeries, plan: &BasePlan) -> Result<()> {
 }
 
 /// `strand-plan base`.
-#[derive(Clone, Debug, clap::Args)]
-pub struct BaseArgs {
+#[derive(Clone, Debug)]
+pub struct BaseOptions {
     /// The G-code job (its frame: x along the job, the base beside it).
     pub job: PathBuf,
     /// Nominal reach r_nom (m): the arm's extension at the print origin (000: 230 mm).
-    #[arg(long, default_value_t = 0.23)]
     pub r_nom: f64,
     /// Reach limit (m): Algorithm 1 stops when the reach would exceed it (000: 270 mm).
-    #[arg(long, default_value_t = 0.27)]
     pub reach_limit: f64,
     /// Direction from the base to the print (degrees from +x towards +y; 90: the base on the −y side).
-    #[arg(long, default_value_t = 90.0, allow_negative_numbers = true)]
     pub direction_deg: f64,
     /// Sample period of the trajectory (s; 000: 60 ms, its position update rate).
-    #[arg(long, default_value_t = 0.06)]
     pub dt: f64,
     /// First cut-off tried (Hz).
-    #[arg(long, default_value_t = 0.01)]
     pub fc_start: f64,
     /// Step Δf_c by which the cut-off is lowered (Hz).
-    #[arg(long, default_value_t = 1e-4)]
     pub fc_step: f64,
     /// Base mass for W_FF (kg; the sim's free flyer).
-    #[arg(long, default_value_t = 266.7)]
     pub mass: f64,
     /// How the path becomes a time series.
-    #[arg(long, value_enum, default_value_t = Timing::Controller)]
     pub timing: Timing,
     /// Service config whose [path] limits and rate time the job (`--timing controller`): a file or
     /// a NAME; default: free-flyer.toml by the search order ($STRAND_CONFIG_DIR, ./config,
     /// <prefix>/share/strand/config, the built-in copy).
-    #[arg(long)]
     pub config: Option<PathBuf>,
     /// Print one JSON object.
-    #[arg(long)]
     pub json: bool,
     /// Write t, tcp_x, tcp_y, base_x, base_y (s, m) at the chosen cut-off.
-    #[arg(long)]
     pub csv: Option<PathBuf>,
     /// Write the base trajectory for strand-sim (t, base_x, base_y in W, from the --config's mount).
-    #[arg(long)]
     pub trajectory: Option<PathBuf>,
     /// With --trajectory: hold the mount this long before following the job (s; the approach).
-    #[arg(long, default_value_t = 0.0)]
     pub start_delay: f64,
     /// Also tabulate a_max, r_max and W_FF over cut-offs from --fc-step to --fc-start (000 Fig. 4).
-    #[arg(long)]
     pub sweep: bool,
     /// PNG: with --sweep 000's Fig. 4, otherwise the paths of Fig. 5 at the chosen cut-off.
-    #[arg(long)]
     pub png: Option<PathBuf>,
 }
 
@@ -495,7 +480,7 @@ struct Summary<'a> {
 }
 
 /// Runs `strand-plan base`.
-pub fn run(args: &BaseArgs) -> Result<()> {
+pub fn run(args: &BaseOptions) -> Result<()> {
     super::positive("r-nom", args.r_nom)?;
     super::positive("reach-limit", args.reach_limit)?;
     super::positive("mass", args.mass)?;

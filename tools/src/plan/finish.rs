@@ -20,38 +20,46 @@ use super::surface::{Bump, Surface};
 use crate::error::{Result, ToolError};
 
 /// The profile of Eq. 20 and the raster laid over it (SI units).
-#[derive(Clone, Copy, Debug, PartialEq, clap::Args)]
+#[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Finish {
     /// Height z₀ of the profile (m; 002: 3 mm).
-    #[arg(long, default_value_t = 3e-3)]
     pub z0: f64,
     /// Width β of the profile (m; 002: 18 mm).
-    #[arg(long, default_value_t = 18e-3)]
     pub beta: f64,
     /// The layer covers y from −half_length to +half_length (m).
-    #[arg(long, default_value_t = 45e-3)]
     pub half_length: f64,
     /// Width of the part along x (m); paths run from x = 0 to this.
-    #[arg(long, default_value_t = 20e-3)]
     pub width: f64,
     /// Distance between neighbouring paths along x (m): the strand width.
-    #[arg(long, default_value_t = 0.45e-3)]
     pub spacing: f64,
     /// Length of the chords that make up a path (m).
-    #[arg(long, default_value_t = 0.5e-3)]
     pub step: f64,
     /// Layer thickness (m): the nozzle runs this far from the surface along its normal.
-    #[arg(long, default_value_t = 0.2e-3)]
     pub layer_height: f64,
     /// Filament diameter (m).
-    #[arg(long, default_value_t = 1.75e-3)]
     pub filament: f64,
     /// Print speed (m/s).
-    #[arg(long, default_value_t = 0.01)]
     pub feed: f64,
     /// Height of the profile's foot above the bed (m).
-    #[arg(long, default_value_t = 0.0)]
     pub z_base: f64,
+}
+
+impl Default for Finish {
+    /// The values `strand-plan` uses when no flag is given.
+    fn default() -> Self {
+        Finish {
+            z0: 3e-3,
+            beta: 18e-3,
+            half_length: 45e-3,
+            width: 20e-3,
+            spacing: 0.45e-3,
+            step: 0.5e-3,
+            layer_height: 0.2e-3,
+            filament: 1.75e-3,
+            feed: 0.01,
+            z_base: 0.0,
+        }
+    }
 }
 
 impl Finish {
@@ -161,21 +169,18 @@ impl Finish {
 }
 
 /// `strand-plan finish`.
-#[derive(Clone, Debug, clap::Args)]
-pub struct FinishArgs {
+#[derive(Clone, Debug)]
+pub struct FinishOptions {
     /// The profile and the raster.
-    #[command(flatten)]
     pub finish: Finish,
     /// The segment file to write.
-    #[arg(long, short)]
     pub output: PathBuf,
     /// Print a JSON summary.
-    #[arg(long)]
     pub json: bool,
 }
 
 /// Runs `strand-plan finish`.
-pub fn run(args: &FinishArgs) -> Result<()> {
+pub fn run(args: &FinishOptions) -> Result<()> {
     let f = &args.finish;
     f.validate()?;
     let segments = f.segments();
@@ -215,13 +220,6 @@ pub fn run(args: &FinishArgs) -> Result<()> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use clap::Parser;
-
-    #[derive(Parser)]
-    struct Cli {
-        #[command(flatten)]
-        f: Finish,
-    }
 
     /// The profile's y whose offset point is `p`: p − h·n(y) lies on the surface at y.
     fn surface_y(f: &Finish, p: &Vector3<f64>) -> f64 {
@@ -235,7 +233,7 @@ mod tests {
     }
 
     fn paper() -> Finish {
-        Cli::parse_from(["finish"]).f
+        Finish::default()
     }
 
     #[test]

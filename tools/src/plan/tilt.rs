@@ -22,22 +22,17 @@ pub fn angle_from_bolts(h: f64, d: f64) -> f64 {
 }
 
 /// `strand-plan tilt`.
-#[derive(Clone, Debug, clap::Args)]
-#[command(group(clap::ArgGroup::new("angle_source").required(true).args(["angle_deg", "bolt_height"])))]
-pub struct TiltArgs {
+#[derive(Clone, Debug)]
+pub struct TiltOptions {
     /// The G-code job, in the bed's own frame.
     pub job: PathBuf,
     /// Tilt α of the bed about its x axis (degrees, 0 ≤ α < 90; 004 printed at 10, 45, 60, 80).
-    #[arg(long = "angle")]
     pub angle_deg: Option<f64>,
     /// Eq. 7: the adjustable bolt's height h (m) …
-    #[arg(long, requires = "bolt_distance")]
     pub bolt_height: Option<f64>,
     /// … over the distance d between the bolts (m): α = atan(h / d).
-    #[arg(long)]
     pub bolt_distance: Option<f64>,
     /// The segment file to write.
-    #[arg(long, short)]
     pub output: PathBuf,
 }
 
@@ -59,7 +54,7 @@ pub fn tilt_job(job: &std::path::Path, alpha: f64) -> Result<(Vec<Segment>, Vec<
 }
 
 /// Runs `strand-plan tilt`.
-pub fn run(args: &TiltArgs) -> Result<()> {
+pub fn run(args: &TiltOptions) -> Result<()> {
     let alpha = match (args.angle_deg, args.bolt_height, args.bolt_distance) {
         (Some(a), _, _) => a.to_radians(),
         (None, Some(h), Some(d)) if h.is_finite() && d.is_finite() && d > 0.0 && h >= 0.0 => angle_from_bolts(h, d),

@@ -84,7 +84,7 @@ pub use plot::plot_png;
 pub use read::{Job, Layer, Line, ReadOptions, flatten_arc, read_job};
 
 /// Direction the strips are measured along.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum, Serialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
 #[serde(rename_all = "lowercase")]
 pub enum Axis {
     X,
@@ -258,68 +258,50 @@ pub fn plan(job: &Job, spec: &StripSpec) -> Result<Plan> {
 }
 
 /// Strip widths: one for all strips, or one per strip.
-#[derive(clap::Args, Debug, Clone)]
-#[group(required = true, multiple = false)]
-pub struct WidthArgs {
+#[derive(Debug, Clone)]
+pub struct StripWidths {
     /// Strip width W (m); as many strips as the part needs, the last one possibly not full.
-    #[arg(long, value_name = "M")]
     pub width: Option<f64>,
     /// Strip widths (m), comma-separated, in print order (000's truss: 0.043,0.06,0.047).
-    #[arg(long, value_name = "M,M,..", value_delimiter = ',')]
     pub widths: Option<Vec<f64>>,
 }
 
 /// `strand-plan strips`: split a planar job into strips (000 Section 3.2).
-#[derive(clap::Args, Debug, Clone)]
-pub struct StripsArgs {
+#[derive(Debug, Clone)]
+pub struct StripsOptions {
     /// The G-code job.
     pub job: PathBuf,
-    #[command(flatten)]
-    pub width: WidthArgs,
+    /// The strips' width or widths.
+    pub width: StripWidths,
     /// Overlap L (m): how far the boundaries move per layer below the top (000 Fig. 6).
-    #[arg(long, value_name = "M")]
     pub overlap: f64,
     /// Reach R (m) of the manipulator across the strips (Eq. 2: W ≤ R/2).
-    #[arg(long, value_name = "M")]
     pub reach: f64,
     /// Axis the strips are measured along.
-    #[arg(long, value_enum, default_value_t = Axis::X)]
     pub axis: Axis,
     /// Where strip 1 starts along the axis (m); default: the part's smallest coordinate.
-    #[arg(long, value_name = "M", allow_negative_numbers = true)]
     pub origin: Option<f64>,
     /// Nominal position x,y (m) each layer's chaining starts from (000: the origin).
-    #[arg(long, value_name = "X,Y", value_delimiter = ',', default_value = "0,0", allow_negative_numbers = true)]
     pub start: Vec<f64>,
     /// Endpoints closer than this (m) continue a path.
-    #[arg(long, value_name = "M", default_value_t = 1e-6)]
     pub join_tolerance: f64,
     /// Largest sagitta (m) of the chords replacing an arc.
-    #[arg(long, value_name = "M", default_value_t = 1e-5)]
     pub arc_tolerance: f64,
     /// Keep skirt and brim lines (dropped by default: not part of the structure).
-    #[arg(long)]
     pub keep_skirt: bool,
     /// Travel speed between paths (m/s).
-    #[arg(long, value_name = "M/S", default_value_t = 0.12)]
     pub travel_speed: f64,
     /// Filament retracted before each travel (m; 0: none).
-    #[arg(long, value_name = "M", default_value_t = 1e-3)]
     pub retract: f64,
     /// Retraction speed (m/s of filament).
-    #[arg(long, value_name = "M/S", default_value_t = 0.035)]
     pub retract_speed: f64,
     /// Lift during travels (m; 0: none).
-    #[arg(long, value_name = "M", default_value_t = 0.0)]
     pub z_hop: f64,
     /// Write the G-code here (default: standard output, unless --json).
-    #[arg(long, short, value_name = "FILE.gcode")]
     pub output: Option<PathBuf>,
     /// Draw the nominal and the split job (like 000's Fig. 13) into this PNG.
-    #[arg(long, value_name = "FILE")]
     pub png: Option<PathBuf>,
     /// Print one JSON report on standard output.
-    #[arg(long)]
     pub json: bool,
 }
 
@@ -327,7 +309,7 @@ fn non_negative(flag: &str, v: f64) -> Result<()> {
     if v.is_finite() && v >= 0.0 { Ok(()) } else { Err(ToolError::Usage(format!("--{flag} {v}: must be finite and ≥ 0"))) }
 }
 
-impl StripsArgs {
+impl StripsOptions {
     fn spec(&self) -> Result<StripSpec> {
         let widths = match (&self.width.width, &self.width.widths) {
             (Some(w), _) => {
@@ -460,7 +442,7 @@ pub fn report(job: &Job, plan: &Plan, written: &Written) -> serde_json::Value {
 }
 
 /// Runs `strand-plan strips`.
-pub fn run(args: &StripsArgs) -> Result<()> {
+pub fn run(args: &StripsOptions) -> Result<()> {
     let spec = args.spec()?;
     let name = args.job.display().to_string();
     let mut parser = parse_file(&args.job, GcodeOptions::for_path(&args.job))?;

@@ -97,11 +97,11 @@ impl AlgorithmReport {
 }
 
 // ---------------------------------------------------------------------------------------------------------
-// CLI
+// Options (strand-plan's command line maps onto these)
 // ---------------------------------------------------------------------------------------------------------
 
 /// The surfaces `strand-plan surface` knows.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Shape {
     /// 003's curved rectangle (Fig. 3), our reading: a sheet bent up past vertical (overhang).
     CurvedRect,
@@ -116,7 +116,7 @@ pub enum Shape {
 }
 
 /// Which algorithms to run.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum AlgorithmChoice {
     /// Algorithm 3.
     Greedy,
@@ -131,94 +131,102 @@ pub enum AlgorithmChoice {
 }
 
 /// `strand-plan surface`: sample a surface, order the samples into an extrusion path, report, write.
-#[derive(Clone, Debug, clap::Args)]
-pub struct SurfaceArgs {
+#[derive(Clone, PartialEq, Debug)]
+pub struct SurfaceOptions {
     /// The surface.
-    #[arg(long, value_enum, default_value = "curved-rect")]
     pub shape: Shape,
     /// Desired distance between samples in both directions, d*_u = d*_v (m; 003 uses 10 mm).
-    #[arg(long, default_value_t = 0.01)]
     pub spacing: f64,
     /// Relative tolerance of the step calibration, Algorithm 2 (1; the paper's 1/t).
-    #[arg(long, default_value_t = 0.01)]
     pub tolerance: f64,
     /// Algorithm 1 as printed, or made robust.
-    #[arg(long, value_enum, default_value = "robust")]
     pub sampling: SamplingMode,
     /// Path algorithm(s).
-    #[arg(long, value_enum, default_value = "all")]
     pub algorithm: AlgorithmChoice,
     /// Weighted greedy: the weight added to the distance of a sample off the current row (m; default the
     /// cloud's bounding-box diagonal, so the row is always finished first).
-    #[arg(long)]
     pub weight: Option<f64>,
     /// TSP: candidates per sample in the 2-opt neighbour lists (1).
-    #[arg(long, default_value_t = 10)]
     pub neighbours: usize,
     /// curved-rect: width along x (across the bend); plane: extent along x; cylinder, bump: length along x (m)
     /// [default 0.1].
-    #[arg(long)]
     pub length: Option<f64>,
     /// plane: extent along y; bump: extent along y across the ridge (m) [default 0.1].
-    #[arg(long)]
     pub width: Option<f64>,
     /// curved-rect: bend radius; cylinder: radius (m) [default 0.05].
-    #[arg(long)]
     pub radius: Option<f64>,
     /// curved-rect: bend angle; cylinder: angle the patch spans (rad) [default 2π/3].
-    #[arg(long)]
     pub sweep: Option<f64>,
     /// bump: peak height z0 (m) [default 3 mm, 002].
-    #[arg(long)]
     pub height: Option<f64>,
     /// bump: width parameter β (m) [default 18 mm, 002].
-    #[arg(long)]
     pub beta: Option<f64>,
     /// blade: hub radius, where the span starts (m).
-    #[arg(long, default_value_t = 0.03)]
     pub hub_radius: f64,
     /// blade: tip radius, where the span ends (m).
-    #[arg(long, default_value_t = 0.15)]
     pub tip_radius: f64,
     /// blade: widest chord (m).
-    #[arg(long, default_value_t = 0.06)]
     pub chord: f64,
     /// blade: geometric pitch (m per turn).
-    #[arg(long, default_value_t = 0.2)]
     pub pitch: f64,
     /// blade: camber height as a fraction of the half chord (1).
-    #[arg(long, default_value_t = 0.1)]
     pub camber: f64,
     /// Extrusion line width (m).
-    #[arg(long, default_value_t = 0.45e-3)]
     pub line_width: f64,
     /// Layer height (m).
-    #[arg(long, default_value_t = 0.2e-3)]
     pub layer_height: f64,
     /// Filament diameter (m).
-    #[arg(long, default_value_t = 1.75e-3)]
     pub filament_diameter: f64,
     /// Print speed (m/s).
-    #[arg(long, default_value_t = 0.01)]
     pub speed: f64,
     /// Travel speed to the first sample (m/s).
-    #[arg(long, default_value_t = 0.05)]
     pub travel_speed: f64,
     /// Nozzle tip offset from the surface along its normal (m) [default: the layer height].
-    #[arg(long)]
     pub standoff: Option<f64>,
     /// Write the path as segments (JSON lines, strand_job::segfile); needs one --algorithm.
-    #[arg(long, short)]
     pub output: Option<PathBuf>,
     /// Draw the paths in the (u, v) plane, self-intersections marked.
-    #[arg(long)]
     pub png: Option<PathBuf>,
     /// Print one JSON object instead of the summary.
-    #[arg(long)]
     pub json: bool,
 }
 
-impl SurfaceArgs {
+impl Default for SurfaceOptions {
+    /// The values `strand-plan` uses when no flag is given.
+    fn default() -> Self {
+        SurfaceOptions {
+            shape: Shape::CurvedRect,
+            spacing: 0.01,
+            tolerance: 0.01,
+            sampling: SamplingMode::Robust,
+            algorithm: AlgorithmChoice::All,
+            weight: None,
+            neighbours: 10,
+            length: None,
+            width: None,
+            radius: None,
+            sweep: None,
+            height: None,
+            beta: None,
+            hub_radius: 0.03,
+            tip_radius: 0.15,
+            chord: 0.06,
+            pitch: 0.2,
+            camber: 0.1,
+            line_width: 0.45e-3,
+            layer_height: 0.2e-3,
+            filament_diameter: 1.75e-3,
+            speed: 0.01,
+            travel_speed: 0.05,
+            standoff: None,
+            output: None,
+            png: None,
+            json: false,
+        }
+    }
+}
+
+impl SurfaceOptions {
     /// The surface the flags describe, with its defaults filled in; errors name the flag and value.
     pub fn surface(&self) -> Result<Box<dyn Surface>> {
         let length = super::positive("length", self.length.unwrap_or(0.1))?;
@@ -313,7 +321,7 @@ fn shape_name(shape: Shape) -> &'static str {
 
 /// `strand-plan surface`: samples, plans, reports (summary or `--json`), and writes the segment file and
 /// the PNG if asked.
-pub fn run(args: &SurfaceArgs) -> Result<()> {
+pub fn run(args: &SurfaceOptions) -> Result<()> {
     let surface = args.surface()?;
     let sampling = args.sampling()?;
     let deposition = args.deposition()?;
@@ -411,7 +419,7 @@ pub fn run(args: &SurfaceArgs) -> Result<()> {
     Ok(())
 }
 
-fn shape_sampling(args: &SurfaceArgs) -> &'static str {
+fn shape_sampling(args: &SurfaceOptions) -> &'static str {
     match args.sampling {
         SamplingMode::Paper => "paper",
         SamplingMode::Robust => "robust",
@@ -458,41 +466,5 @@ mod fixtures {
 
     pub(super) fn identity(n: usize) -> Vec<usize> {
         (0..n).collect()
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[derive(clap::Parser)]
-    struct Cli {
-        #[command(flatten)]
-        args: SurfaceArgs,
-    }
-
-    fn args(line: &[&str]) -> SurfaceArgs {
-        use clap::Parser;
-        Cli::try_parse_from(std::iter::once("surface").chain(line.iter().copied())).unwrap().args
-    }
-
-    #[test]
-    fn flags_are_checked_by_name() {
-        assert!(args(&["--spacing=-0.01"]).sampling().unwrap_err().to_string().contains("--spacing = -0.01"));
-        assert!(args(&["--tolerance", "2"]).sampling().unwrap_err().to_string().contains("--tolerance"));
-        assert!(args(&["--shape", "cylinder", "--sweep", "7"]).surface().err().unwrap().to_string().contains("--sweep = 7"));
-        assert!(args(&["--shape", "blade", "--tip-radius", "0.01"]).surface().err().unwrap().to_string().contains("--tip-radius"));
-        assert!(args(&["--shape", "bump", "--beta", "0"]).surface().err().unwrap().to_string().contains("--beta = 0"));
-        assert!(args(&["--line-width", "0.1e-3"]).deposition().unwrap_err().to_string().contains("--layer-height"));
-        assert!(run(&args(&["--output", "/nonexistent/x.jsonl"])).unwrap_err().to_string().contains("--output"));
-        assert!(run(&args(&["--neighbours", "0"])).unwrap_err().to_string().contains("--neighbours"));
-        assert!(run(&args(&["--weight=-1"])).unwrap_err().to_string().contains("--weight = -1"));
-        // Defaults are 003's and 002's.
-        let a = args(&["--shape", "bump"]);
-        assert_eq!(a.spacing, 0.01);
-        let d = a.deposition().unwrap();
-        assert_eq!((d.line_width, d.layer_height, d.filament_diameter, d.standoff), (0.45e-3, 0.2e-3, 1.75e-3, 0.2e-3));
-        let s = a.surface().unwrap();
-        assert!((s.point(0.0, 0.0).z - 3.0e-3).abs() < 1e-15 && (s.point(0.0, 0.018).z - 3.0e-3 / 1f64.exp()).abs() < 1e-15);
     }
 }

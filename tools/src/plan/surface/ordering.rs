@@ -11,23 +11,19 @@ use serde::Serialize;
 use super::{PointCloud, Sample};
 
 /// A path algorithm.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum, Serialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
 pub enum Algorithm {
     /// Algorithm 3: always the nearest unvisited sample (Eq. 3 distance).
-    #[value(name = "greedy")]
     #[serde(rename = "greedy")]
     Greedy,
     /// Algorithm 4 with the weight on u: leaving the current u row costs extra, so the path runs along
     /// v to the end of the row before it changes row (side to side, 003's Figs. 6 and 7).
-    #[value(name = "weighted-u")]
     #[serde(rename = "weighted-u")]
     WeightedU,
     /// Algorithm 4 with the weight on v: the path runs along u.
-    #[value(name = "weighted-v")]
     #[serde(rename = "weighted-v")]
     WeightedV,
     /// Algorithm 5: greedy tour, then 2-opt local search.
-    #[value(name = "tsp")]
     #[serde(rename = "tsp")]
     Tsp,
 }

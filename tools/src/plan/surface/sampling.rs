@@ -34,7 +34,7 @@ pub struct PointCloud {
 }
 
 /// Which version of Algorithm 1 to run.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum SamplingMode {
     /// Algorithm 1 as printed (first sample missing, a lone sample after the last row), with Algorithm 2 as
     /// printed (restarting from α = d*, the ratio update α ← α·d*/d_k); iterations are capped only so

@@ -15,6 +15,8 @@ use strand::core::PlanningMode;
 use strand_tools::error::ToolError;
 use strand_tools::plan::{base, finish, strips, surface, tilt, time, truss};
 
+mod args;
+
 #[derive(Parser)]
 #[command(
     name = "strand-plan",
@@ -82,18 +84,18 @@ enum Command {
     },
     /// 000's moving base: the job's TCP path low-passed with zero phase into the base trajectory,
     /// the cut-off lowered until the arm's reach limit (Algorithm 1); W_FF (Eq. 1), Fig. 4 sweep.
-    Base(base::BaseArgs),
+    Base(args::BaseArgs),
     /// 002's finishing layer over z = z0·exp(−y²/β²) with the tool tilted by Eq. 21, as a segment file.
-    Finish(finish::FinishArgs),
+    Finish(args::FinishArgs),
     /// 004's inclined plane (Eqs. 7-10) applied to a G-code job, as a segment file with orientation.
-    Tilt(tilt::TiltArgs),
+    Tilt(args::TiltArgs),
     /// Split a planar job into strips the arm can reach (000 Section 3.2): staggered overlap joint,
     /// Eqs. 2-4, lines chained into paths, one G-code job strip after strip.
-    Strips(strips::StripsArgs),
+    Strips(args::StripsArgs),
     /// 003's path generation on a parametric surface: sample it at a spacing (Algorithms 1-2), order
     /// the samples (greedy, weighted greedy, TSP: Algorithms 3-5), report length, self-intersections
     /// and compute time, and write the path as segments with the nozzle along the surface normal.
-    Surface(Box<surface::SurfaceArgs>),
+    Surface(Box<args::SurfaceArgs>),
 }
 
 fn main() -> ExitCode {
@@ -120,11 +122,11 @@ fn main() -> ExitCode {
             let t = truss::Truss { length, width, pitch, layer_height, strand, filament, speed };
             ("truss", t.validate().and_then(|()| t.write(output.as_deref())))
         }
-        Command::Base(args) => ("base", base::run(&args)),
-        Command::Finish(args) => ("finish", finish::run(&args)),
-        Command::Tilt(args) => ("tilt", tilt::run(&args)),
-        Command::Strips(args) => ("strips", strips::run(&args)),
-        Command::Surface(args) => ("surface", surface::run(&args)),
+        Command::Base(a) => ("base", base::run(&a.into())),
+        Command::Finish(a) => ("finish", finish::run(&a.into())),
+        Command::Tilt(a) => ("tilt", tilt::run(&a.into())),
+        Command::Strips(a) => ("strips", strips::run(&a.into())),
+        Command::Surface(a) => ("surface", surface::run(&(*a).into())),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
