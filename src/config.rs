@@ -9,6 +9,7 @@
 //! the copy of `config/` built into the binary).
 
 pub mod check;
+pub mod driver;
 pub mod locate;
 pub mod log;
 
@@ -26,6 +27,7 @@ use crate::core::kin::{ClikConfig, Frame, ModelError, RobotModel, geom};
 use crate::io::rt::RealtimeConfig;
 use crate::io::runner::ServiceConfig;
 use check::CheckConfig;
+use driver::DriverConfig;
 use log::LogConfig;
 use strand_job::bed::BedConfig;
 use strand_job::bed::BedTransform;
@@ -218,6 +220,8 @@ pub struct Config {
     pub log: LogConfig,
     /// `strand check-job` thresholds.
     pub check: CheckConfig,
+    /// The robot driver bridge (`strand-egm`, `strand-rsi`), if the robot has one.
+    pub driver: Option<DriverConfig>,
 }
 
 #[derive(Deserialize, Serialize)]
@@ -244,6 +248,8 @@ struct ConfigFile<R> {
     log: LogConfig,
     #[serde(default)]
     check: CheckConfig,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    driver: Option<DriverConfig>,
 }
 
 impl<R> ConfigFile<R> {
@@ -257,6 +263,10 @@ impl<R> ConfigFile<R> {
         self.extruder.validate().map_err(|m| ConfigError::new(path, m.message))?;
         self.log.validate().map_err(|m| ConfigError::new(path, m.to_string()))?;
         self.check.validate().map_err(|m| ConfigError::new(path, m.to_string()))?;
+        if let Some(d) = &self.driver {
+            // The per-joint lists are checked against the robot by the driver, which loads it.
+            d.validate(d.axis_sign.len().max(d.axis_offset.len())).map_err(|m| ConfigError::new(path, m.to_string()))?;
+        }
         BedTransform::new(&self.bed).map_err(|m| ConfigError::new(path, m.message))?;
         Ok(())
     }
@@ -275,6 +285,7 @@ impl<R> ConfigFile<R> {
             realtime: self.realtime,
             log: self.log,
             check: self.check,
+            driver: self.driver,
         }
     }
 }
@@ -330,6 +341,7 @@ impl Config {
             realtime: self.realtime.clone(),
             log: self.log.clone(),
             check: self.check.clone(),
+            driver: self.driver.clone(),
         };
         toml::to_string(&file).expect("every config value is representable in TOML")
     }

@@ -1,0 +1,135 @@
+// The command line both driver binaries share (included by each with `#[path]`): a thin main
+// around `strand_driver::bridge::run`.
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::sync::atomic::{AtomicBool, Ordering};
+
+use clap::Parser;
+use strand::config::driver::DriverProtocol;
+use strand::config::{Config, locate};
+use strand_driver::bridge::{BridgeOptions, run};
+use strand_driver::protocol::RobotProtocol;
+
+#[derive(Parser)]
+#[command(version)]
+struct Cli {
+    /// Service configuration with a `[driver]` section: a file or a NAME (`irb140`, `kr6r900`), by
+    /// the search order ($STRAND_CONFIG_DIR, ./config, <prefix>/share/strand/config, the built-in
+    /// copy).
+    #[arg(long)]
+    config: PathBuf,
+    /// Listen here instead of `[driver] bind` (IP:PORT; port 0: any free port, printed).
+    #[arg(long)]
+    bind: Option<String>,
+    /// Override the service prefix.
+    #[arg(long)]
+    prefix: Option<String>,
+    /// Override a config key (repeatable), e.g. `--set driver.reply_deadline=0.001`.
+    #[arg(long = "set", value_name = "SECTION.KEY=VALUE")]
+    set: Vec<String>,
+    /// Write the counters and the receive → reply latency as JSON to this file at exit.
+    #[arg(long)]
+    stats: Option<PathBuf>,
+    /// SCHED_FIFO at this priority and locked memory (needs the privilege).
+    #[arg(long)]
+    rt: Option<u32>,
+}
+
+static STOP: AtomicBool = AtomicBool::new(false);
+
+extern "C" fn on_signal(_: libc::c_int) {
+    STOP.store(true, Ordering::Relaxed);
+}
+
+pub(crate) fn main_for<P: RobotProtocol>(protocol: DriverProtocol, make: fn() -> P) -> ExitCode {
+    let cli = Cli::parse();
+    let name = P::NAME;
+    let mut set = cli.set.clone();
+    if let Some(b) = &cli.bind {
+        set.push(format!("driver.bind=\"{b}\""));
+    }
+    let setup = || -> Result<_, String> {
+        let path = locate::service_config(Some(&cli.config)).map_err(|e| e.to_string())?;
+        let cfg = Config::load_with(&path, &set).map_err(|e| e.to_string())?;
+        let d = strand_driver::driver_config(&cfg, protocol).map_err(|e| e.to_string())?;
+        let session = strand_driver::session(&cfg, &d, make()).map_err(|e| e.to_string())?;
+        let opts = BridgeOptions {
+            bind: d.bind_address().map_err(|e| e.to_string())?,
+            prefix: cli.prefix.clone().unwrap_or_else(|| cfg.service.prefix.clone()),
+            reply_deadline: d.reply_deadline,
+            period: 1.0 / cfg.controller.rate_hz,
+            max_packets: 0,
+        };
+        if !opts.bind.ip().is_loopback() {
+            eprintln!("strand-{name}: note: listening on {}, not the loopback address ([driver] bind)", opts.bind);
+        }
+        Ok((session, opts))
+    };
+    let (mut session, opts) = match setup() {
+        Ok(x) => x,
+        Err(e) => {
+            eprintln!("strand-{name}: {e}");
+            return ExitCode::from(2);
+        }
+    };
+    if let Some(priority) = cli.rt {
+        let rt = strand::io::rt::RealtimeConfig { fifo_priority: priority, lock_memory: true, ..Default::default() };
+        let report = strand::io::rt::apply(&rt);
+        for w in report.warnings() {
+            eprintln!("strand-{name}: warning: --rt: {w}");
+        }
+    }
+    // SAFETY: the handler only stores to an atomic.
+    unsafe {
+        libc::signal(libc::SIGINT, on_signal as *const () as libc::sighandler_t);
+        libc::signal(libc::SIGTERM, on_signal as *const () as libc::sighandler_t);
+    }
+    match run(&mut session, &opts, &STOP) {
+        Ok(report) => {
+            let c = &report.counters;
+            let l = &report.latency;
+            eprintln!(
+                "strand-{name}: {} packets, {} answered in time, {} late, {} held, {} clamped, {} faults; dropped {} foreign, {} malformed, {} oversized, {} duplicate, {} out of order; receive → reply p50 {:.1} µs, p99 {:.1} µs, max {:.1} µs",
+                c.packets,
+                c.in_time,
+                c.late,
+                c.held,
+                c.clamped,
+                c.faults,
+                c.foreign,
+                c.malformed,
+                c.oversized,
+                c.duplicate,
+                c.out_of_order,
+                l.percentile(50.0) as f64 * 1e-3,
+                l.percentile(99.0) as f64 * 1e-3,
+                l.max() as f64 * 1e-3
+            );
+            if let Some(p) = &cli.stats {
+                let json = serde_json::json!({
+                    "protocol": name,
+                    "counters": c,
+                    "stale": report.stale,
+                    "final_state": report.final_state,
+                    "latency": {
+                        "samples": l.count(),
+                        "p50_ns": l.percentile(50.0),
+                        "p99_ns": l.percentile(99.0),
+                        "p999_ns": l.percentile(99.9),
+                        "max_ns": l.max(),
+                    },
+                });
+                if let Err(e) = std::fs::write(p, format!("{json:#}\n")) {
+                    eprintln!("strand-{name}: {}: {e}", p.display());
+                    return ExitCode::from(1);
+                }
+            }
+            ExitCode::SUCCESS
+        }
+        Err(e) => {
+            eprintln!("strand-{name}: {e}");
+            ExitCode::from(1)
+        }
+    }
+}

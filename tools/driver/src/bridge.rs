@@ -1,0 +1,261 @@
+//! The driver process's loop: the robot's UDP socket on one side, the service's ports on the other,
+//! a [`Session`] deciding. Each robot packet is stamped on receipt (`CLOCK_MONOTONIC`), published as
+//! the JointState that clocks the service (the service runs on the robot clock at the robot's
+//! period), and answered with the service's JointCommand for that state — or a hold, if the
+//! command is not there by the reply deadline. A fault latched by the session is told to the
+//! service as an emergency stop. Ctrl-C (or SIGTERM) holds the robot and keeps answering until it
+//! is at rest, then exits.
+
+use std::net::{SocketAddr, UdpSocket};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::Duration;
+
+use strand::io::clock::monotonic_ns;
+use strand::io::histogram::Histogram;
+use strand_ipc::ports::{ClientPorts, ClientRoles};
+use strand_ipc::{Command, Control, JointCommand, JointState, ServiceNames};
+
+use crate::protocol::RobotProtocol;
+use crate::session::{Counters, DriverState, ReplyKind, Session, Transition};
+
+/// How the bridge runs.
+#[derive(Clone, Debug)]
+pub struct BridgeOptions {
+    /// The address to listen on for the robot.
+    pub bind: SocketAddr,
+    /// The service prefix.
+    pub prefix: String,
+    /// Longest wait for the service's command after a packet arrives (s).
+    pub reply_deadline: f64,
+    /// The robot's cycle (s): the JointState velocity is measured over it, and the shut-down hold
+    /// lasts until the robot has been at rest for a few of them.
+    pub period: f64,
+    /// Stop after this many packets (0: never; for tests and benchmarks).
+    pub max_packets: u64,
+}
+
+/// What a run did.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct BridgeReport {
+    /// The session's counters.
+    pub counters: Counters,
+    /// Packets skipped because a newer one was already queued behind them.
+    pub stale: u64,
+    /// Receive → reply latency of the answers (ns).
+    #[serde(skip)]
+    pub latency: Histogram,
+    /// The state at the end.
+    pub final_state: String,
+}
+
+/// A bridge failure before it could run.
+#[derive(Debug, thiserror::Error)]
+pub enum BridgeError {
+    /// The UDP socket.
+    #[error("{address}: {source}")]
+    Socket {
+        /// The address it tried.
+        address: SocketAddr,
+        /// What the system said.
+        source: std::io::Error,
+    },
+    /// The service's ports.
+    #[error(transparent)]
+    Ports(#[from] strand_ipc::ports::PortError),
+}
+
+fn log_transition(name: &str, t: Transition, why: &str) {
+    eprintln!("strand-{name}: {:?} → {:?}{why}", t.from, t.to);
+}
+
+/// Runs the bridge until `stop` is set (then holds the robot to rest and returns).
+pub fn run<P: RobotProtocol>(session: &mut Session<P>, opts: &BridgeOptions, stop: &AtomicBool) -> Result<BridgeReport, BridgeError> {
+    let name = P::NAME;
+    let socket = UdpSocket::bind(opts.bind).map_err(|source| BridgeError::Socket { address: opts.bind, source })?;
+    let local = socket.local_addr().map_err(|source| BridgeError::Socket { address: opts.bind, source })?;
+    socket.set_read_timeout(Some(Duration::from_millis(100))).map_err(|source| BridgeError::Socket { address: local, source })?;
+    let ports = ClientPorts::open(
+        &ServiceNames::new(&opts.prefix),
+        &format!("strand-{name}"),
+        ClientRoles { driver: true, feeder: true, ..Default::default() },
+    )?;
+    eprintln!("strand-{name}: listening on {local}, service {}", opts.prefix);
+    let mut buf = vec![0u8; 65536];
+    let mut spare = vec![0u8; 65536];
+    let mut stale = 0u64;
+    let mut reply = Vec::with_capacity(1024);
+    let mut latency = Histogram::new();
+    let deadline_ns = (opts.reply_deadline * 1e9) as u64;
+    let period_ns = (opts.period * 1e9) as u64;
+    let (mut previous_q, mut previous_t): (Option<[f64; strand_ipc::MAX_JOINTS]>, u64) = (None, 0);
+    let mut control_seq = 0u64;
+    let mut last_state_seq = 0u64;
+    let mut clamps_logged = 0u64;
+    let mut stopping_since: Option<u64> = None;
+    let mut logged_drops = 0u64;
+    loop {
+        if stop.load(Ordering::Relaxed) && stopping_since.is_none() {
+            eprintln!("strand-{name}: stop requested: holding the robot");
+            stopping_since = Some(monotonic_ns());
+        }
+        if let Some(t) = stopping_since {
+            let quiet = monotonic_ns().saturating_sub(t) > 500_000_000 || session.state() == DriverState::WaitingForRobot;
+            if quiet {
+                break;
+            }
+        }
+        let (n, from) = match socket.recv_from(&mut buf) {
+            Ok(x) => x,
+            Err(e) if matches!(e.kind(), std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut) => continue,
+            Err(e) if e.kind() == std::io::ErrorKind::Interrupted => continue,
+            Err(e) => {
+                eprintln!("strand-{name}: receive: {e}");
+                continue;
+            }
+        };
+        // Only the newest packet matters: an answer to an older one would reach the robot after
+        // its cycle. Packets queued behind a slow cycle are skipped (counted) to catch up.
+        // Packets from anybody else go to the session to be refused and counted, so that no
+        // other sender can push the robot's packet out.
+        let (mut n, mut from) = (n, from);
+        if socket.set_nonblocking(true).is_ok() {
+            while let Ok((m, f)) = socket.recv_from(&mut spare) {
+                let robot = session.sender().unwrap_or(from);
+                if f == robot {
+                    std::mem::swap(&mut buf, &mut spare);
+                    (n, from) = (m, f);
+                    stale += 1;
+                } else if let Err(dropped) = session.on_packet(&spare[..m], f) {
+                    logged_drops += 1;
+                    if logged_drops <= 10 {
+                        eprintln!("strand-{name}: dropped a packet: {dropped}");
+                    }
+                }
+            }
+            let _ = socket.set_nonblocking(false);
+        }
+        let received = monotonic_ns();
+        let (seq, q, transition) = match session.on_packet(&buf[..n], from) {
+            Ok(x) => x,
+            Err(dropped) => {
+                logged_drops += 1;
+                if logged_drops <= 10 {
+                    eprintln!("strand-{name}: dropped a packet: {dropped}");
+                }
+                continue;
+            }
+        };
+        if let Some(t) = transition {
+            log_transition(name, t, &format!(" (robot at {from})"));
+        }
+        let mut state = JointState { seq, stamp_ns: received, dof: session.dof() as u32, position: q, ..Default::default() };
+        if let Some(p) = previous_q {
+            let dt = (received - previous_t) as f64 * 1e-9;
+            if dt > 0.0 {
+                for k in 0..state.dof as usize {
+                    state.velocity[k] = (q[k] - p[k]) / dt;
+                }
+            }
+        }
+        (previous_q, previous_t) = (Some(q), received);
+        // Held (after a fault, or shutting down): answer the robot first, so that nothing the
+        // service's side costs (a dead service's clean-up in iceoryx2 takes milliseconds) can
+        // make the hold late; then see whether the service answers again.
+        let held = stopping_since.is_some() || session.state() == DriverState::HeldAfterFault;
+        let (kind, transition) = if held {
+            let r = session.reply_hold(&mut reply);
+            if !reply.is_empty() {
+                let _ = socket.send_to(&reply, from);
+            }
+            let took = monotonic_ns() - received;
+            latency.record(took);
+            if took > period_ns {
+                session.answer_missed_its_cycle();
+            }
+            let transition = if stopping_since.is_none() {
+                // Did the service answer the last state within its cycle? (No waiting here: the
+                // robot's next packet must find the driver ready.)
+                let mut answered = false;
+                while let Ok(Some(c)) = ports.receive_joint_command() {
+                    answered |= c.state_seq == last_state_seq && c.valid == 1;
+                }
+                let _ = ports.send_joint_state(&state);
+                last_state_seq = seq;
+                session.note_service(answered)
+            } else {
+                None
+            };
+            (r.0, transition)
+        } else {
+            let _ = ports.send_joint_state(&state);
+            let command = wait_command(&ports, seq, received + deadline_ns);
+            let r = session.reply(command.as_ref(), &mut reply);
+            if !reply.is_empty() {
+                let _ = socket.send_to(&reply, from);
+            }
+            let took = monotonic_ns() - received;
+            latency.record(took);
+            if took > period_ns {
+                session.answer_missed_its_cycle();
+            }
+            r
+        };
+        if let Some(t) = transition {
+            let why = if t.to == DriverState::HeldAfterFault {
+                format!(
+                    " ({} commands in a row missed the {} ms deadline: holding, and telling the service)",
+                    session.late_run(),
+                    opts.reply_deadline * 1e3
+                )
+            } else {
+                String::new()
+            };
+            let why = if t.to == DriverState::Following && t.from == DriverState::HeldAfterFault {
+                " (the service answers in time again)".to_string()
+            } else {
+                why
+            };
+            log_transition(name, t, &why);
+            if t.to == DriverState::HeldAfterFault {
+                control_seq += 1;
+                let estop = Control {
+                    seq: control_seq,
+                    stamp_ns: monotonic_ns(),
+                    command: Command::EmergencyStop as u32,
+                    value: 0.0,
+                    _reserved: 0,
+                };
+                let _ = ports.send_control(&estop);
+            }
+        }
+        let clamped = session.counters.clamped;
+        if kind == ReplyKind::Command && clamped > clamps_logged && clamped.is_power_of_two() {
+            clamps_logged = clamped;
+            eprintln!(
+                "strand-{name}: warning: {} answers clamped to the joint limits so far (last: joint {})",
+                session.counters.clamped,
+                session.guard().last_clamped_joint.map_or(0, |j| j + 1)
+            );
+        }
+        if opts.max_packets > 0 && session.counters.packets >= opts.max_packets {
+            break;
+        }
+    }
+    Ok(BridgeReport { counters: session.counters, stale, latency, final_state: format!("{:?}", session.state()) })
+}
+
+/// The command answering state `seq`, if it comes by `deadline_ns` (older ones are drained).
+fn wait_command(ports: &ClientPorts, seq: u64, deadline_ns: u64) -> Option<JointCommand> {
+    loop {
+        while let Ok(Some(cmd)) = ports.receive_joint_command() {
+            if cmd.state_seq == seq {
+                return Some(cmd);
+            }
+        }
+        let now = monotonic_ns();
+        if now >= deadline_ns {
+            return None;
+        }
+        let _ = ports.wait_joint_command((deadline_ns - now).min(1_000_000));
+    }
+}

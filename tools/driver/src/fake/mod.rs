@@ -1,0 +1,201 @@
+//! Fake robot controllers that speak the real wire formats, for testing the drivers where no robot
+//! is: [`rsi`] a KUKA KR C4 with an RSI object, [`egm`] an ABB IRC5 with EGM. Written from the
+//! public descriptions (ros-industrial's kuka_rsi_simulator and abb_libegm), not from the drivers'
+//! code: the RSI fake builds and reads its XML itself, the EGM fake uses only the schema.
+//!
+//! The loop is a controller's: a packet every `period` on absolute deadlines (`clock_nanosleep`
+//! with `TIMER_ABSTIME`), the answer accepted only if it arrives before the next packet and matches
+//! the one it answers (RSI: the same `IPOC`), the commanded axes integrated into the actual ones
+//! (with an optional first-order lag, the drives' response), and every cycle counted: answered in
+//! time, late (an answer to an older packet) or missing. The actual axes are recorded so that a
+//! test can check their speed and acceleration against the robot's limits.
+
+pub mod egm;
+pub mod rsi;
+
+use std::net::{SocketAddr, UdpSocket};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::Duration;
+
+use strand::io::clock::monotonic_ns;
+
+/// The controller side of one protocol.
+pub trait FakeProtocol {
+    /// The packet for cycle `k` (its sequence is the protocol's), with the actual axes (degrees).
+    fn packet(&mut self, k: u64, axes_deg: &[f64], out: &mut Vec<u8>);
+    /// The axes (degrees, absolute) an answer commands if it answers the packet of cycle `k`;
+    /// `Err(Some(j))` if it answers the older cycle `j` (late), `Err(None)` if it is not an answer.
+    fn answer(&mut self, k: u64, bytes: &[u8], axes_deg: &mut [f64]) -> Result<(), Option<u64>>;
+}
+
+/// How the fake runs.
+#[derive(Clone, Debug)]
+pub struct FakeOptions {
+    /// The driver's address.
+    pub driver: SocketAddr,
+    /// The fake's own address (port 0: any).
+    pub bind: SocketAddr,
+    /// The cycle (s): 0.004 for both protocols.
+    pub period: f64,
+    /// Axes at the start (degrees).
+    pub start_deg: Vec<f64>,
+    /// First-order lag of the drives (s; 0: the actual axes are the commanded ones).
+    pub lag: f64,
+    /// Cycles to run (0: until stopped).
+    pub cycles: u64,
+    /// Cycles without a single answer after which it gives up (a real controller stops; RSI's
+    /// ETHERNET timeout is 100 packets).
+    pub give_up_after: u64,
+}
+
+/// What a run saw.
+#[derive(Clone, Default, serde::Serialize)]
+pub struct FakeReport {
+    /// Packets sent.
+    pub cycles: u64,
+    /// Cycles answered before the next packet.
+    pub in_time: u64,
+    /// Answers that came after their cycle (to an older packet).
+    pub late: u64,
+    /// Cycles with no answer at all.
+    pub missing: u64,
+    /// Datagrams that were no answer of the protocol.
+    pub garbage: u64,
+    /// Whether it gave up (`give_up_after` silent cycles).
+    pub gave_up: bool,
+    /// The actual axes at every cycle (degrees).
+    #[serde(skip)]
+    pub axes: Vec<Vec<f64>>,
+    /// Per cycle: whether its target came from an answer in time (false: held over a missing or
+    /// late answer, as a controller with HOLDON does — the axes then step when answers resume).
+    #[serde(skip)]
+    pub fresh: Vec<bool>,
+}
+
+impl std::fmt::Debug for FakeReport {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        // The axes are thousands of rows: their count only.
+        f.debug_struct("FakeReport")
+            .field("cycles", &self.cycles)
+            .field("in_time", &self.in_time)
+            .field("late", &self.late)
+            .field("missing", &self.missing)
+            .field("garbage", &self.garbage)
+            .field("gave_up", &self.gave_up)
+            .field("axes", &self.axes.len())
+            .finish()
+    }
+}
+
+impl FakeReport {
+    /// The share of cycles answered in time (1 for a run of no cycle).
+    pub fn in_time_share(&self) -> f64 {
+        if self.cycles == 0 { 1.0 } else { self.in_time as f64 / self.cycles as f64 }
+    }
+
+    /// The largest speed and acceleration of each axis over the run (deg/s, deg/s²), over the
+    /// cycles that followed answers in time (a missed answer makes the axes step when answers
+    /// resume: that is the lateness, counted in `missing` and `late`, not the commands).
+    pub fn max_rates(&self, period: f64) -> (Vec<f64>, Vec<f64>) {
+        let n = self.axes.first().map_or(0, Vec::len);
+        let (mut v_max, mut a_max) = (vec![0.0f64; n], vec![0.0f64; n]);
+        for (i, w) in self.axes.windows(3).enumerate() {
+            if !(self.fresh.get(i + 1).copied().unwrap_or(true) && self.fresh.get(i + 2).copied().unwrap_or(true)) {
+                continue;
+            }
+            for k in 0..n {
+                let v1 = (w[1][k] - w[0][k]) / period;
+                let v2 = (w[2][k] - w[1][k]) / period;
+                v_max[k] = v_max[k].max(v1.abs()).max(v2.abs());
+                a_max[k] = a_max[k].max(((v2 - v1) / period).abs());
+            }
+        }
+        (v_max, a_max)
+    }
+}
+
+fn sleep_until(deadline_ns: u64) {
+    let ts =
+        libc::timespec { tv_sec: (deadline_ns / 1_000_000_000) as libc::time_t, tv_nsec: (deadline_ns % 1_000_000_000) as libc::c_long };
+    // SAFETY: clock_nanosleep with a valid timespec and no remainder pointer (absolute time).
+    unsafe { while libc::clock_nanosleep(libc::CLOCK_MONOTONIC, libc::TIMER_ABSTIME, &ts, std::ptr::null_mut()) == libc::EINTR {} }
+}
+
+/// Runs the fake controller until `opts.cycles`, `stop`, or it gives up.
+pub fn run(protocol: &mut dyn FakeProtocol, opts: &FakeOptions, stop: &AtomicBool) -> std::io::Result<FakeReport> {
+    let socket = UdpSocket::bind(opts.bind)?;
+    socket.set_nonblocking(true)?;
+    let period_ns = (opts.period * 1e9).round() as u64;
+    let mut actual = opts.start_deg.clone();
+    let mut target = opts.start_deg.clone();
+    let mut commanded = opts.start_deg.clone();
+    let alpha = if opts.lag > 0.0 { 1.0 - (-opts.period / opts.lag).exp() } else { 1.0 };
+    let mut report = FakeReport::default();
+    let mut out = Vec::with_capacity(1024);
+    let mut buf = vec![0u8; 65536];
+    let mut silent = 0u64;
+    let t0 = monotonic_ns() + period_ns;
+    let mut k = 0u64;
+    while !stop.load(Ordering::Relaxed) && (opts.cycles == 0 || k < opts.cycles) {
+        let deadline = t0 + k * period_ns;
+        sleep_until(deadline);
+        // The answers that came during the last cycle.
+        if k > 0 {
+            let mut answered = false;
+            loop {
+                match socket.recv_from(&mut buf) {
+                    Ok((n, _)) => match protocol.answer(k - 1, &buf[..n], &mut commanded) {
+                        Ok(()) => {
+                            answered = true;
+                            target.clone_from(&commanded);
+                        }
+                        Err(Some(_)) => report.late += 1,
+                        Err(None) => report.garbage += 1,
+                    },
+                    Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => break,
+                    Err(e) if e.kind() == std::io::ErrorKind::ConnectionRefused => break,
+                    Err(e) => return Err(e),
+                }
+            }
+            report.fresh.push(answered);
+            if answered {
+                report.in_time += 1;
+                silent = 0;
+            } else {
+                report.missing += 1;
+                silent += 1;
+                if opts.give_up_after > 0 && silent >= opts.give_up_after && report.in_time > 0 {
+                    report.gave_up = true;
+                    break;
+                }
+            }
+        }
+        // The drives follow the target (a real controller interpolates the correction).
+        for (a, t) in actual.iter_mut().zip(&target) {
+            *a += alpha * (t - *a);
+        }
+        if k == 0 {
+            report.fresh.push(true);
+        }
+        report.axes.push(actual.clone());
+        protocol.packet(k, &actual, &mut out);
+        match socket.send_to(&out, opts.driver) {
+            Ok(_) => {}
+            Err(e) if e.kind() == std::io::ErrorKind::ConnectionRefused => {}
+            Err(e) => return Err(e),
+        }
+        report.cycles += 1;
+        k += 1;
+    }
+    // The last packet's answer.
+    std::thread::sleep(Duration::from_nanos(period_ns));
+    if let Ok((n, _)) = socket.recv_from(&mut buf)
+        && protocol.answer(k.saturating_sub(1), &buf[..n], &mut commanded).is_ok()
+    {
+        report.in_time += 1;
+    } else if report.cycles > 0 {
+        report.missing += 1;
+    }
+    // Cycle 0 has no answer counted before it: the counts cover cycles 0..k.
+    Ok(report)
+}

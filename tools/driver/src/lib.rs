@@ -1,0 +1,96 @@
+//! strand's robot drivers: bridges between a robot controller's streaming interface and the
+//! service, on the robot's own clock. Each robot packet becomes the JointState that clocks the
+//! service; each answer carries the service's JointCommand for it, checked against the joint
+//! limits, or a hold when the command is late.
+//!
+//! - [`protocol`] — the one small trait a robot interface implements; [`egm`] (ABB) and [`rsi`]
+//!   (KUKA) implement it. A new interface (UR RTDE, FANUC Stream Motion) is one more module.
+//! - [`session`] — one connection as a state machine without I/O: senders, order, holds, faults.
+//! - [`guard`] — the limits every answer keeps; [`axes`] — controller axes ↔ URDF joints.
+//! - [`bridge`] — the process loop: UDP socket, service ports, deadlines.
+//! - [`fake`] — fake robot controllers speaking the real wire formats, for tests and benchmarks.
+
+pub mod axes;
+pub mod bridge;
+pub mod egm;
+pub mod fake;
+pub mod guard;
+pub mod protocol;
+pub mod rsi;
+pub mod session;
+
+use strand::config::Config;
+use strand::config::driver::{DriverConfig, DriverProtocol};
+
+use axes::AxisMap;
+use guard::{JointBounds, ReplyGuard};
+use protocol::RobotProtocol;
+use session::{Session, SessionRules};
+
+/// A driver that cannot start: the message names the file and key.
+#[derive(Debug, thiserror::Error)]
+pub enum SetupError {
+    /// The service config.
+    #[error(transparent)]
+    Config(#[from] strand::config::ConfigError),
+    /// A `[driver]` value.
+    #[error("{file}: {source}")]
+    Setting {
+        /// The config file.
+        file: String,
+        /// What is wrong.
+        source: strand::core::InvalidSetting,
+    },
+    /// No `[driver]` section, or one for another protocol.
+    #[error("{file}: {why}")]
+    Section {
+        /// The config file.
+        file: String,
+        /// What is missing.
+        why: String,
+    },
+}
+
+/// The `[driver]` section of `cfg` for `protocol`, checked against the robot.
+pub fn driver_config(cfg: &Config, protocol: DriverProtocol) -> Result<DriverConfig, SetupError> {
+    let file = cfg.file.display().to_string();
+    let d = cfg.driver.clone().ok_or_else(|| SetupError::Section {
+        file: file.clone(),
+        why: format!("no [driver] section (protocol = \"{}\"): see the README, \"Connecting a robot\"", name(protocol)),
+    })?;
+    if d.protocol != protocol {
+        return Err(SetupError::Section { file, why: format!("[driver] protocol = \"{}\", not \"{}\"", name(d.protocol), name(protocol)) });
+    }
+    let model = cfg.robot.build_model()?;
+    d.validate(model.dof()).map_err(|source| SetupError::Setting { file, source })?;
+    Ok(d)
+}
+
+fn name(p: DriverProtocol) -> &'static str {
+    match p {
+        DriverProtocol::Egm => "egm",
+        DriverProtocol::Rsi => "rsi",
+    }
+}
+
+/// A session for the robot of `cfg` with its `[driver]` section `d`: the axis mapping, and the
+/// guard with the URDF's position and velocity limits, the robot file's acceleration limits and
+/// the robot's cycle (`[controller] rate_hz`).
+pub fn session<P: RobotProtocol>(cfg: &Config, d: &DriverConfig, protocol: P) -> Result<Session<P>, SetupError> {
+    let model = cfg.robot.build_model()?;
+    let bounds = model
+        .joints()
+        .iter()
+        .map(|j| JointBounds {
+            lower: j.limits.lower,
+            upper: j.limits.upper,
+            velocity: j.limits.velocity,
+            acceleration: j.limits.acceleration,
+        })
+        .collect();
+    let guard = ReplyGuard::new(bounds, 1.0 / cfg.controller.rate_hz);
+    let map = AxisMap::new(model.dof(), &d.axis_sign, &d.axis_offset);
+    let file = cfg.file.display().to_string();
+    let robot = d.robot_address().map_err(|source| SetupError::Setting { file, source })?;
+    Ok(Session::new(protocol, map, guard, SessionRules { robot, max_late_cycles: d.max_late_cycles, recover_cycles: d.recover_cycles }))
+}

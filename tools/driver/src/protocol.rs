@@ -1,0 +1,58 @@
+//! The one small trait every robot interface implements: decode the robot's packet into axis
+//! angles, and encode the answer to it. A protocol knows its wire format and its start-up rules
+//! (RSI's reference axes, EGM's motion-control state), nothing of sockets, the service or limits —
+//! so the next interface (UR RTDE, FANUC Stream Motion, Franka) is one new module.
+
+use strand_ipc::MAX_JOINTS;
+
+/// A robot packet, decoded.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct RobotPacket {
+    /// The packet's own sequence: EGM's header `seqno`, RSI's `IPOC`. Increases packet to packet;
+    /// a packet whose sequence does not is out of order or a duplicate.
+    pub seq: u64,
+    /// Measured axis angles of the robot controller, in its own axes (rad; the protocols send
+    /// degrees).
+    pub axes: [f64; MAX_JOINTS],
+    /// Axes in the packet.
+    pub dof: usize,
+    /// The robot follows corrections now (EGM: motors on and `MCI_RUNNING`; RSI: always, once the
+    /// first packet set the reference).
+    pub following: bool,
+}
+
+/// Why a packet was dropped.
+#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
+pub enum PacketError {
+    /// Not the protocol's format (not protobuf / not XML, a wrong message type).
+    #[error("malformed: {0}")]
+    Malformed(String),
+    /// The format, but a field the protocol needs is missing or cut short.
+    #[error("truncated: {0}")]
+    Truncated(String),
+    /// Longer than any packet of the protocol.
+    #[error("oversized: {0} bytes")]
+    Oversized(usize),
+    /// A number that is not finite, or more axes than the robot has.
+    #[error("bad value: {0}")]
+    BadValue(String),
+}
+
+/// A robot controller's streaming interface.
+pub trait RobotProtocol {
+    /// Its name in messages (`egm`, `rsi`).
+    const NAME: &'static str;
+    /// The longest packet it sends (bytes); longer ones are dropped as oversized.
+    const MAX_PACKET: usize;
+    /// Whether the robot throws away an answer that comes after its cycle (RSI: the `IPOC` no
+    /// longer matches), so that the robot keeps the previous target; otherwise it applies it a
+    /// cycle late (EGM takes the latest answer).
+    const LATE_ANSWER_DISCARDED: bool;
+
+    /// Decodes a packet from the robot.
+    fn decode(&mut self, packet: &[u8]) -> Result<RobotPacket, PacketError>;
+
+    /// Encodes into `out` (cleared first) the answer to `to`: the robot's axes should go to `axes`
+    /// (rad, the robot's own axes, `to.dof` of them).
+    fn encode_reply(&mut self, to: &RobotPacket, axes: &[f64], out: &mut Vec<u8>);
+}

@@ -1,0 +1,448 @@
+//! One robot connection as a state machine, without I/O (the quinn-proto way): the bridge hands it
+//! each packet and the service's command, and it says what to publish and what to answer. It owns
+//! the rules the issue of a real cell needs —
+//!
+//! - only one sender (the configured robot, or the first one seen); every other packet, and every
+//!   malformed, oversized, out-of-order or duplicate one, is counted and dropped;
+//! - before the service's first valid command, and whenever the robot does not follow corrections
+//!   (EGM before `MCI_RUNNING`), the answer holds the measured position;
+//! - a command not there by the reply deadline is answered with a hold (the last target, braked
+//!   within the acceleration limit); `max_late_cycles` of them in a row latch the hold and raise a
+//!   fault for the service (the bridge sends an emergency stop); after `recover_cycles` in time the
+//!   driver follows again, from where it holds;
+//! - every answer passes the [`ReplyGuard`]: inside the joint limits, no jump.
+
+use std::net::SocketAddr;
+
+use strand::config::driver::RobotAddress;
+use strand_ipc::{JointCommand, MAX_JOINTS};
+
+use crate::axes::AxisMap;
+use crate::guard::ReplyGuard;
+use crate::protocol::{PacketError, RobotPacket, RobotProtocol};
+
+/// The driver's state, as its log lines name it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum DriverState {
+    /// No packet from the robot yet.
+    WaitingForRobot,
+    /// The robot streams; the answers hold it until the service commands it.
+    Holding,
+    /// The answers carry the service's commands.
+    Following,
+    /// Too many late commands: the answers hold, and the service was told (a fault).
+    HeldAfterFault,
+}
+
+/// What happened to a packet the session dropped.
+#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
+pub enum Dropped {
+    /// From a sender other than the robot.
+    #[error("from {0}, not the robot")]
+    Foreign(SocketAddr),
+    /// Not a packet of the protocol.
+    #[error(transparent)]
+    Packet(#[from] PacketError),
+    /// Its sequence is not above the last one's.
+    #[error("sequence {seq} after {last}: {}", if seq == last { "a duplicate" } else { "out of order" })]
+    Order {
+        /// Its sequence.
+        seq: u64,
+        /// The last accepted sequence.
+        last: u64,
+    },
+    /// More axes than the robot has, or fewer.
+    #[error("{got} axes; the robot has {want}")]
+    Axes {
+        /// In the packet.
+        got: usize,
+        /// The robot's joints.
+        want: usize,
+    },
+}
+
+/// Counters of one session (since start).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
+pub struct Counters {
+    /// Packets accepted.
+    pub packets: u64,
+    /// Answers sent.
+    pub replies: u64,
+    /// Answers that carried the service's command for that packet.
+    pub in_time: u64,
+    /// Answers that held because the command was not there by the deadline.
+    pub late: u64,
+    /// Answers that held for another reason (before the first command, robot not following,
+    /// latched after a fault, an invalid command).
+    pub held: u64,
+    /// Answers the guard had to clamp.
+    pub clamped: u64,
+    /// Faults raised (latched holds).
+    pub faults: u64,
+    /// Answers sent after the robot's cycle had ended (the robot discarded or delayed them).
+    pub missed_cycle: u64,
+    /// Packets dropped: from another sender.
+    pub foreign: u64,
+    /// Packets dropped: malformed or truncated.
+    pub malformed: u64,
+    /// Packets dropped: oversized.
+    pub oversized: u64,
+    /// Packets dropped: a duplicate sequence.
+    pub duplicate: u64,
+    /// Packets dropped: out of order.
+    pub out_of_order: u64,
+}
+
+/// What [`Session::reply`] decided.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ReplyKind {
+    /// The service's command, in time.
+    Command,
+    /// A hold: the command was late.
+    Late,
+    /// A hold for another reason.
+    Hold,
+}
+
+/// A change of state for the log, and whether the service must be told of a fault.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Transition {
+    /// From.
+    pub from: DriverState,
+    /// To.
+    pub to: DriverState,
+}
+
+/// The rules of [`Session`] (from `[driver]`).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SessionRules {
+    /// The only sender accepted (None: the first one).
+    pub robot: Option<RobotAddress>,
+    /// Late answers in a row that latch the hold and raise a fault.
+    pub max_late_cycles: u32,
+    /// Answers in time in a row that release a latched hold.
+    pub recover_cycles: u32,
+}
+
+/// One robot connection.
+pub struct Session<P: RobotProtocol> {
+    protocol: P,
+    map: AxisMap,
+    guard: ReplyGuard,
+    rules: SessionRules,
+    sender: Option<SocketAddr>,
+    last_seq: Option<u64>,
+    state: DriverState,
+    late_run: u32,
+    good_run: u32,
+    current: Option<RobotPacket>,
+    /// Counters since start.
+    pub counters: Counters,
+}
+
+impl<P: RobotProtocol> Session<P> {
+    /// A session speaking `protocol`, mapping axes with `map`, guarding answers with `guard`.
+    pub fn new(protocol: P, map: AxisMap, guard: ReplyGuard, rules: SessionRules) -> Self {
+        Session {
+            protocol,
+            map,
+            guard,
+            rules,
+            sender: None,
+            last_seq: None,
+            state: DriverState::WaitingForRobot,
+            late_run: 0,
+            good_run: 0,
+            current: None,
+            counters: Counters::default(),
+        }
+    }
+
+    /// Its state.
+    pub fn state(&self) -> DriverState {
+        self.state
+    }
+
+    /// The robot's address (once a packet was accepted).
+    pub fn sender(&self) -> Option<SocketAddr> {
+        self.sender
+    }
+
+    /// The robot's joints.
+    pub fn dof(&self) -> usize {
+        self.map.dof()
+    }
+
+    /// Late answers in a row so far.
+    pub fn late_run(&self) -> u32 {
+        self.late_run
+    }
+
+    /// Answers the last accepted packet with a hold, whatever the service says (shutting down).
+    pub fn reply_hold(&mut self, out: &mut Vec<u8>) -> (ReplyKind, Option<Transition>) {
+        let Some(packet) = self.current else {
+            out.clear();
+            return (ReplyKind::Hold, None);
+        };
+        let q = self.guard.hold();
+        let axes = self.map.axes_from_joints(&q[..self.map.dof()]);
+        self.protocol.encode_reply(&packet, &axes[..packet.dof], out);
+        self.counters.held += 1;
+        self.counters.replies += 1;
+        (ReplyKind::Hold, None)
+    }
+
+    /// After a hold was sent while [`DriverState::HeldAfterFault`]: whether the service answered
+    /// this packet in time. `recover_cycles` in a row release the hold.
+    pub fn note_service(&mut self, in_time: bool) -> Option<Transition> {
+        if self.state != DriverState::HeldAfterFault {
+            return None;
+        }
+        if !in_time {
+            self.good_run = 0;
+            return None;
+        }
+        self.good_run += 1;
+        if self.good_run >= self.rules.recover_cycles {
+            self.late_run = 0;
+            return self.enter(DriverState::Following);
+        }
+        None
+    }
+
+    /// The last answer left after the robot's cycle (the bridge measured it): if the protocol's
+    /// robot throws such answers away, the guard forgets it, so the next answer steps from what
+    /// the robot really has. Counted as late.
+    pub fn answer_missed_its_cycle(&mut self) {
+        self.counters.missed_cycle += 1;
+        if P::LATE_ANSWER_DISCARDED {
+            self.guard.take_back();
+        }
+    }
+
+    /// The guard (its clamp count and last clamped joint, for the log).
+    pub fn guard(&self) -> &ReplyGuard {
+        &self.guard
+    }
+
+    /// Takes a packet from `from`: the packet's sequence and the measured joints (URDF joint space,
+    /// rad or m) to publish as a JointState, or why it was dropped (counted).
+    pub fn on_packet(&mut self, bytes: &[u8], from: SocketAddr) -> Result<(u64, [f64; MAX_JOINTS], Option<Transition>), Dropped> {
+        let r = self.accept(bytes, from);
+        match &r {
+            Err(Dropped::Foreign(_)) => self.counters.foreign += 1,
+            Err(Dropped::Packet(PacketError::Oversized(_))) => self.counters.oversized += 1,
+            Err(Dropped::Packet(_) | Dropped::Axes { .. }) => self.counters.malformed += 1,
+            Err(Dropped::Order { seq, last }) if seq == last => self.counters.duplicate += 1,
+            Err(Dropped::Order { .. }) => self.counters.out_of_order += 1,
+            Ok(_) => self.counters.packets += 1,
+        }
+        r
+    }
+
+    fn accept(&mut self, bytes: &[u8], from: SocketAddr) -> Result<(u64, [f64; MAX_JOINTS], Option<Transition>), Dropped> {
+        let ours = match (self.rules.robot, self.sender) {
+            (Some(robot), _) => robot.matches(from),
+            (None, Some(first)) => first == from,
+            (None, None) => true,
+        };
+        if !ours {
+            return Err(Dropped::Foreign(from));
+        }
+        if bytes.len() > P::MAX_PACKET {
+            return Err(PacketError::Oversized(bytes.len()).into());
+        }
+        let packet = self.protocol.decode(bytes)?;
+        if packet.dof != self.map.dof() {
+            return Err(Dropped::Axes { got: packet.dof, want: self.map.dof() });
+        }
+        if let Some(last) = self.last_seq
+            && packet.seq <= last
+        {
+            return Err(Dropped::Order { seq: packet.seq, last });
+        }
+        self.sender.get_or_insert(from);
+        self.last_seq = Some(packet.seq);
+        let q = self.map.joints_from_axes(&packet.axes[..packet.dof]);
+        let mut transition = None;
+        if self.state == DriverState::WaitingForRobot {
+            self.guard.reset(&q);
+            transition = self.enter(DriverState::Holding);
+        }
+        if !packet.following {
+            // The robot ignores corrections now: the answer is where it is, so that nothing jumps
+            // when it starts following.
+            self.guard.reset(&q);
+        }
+        self.current = Some(packet);
+        Ok((packet.seq, q, transition))
+    }
+
+    fn enter(&mut self, to: DriverState) -> Option<Transition> {
+        let from = self.state;
+        self.state = to;
+        (from != to).then_some(Transition { from, to })
+    }
+
+    /// Encodes into `out` the answer to the last accepted packet, given the service's command for
+    /// it (None: not there by the deadline). The answer's kind, and a change of state if any
+    /// (to [`DriverState::HeldAfterFault`]: the caller tells the service).
+    pub fn reply(&mut self, command: Option<&JointCommand>, out: &mut Vec<u8>) -> (ReplyKind, Option<Transition>) {
+        let Some(packet) = self.current else {
+            out.clear();
+            return (ReplyKind::Hold, None);
+        };
+        let clamps_before = self.guard.clamps;
+        let mut transition = None;
+        let (kind, q) = match command {
+            None => {
+                self.late_run += 1;
+                self.good_run = 0;
+                // Only a service that was commanding the robot can fail it: before its first
+                // command (starting up) a late cycle is just a hold.
+                if self.late_run >= self.rules.max_late_cycles && self.state == DriverState::Following {
+                    self.counters.faults += 1;
+                    transition = self.enter(DriverState::HeldAfterFault);
+                }
+                (ReplyKind::Late, self.guard.hold())
+            }
+            Some(cmd) => {
+                self.late_run = 0;
+                let valid = cmd.valid == 1 && cmd.position[..self.map.dof()].iter().all(|x| x.is_finite());
+                match self.state {
+                    _ if !packet.following || !valid => (ReplyKind::Hold, self.guard.hold()),
+                    DriverState::HeldAfterFault => {
+                        self.good_run += 1;
+                        if self.good_run >= self.rules.recover_cycles {
+                            transition = self.enter(DriverState::Following);
+                        }
+                        (ReplyKind::Hold, self.guard.hold())
+                    }
+                    _ => {
+                        if self.state != DriverState::Following {
+                            transition = self.enter(DriverState::Following);
+                        }
+                        (ReplyKind::Command, self.guard.admit(&cmd.position))
+                    }
+                }
+            }
+        };
+        match kind {
+            ReplyKind::Command => self.counters.in_time += 1,
+            ReplyKind::Late => self.counters.late += 1,
+            ReplyKind::Hold => self.counters.held += 1,
+        }
+        if self.guard.clamps > clamps_before {
+            self.counters.clamped += 1;
+        }
+        let axes = self.map.axes_from_joints(&q[..self.map.dof()]);
+        self.protocol.encode_reply(&packet, &axes[..packet.dof], out);
+        self.counters.replies += 1;
+        (kind, transition)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::guard::JointBounds;
+    use crate::rsi::Rsi;
+
+    fn rob(ipoc: u64, a1: f64) -> Vec<u8> {
+        format!(
+            "<Rob TYPE=\"KUKA\"><AIPos A1=\"{a1}\" A2=\"-90.0\" A3=\"90.0\" A4=\"0.0\" A5=\"90.0\" A6=\"0.0\"/><Delay D=\"0\"/><IPOC>{ipoc}</IPOC></Rob>"
+        )
+        .into_bytes()
+    }
+
+    fn session() -> Session<Rsi> {
+        let b = JointBounds { lower: -3.0, upper: 3.0, velocity: 2.0, acceleration: 10.0 };
+        let rules = SessionRules { robot: None, max_late_cycles: 3, recover_cycles: 5 };
+        Session::new(Rsi::new(), AxisMap::identity(6), ReplyGuard::new(vec![b; 6], 0.004), rules)
+    }
+
+    fn command(seq: u64, a1: f64) -> JointCommand {
+        let mut c = JointCommand { state_seq: seq, dof: 6, valid: 1, ..Default::default() };
+        c.position[..6].copy_from_slice(&[
+            a1,
+            -std::f64::consts::FRAC_PI_2,
+            std::f64::consts::FRAC_PI_2,
+            0.0,
+            std::f64::consts::FRAC_PI_2,
+            0.0,
+        ]);
+        c
+    }
+
+    #[test]
+    fn every_bad_packet_kind_is_dropped_and_counted() {
+        let mut s = session();
+        let robot: SocketAddr = "127.0.0.1:5000".parse().unwrap();
+        let other: SocketAddr = "127.0.0.2:5000".parse().unwrap();
+        assert!(s.on_packet(&rob(100, 0.0), robot).is_ok());
+        let good = rob(104, 0.0);
+        assert!(matches!(s.on_packet(&good, other), Err(Dropped::Foreign(_))));
+        assert!(matches!(s.on_packet(&good[..good.len() - 12], robot), Err(Dropped::Packet(_))));
+        assert!(matches!(s.on_packet(b"\x00\x01\x02", robot), Err(Dropped::Packet(PacketError::Malformed(_)))));
+        assert!(matches!(s.on_packet(&vec![b'<'; 5000], robot), Err(Dropped::Packet(PacketError::Oversized(_)))));
+        assert!(matches!(s.on_packet(&rob(100, 0.0), robot), Err(Dropped::Order { .. })));
+        assert!(matches!(s.on_packet(&rob(96, 0.0), robot), Err(Dropped::Order { .. })));
+        assert!(s.on_packet(&good, robot).is_ok());
+        let c = s.counters;
+        assert_eq!((c.packets, c.foreign, c.malformed, c.oversized, c.duplicate, c.out_of_order), (2, 1, 2, 1, 1, 1), "{c:?}");
+    }
+
+    #[test]
+    fn late_commands_hold_then_fault_then_recover_without_a_jump() {
+        let mut s = session();
+        let robot: SocketAddr = "127.0.0.1:5000".parse().unwrap();
+        let mut out = Vec::new();
+        let mut ipoc = 1000;
+        let mut next = |s: &mut Session<Rsi>| {
+            ipoc += 4;
+            s.on_packet(&rob(ipoc, 0.0), robot).unwrap().0
+        };
+        // Following, A1 speeding up at 5 rad/s² (inside the 10 rad/s² limit).
+        let (mut a1, mut v) = (0.0, 0.0);
+        for _ in 0..50 {
+            let seq = next(&mut s);
+            v += 5.0 * 0.004;
+            a1 += v * 0.004;
+            assert_eq!(s.reply(Some(&command(seq, a1)), &mut out).0, ReplyKind::Command);
+        }
+        assert_eq!(s.state(), DriverState::Following);
+        // Three late: holds, then the latched fault.
+        let mut transitions = Vec::new();
+        for _ in 0..3 {
+            next(&mut s);
+            let (kind, t) = s.reply(None, &mut out);
+            assert_eq!(kind, ReplyKind::Late);
+            transitions.extend(t);
+        }
+        assert_eq!(transitions.last().map(|t| t.to), Some(DriverState::HeldAfterFault));
+        assert_eq!(s.counters.faults, 1);
+        // The service answers again: five cycles in time release it.
+        let mut released = None;
+        for k in 0..5 {
+            next(&mut s);
+            released = released.or(s.note_service(true).map(|t| (k, t)));
+        }
+        assert_eq!(released.map(|(k, t)| (k, t.to)), Some((4, DriverState::Following)));
+        // The guard never let a step pass the limits (the hold braked within 10 rad/s²).
+        assert_eq!(s.guard().clamps, 0, "holds brake, they do not clamp");
+    }
+
+    #[test]
+    fn the_robot_is_held_until_the_first_valid_command() {
+        let mut s = session();
+        let robot: SocketAddr = "127.0.0.1:5000".parse().unwrap();
+        let mut out = Vec::new();
+        let (seq, _, t) = s.on_packet(&rob(8, 5.0), robot).unwrap();
+        assert_eq!(t.map(|t| t.to), Some(DriverState::Holding));
+        let mut invalid = command(seq, 1.0);
+        invalid.valid = 0;
+        assert_eq!(s.reply(Some(&invalid), &mut out).0, ReplyKind::Hold);
+        let text = String::from_utf8(out.clone()).unwrap();
+        assert!(text.contains("A1=\"0.000000\""), "a hold is a zero correction: {text}");
+    }
+}
