@@ -10,13 +10,14 @@ use strand::config::{Config, RobotConfig};
 use strand::core::kin::{JointKind, ModelError, RobotModel};
 
 #[test]
-fn the_five_bundled_robots_load_with_their_chains() {
+fn the_bundled_robots_load_with_their_chains() {
     let expect = [
         ("iiwa7", 7, "iiwa_joint_1"),
         ("iiwa14", 7, "iiwa_joint_1"),
         ("vp6242", 6, "joint1"),
         ("meca500", 6, "meca_axis_1_joint"),
         ("irb140", 6, "joint_1"),
+        ("kr6r900", 6, "joint_a1"),
     ];
     for ((name, dof, first), listed) in expect.iter().zip(ROBOTS) {
         assert_eq!(*name, listed);

@@ -245,6 +245,11 @@ pub fn run<P: RobotProtocol>(session: &mut Session<P>, opts: &BridgeOptions, sto
 }
 
 /// The command answering state `seq`, if it comes by `deadline_ns` (older ones are drained).
+///
+/// It polls with short high-resolution sleeps instead of blocking on the command's event: that
+/// wait is a socket receive timeout, which the kernel counts in scheduler ticks (4 ms at HZ=250),
+/// so a late command would make the hold miss the robot's cycle. The service answers in tens of
+/// microseconds, so the polling is short.
 fn wait_command(ports: &ClientPorts, seq: u64, deadline_ns: u64) -> Option<JointCommand> {
     loop {
         while let Ok(Some(cmd)) = ports.receive_joint_command() {
@@ -256,6 +261,6 @@ fn wait_command(ports: &ClientPorts, seq: u64, deadline_ns: u64) -> Option<Joint
         if now >= deadline_ns {
             return None;
         }
-        let _ = ports.wait_joint_command((deadline_ns - now).min(1_000_000));
+        std::thread::sleep(Duration::from_nanos((deadline_ns - now).min(20_000)));
     }
 }

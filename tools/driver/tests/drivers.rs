@@ -279,3 +279,36 @@ fn bad_packets_are_dropped_and_counted_and_the_driver_goes_on() {
     assert_eq!(stats["counters"]["foreign"], 3, "{stats}");
     assert!(report.in_time_share() >= in_time_needed(), "{report:?}");
 }
+
+#[test]
+fn every_bundled_robot_with_a_driver_maps_its_axes_both_ways() {
+    // Every config with a [driver] section: controller axes → URDF joints → axes is the identity
+    // over each joint's whole range, and the mapping is the one the config gives.
+    let mut checked = Vec::new();
+    for entry in std::fs::read_dir(root().join("config")).unwrap() {
+        let path = entry.unwrap().path();
+        if path.extension().is_none_or(|e| e != "toml") {
+            continue;
+        }
+        let cfg = Config::load(&path).unwrap();
+        let Some(d) = cfg.driver.clone() else { continue };
+        let model = cfg.robot.build_model().unwrap();
+        d.validate(model.dof()).unwrap();
+        let map = strand_driver::axes::AxisMap::new(model.dof(), &d.axis_sign, &d.axis_offset);
+        for step in 0..=20 {
+            let q: Vec<f64> =
+                model.joints().iter().map(|j| j.limits.lower + (j.limits.upper - j.limits.lower) * step as f64 / 20.0).collect();
+            let axes = map.axes_from_joints(&q);
+            let back = map.joints_from_axes(&axes[..q.len()]);
+            for k in 0..q.len() {
+                assert!((back[k] - q[k]).abs() < 1e-12, "{}: joint {} at {}: back {}", path.display(), k + 1, q[k], back[k]);
+                let sign = d.axis_sign.get(k).copied().unwrap_or(1.0);
+                let offset = d.axis_offset.get(k).copied().unwrap_or(0.0);
+                assert!((axes[k] - (sign * q[k] + offset)).abs() < 1e-12);
+            }
+        }
+        checked.push(path.file_stem().unwrap().to_string_lossy().to_string());
+    }
+    checked.sort();
+    assert_eq!(checked, ["irb140", "kr6r900"]);
+}

@@ -6,6 +6,7 @@
 //! per stage of one controller tick, allocations counted), [`log`] (the MCAP logger at a control
 //! rate). `strand-bench`'s main only parses the command line and prints.
 
+pub mod driver;
 pub mod jitter;
 pub mod latency;
 pub mod log;

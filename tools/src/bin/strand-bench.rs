@@ -15,7 +15,7 @@ use std::process::ExitCode;
 use clap::{Parser, Subcommand};
 use strand::config::locate;
 use strand::io::alloc_count::{self, Counting};
-use strand_tools::bench::{self, jitter, latency, log, tick};
+use strand_tools::bench::{self, driver, jitter, latency, log, tick};
 use strand_tools::error::Result;
 
 /// Counts allocations, for `tick` (the tick path must not allocate).
@@ -81,6 +81,13 @@ enum Mode {
         /// Draw the histograms (log-scale counts) into this PNG.
         #[arg(long)]
         png: Option<PathBuf>,
+        /// Through a robot driver instead: `egm` (strand-egm, irb140) or `rsi` (strand-rsi,
+        /// kr6r900) against the fake robot controller, at the robot's 4 ms cycle.
+        #[arg(long, value_parser = ["egm", "rsi"])]
+        driver: Option<String>,
+        /// With --driver: run the driver with SCHED_FIFO at this priority.
+        #[arg(long, requires = "driver")]
+        rt: Option<u32>,
     },
     /// Cost per stage of a controller tick printing the box (path sample, base correction, FK +
     /// Jacobian, CLIK, extrusion, log enqueue) and of the whole step; allocations counted (must be 0).
@@ -179,7 +186,22 @@ fn main() -> ExitCode {
                 r.lateness.check("lateness")?;
                 r.baseline.check("baseline")
             }
-            Mode::Latency { rate, seconds, robot, json, png } => {
+            Mode::Latency { seconds, json, png, driver: Some(protocol), rt, .. } => {
+                let bin_dir = std::env::current_exe().ok().and_then(|p| p.parent().map(PathBuf::from)).unwrap_or_default();
+                let robot = if protocol == "egm" { "irb140" } else { "kr6r900" };
+                let opts = driver::DriverOptions {
+                    protocol,
+                    seconds,
+                    config: robot_config(robot)?,
+                    root: bench::repo_root()?,
+                    bin_dir,
+                    rt_priority: rt,
+                };
+                let r = driver::run(&opts)?;
+                emit(json, &r, driver::print, png.as_deref(), driver::plot)?;
+                r.round_trip.check("round trip")
+            }
+            Mode::Latency { rate, seconds, robot, json, png, .. } => {
                 let bin_dir = std::env::current_exe().ok().and_then(|p| p.parent().map(PathBuf::from)).unwrap_or_default();
                 let opts =
                     latency::LatencyOptions { rate_hz: rate, seconds, config: robot_config(&robot)?, root: bench::repo_root()?, bin_dir };

@@ -4,8 +4,8 @@
 //! code: the RSI fake builds and reads its XML itself, the EGM fake uses only the schema.
 //!
 //! The loop is a controller's: a packet every `period` on absolute deadlines (`clock_nanosleep`
-//! with `TIMER_ABSTIME`), the answer accepted only if it arrives before the next packet and matches
-//! the one it answers (RSI: the same `IPOC`), the commanded axes integrated into the actual ones
+//! with `TIMER_ABSTIME`), the answer taken as it arrives (its round trip measured) and accepted
+//! only if it comes before the next packet and matches the one it answers (RSI: the same `IPOC`), the commanded axes integrated into the actual ones
 //! (with an optional first-order lag, the drives' response), and every cycle counted: answered in
 //! time, late (an answer to an older packet) or missing. The actual axes are recorded so that a
 //! test can check their speed and acceleration against the robot's limits.
@@ -15,9 +15,9 @@ pub mod rsi;
 
 use std::net::{SocketAddr, UdpSocket};
 use std::sync::atomic::{AtomicBool, Ordering};
-use std::time::Duration;
 
 use strand::io::clock::monotonic_ns;
+use strand::io::histogram::Histogram;
 
 /// The controller side of one protocol.
 pub trait FakeProtocol {
@@ -66,6 +66,9 @@ pub struct FakeReport {
     /// The actual axes at every cycle (degrees).
     #[serde(skip)]
     pub axes: Vec<Vec<f64>>,
+    /// Packet sent → its answer received, for the answers in time (ns).
+    #[serde(skip)]
+    pub round_trip: Histogram,
     /// Per cycle: whether its target came from an answer in time (false: held over a missing or
     /// late answer, as a controller with HOLDON does — the axes then step when answers resume).
     #[serde(skip)]
@@ -136,66 +139,102 @@ pub fn run(protocol: &mut dyn FakeProtocol, opts: &FakeOptions, stop: &AtomicBoo
     let mut silent = 0u64;
     let t0 = monotonic_ns() + period_ns;
     let mut k = 0u64;
-    while !stop.load(Ordering::Relaxed) && (opts.cycles == 0 || k < opts.cycles) {
-        let deadline = t0 + k * period_ns;
-        sleep_until(deadline);
-        // The answers that came during the last cycle.
-        if k > 0 {
-            let mut answered = false;
-            loop {
-                match socket.recv_from(&mut buf) {
-                    Ok((n, _)) => match protocol.answer(k - 1, &buf[..n], &mut commanded) {
-                        Ok(()) => {
-                            answered = true;
-                            target.clone_from(&commanded);
-                        }
-                        Err(Some(_)) => report.late += 1,
-                        Err(None) => report.garbage += 1,
-                    },
-                    Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => break,
-                    Err(e) if e.kind() == std::io::ErrorKind::ConnectionRefused => break,
-                    Err(e) => return Err(e),
-                }
+    sleep_until(t0);
+    report.fresh.push(true);
+    report.axes.push(actual.clone());
+    protocol.packet(0, &actual, &mut out);
+    let mut sent_at = monotonic_ns();
+    send(&socket, &out, opts.driver)?;
+    report.cycles = 1;
+    while !stop.load(Ordering::Relaxed) && (opts.cycles == 0 || k + 1 < opts.cycles) {
+        // Take answers as they come until the next cycle starts: the first that answers packet
+        // k is in time (its round trip recorded); answers to older packets are late.
+        let next = t0 + (k + 1) * period_ns;
+        let mut answered = false;
+        loop {
+            let now = monotonic_ns();
+            if now + 20_000 >= next {
+                break;
             }
-            report.fresh.push(answered);
-            if answered {
-                report.in_time += 1;
-                silent = 0;
-            } else {
-                report.missing += 1;
-                silent += 1;
-                if opts.give_up_after > 0 && silent >= opts.give_up_after && report.in_time > 0 {
-                    report.gave_up = true;
-                    break;
-                }
+            // ppoll, not SO_RCVTIMEO: a socket's receive timeout counts in scheduler ticks (4 ms at
+            // HZ=250), a whole cycle; ppoll sleeps on a high-resolution timer.
+            if !readable(&socket, next - now - 20_000) {
+                break;
+            }
+            match socket.recv_from(&mut buf) {
+                Ok((n, _)) => match protocol.answer(k, &buf[..n], &mut commanded) {
+                    Ok(()) if !answered => {
+                        answered = true;
+                        report.round_trip.record(monotonic_ns() - sent_at);
+                        target.clone_from(&commanded);
+                    }
+                    Ok(()) => report.garbage += 1,
+                    Err(Some(_)) => report.late += 1,
+                    Err(None) => report.garbage += 1,
+                },
+                Err(e) if matches!(e.kind(), std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut) => break,
+                Err(e) if matches!(e.kind(), std::io::ErrorKind::ConnectionRefused | std::io::ErrorKind::Interrupted) => {}
+                Err(e) => return Err(e),
+            }
+        }
+        report.fresh.push(answered);
+        if answered {
+            report.in_time += 1;
+            silent = 0;
+        } else {
+            report.missing += 1;
+            silent += 1;
+            if opts.give_up_after > 0 && silent >= opts.give_up_after && report.in_time > 0 {
+                report.gave_up = true;
+                break;
             }
         }
         // The drives follow the target (a real controller interpolates the correction).
         for (a, t) in actual.iter_mut().zip(&target) {
             *a += alpha * (t - *a);
         }
-        if k == 0 {
-            report.fresh.push(true);
-        }
         report.axes.push(actual.clone());
-        protocol.packet(k, &actual, &mut out);
-        match socket.send_to(&out, opts.driver) {
-            Ok(_) => {}
-            Err(e) if e.kind() == std::io::ErrorKind::ConnectionRefused => {}
-            Err(e) => return Err(e),
-        }
-        report.cycles += 1;
         k += 1;
+        sleep_until(next);
+        protocol.packet(k, &actual, &mut out);
+        sent_at = monotonic_ns();
+        send(&socket, &out, opts.driver)?;
+        report.cycles += 1;
     }
-    // The last packet's answer.
-    std::thread::sleep(Duration::from_nanos(period_ns));
-    if let Ok((n, _)) = socket.recv_from(&mut buf)
-        && protocol.answer(k.saturating_sub(1), &buf[..n], &mut commanded).is_ok()
-    {
+    // The last packet's answer, if it comes within a cycle.
+    let end = monotonic_ns() + period_ns;
+    let mut last = false;
+    while !last && monotonic_ns() < end {
+        if !readable(&socket, end.saturating_sub(monotonic_ns())) {
+            break;
+        }
+        match socket.recv_from(&mut buf) {
+            Ok((n, _)) => last = protocol.answer(k, &buf[..n], &mut commanded).is_ok(),
+            Err(_) => break,
+        }
+    }
+    if last {
         report.in_time += 1;
-    } else if report.cycles > 0 {
+    } else {
         report.missing += 1;
     }
-    // Cycle 0 has no answer counted before it: the counts cover cycles 0..k.
     Ok(report)
+}
+
+/// Whether `socket` has a datagram within `timeout_ns` (ppoll on a high-resolution timer).
+fn readable(socket: &UdpSocket, timeout_ns: u64) -> bool {
+    use std::os::fd::AsRawFd;
+    let mut fd = libc::pollfd { fd: socket.as_raw_fd(), events: libc::POLLIN, revents: 0 };
+    let ts = libc::timespec { tv_sec: (timeout_ns / 1_000_000_000) as libc::time_t, tv_nsec: (timeout_ns % 1_000_000_000) as libc::c_long };
+    // SAFETY: one valid pollfd, a valid timespec, no signal mask.
+    let n = unsafe { libc::ppoll(&mut fd, 1, &ts, std::ptr::null()) };
+    n > 0 && fd.revents & libc::POLLIN != 0
+}
+
+fn send(socket: &UdpSocket, packet: &[u8], to: SocketAddr) -> std::io::Result<()> {
+    match socket.send_to(packet, to) {
+        Ok(_) => Ok(()),
+        Err(e) if e.kind() == std::io::ErrorKind::ConnectionRefused => Ok(()),
+        Err(e) => Err(e),
+    }
 }
