@@ -122,9 +122,18 @@ pub fn run<P: RobotProtocol>(session: &mut Session<P>, opts: &BridgeOptions, sto
             while let Ok((m, f)) = socket.recv_from(&mut spare) {
                 let robot = session.sender().unwrap_or(from);
                 if f == robot {
+                    // The robot's newer packet replaces the one in hand: an older one of the
+                    // robot's is stale; another sender's goes to the session to be refused.
+                    if from == robot {
+                        stale += 1;
+                    } else if let Err(dropped) = session.on_packet(&buf[..n], from) {
+                        logged_drops += 1;
+                        if logged_drops <= 10 {
+                            eprintln!("strand-{name}: dropped a packet: {dropped}");
+                        }
+                    }
                     std::mem::swap(&mut buf, &mut spare);
                     (n, from) = (m, f);
-                    stale += 1;
                 } else if let Err(dropped) = session.on_packet(&spare[..m], f) {
                     logged_drops += 1;
                     if logged_drops <= 10 {
@@ -186,6 +195,16 @@ pub fn run<P: RobotProtocol>(session: &mut Session<P>, opts: &BridgeOptions, sto
                 None
             };
             (r.0, transition)
+        } else if !session.robot_following() {
+            // The robot does not follow corrections yet (EGM before MCI_RUNNING): hold it where it
+            // is, and do not clock the service — its commands would run ahead of a robot that
+            // ignores them.
+            let r = session.reply_hold(&mut reply);
+            if !reply.is_empty() {
+                let _ = socket.send_to(&reply, from);
+            }
+            latency.record(monotonic_ns() - received);
+            r
         } else {
             let _ = ports.send_joint_state(&state);
             let command = wait_command(&ports, seq, received + deadline_ns);

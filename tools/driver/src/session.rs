@@ -173,6 +173,11 @@ impl<P: RobotProtocol> Session<P> {
         self.map.dof()
     }
 
+    /// Whether the robot follows corrections now (the last accepted packet says so).
+    pub fn robot_following(&self) -> bool {
+        self.current.is_some_and(|p| p.following)
+    }
+
     /// Late answers in a row so far.
     pub fn late_run(&self) -> u32 {
         self.late_run
