@@ -41,7 +41,8 @@ pub struct DriverConfig {
     /// The only sender accepted (`IP` or `IP:PORT`); empty: the first sender, and no other after it.
     pub robot: String,
     /// Longest wait for the service's command after a robot packet arrives (s); then the driver
-    /// answers with the last command (hold). Must leave the reply inside the robot's cycle.
+    /// answers with a hold (the last target, braked within the acceleration limits). At most
+    /// 0.75 of the robot's cycle (the driver checks it against `[controller] rate_hz`).
     pub reply_deadline: f64,
     /// Replies in a row without the service's command before the driver holds for good and raises
     /// a fault the service sees (an emergency stop from the driver).

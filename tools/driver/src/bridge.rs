@@ -34,6 +34,13 @@ pub struct BridgeOptions {
     pub max_packets: u64,
 }
 
+/// Packets taken from the socket at most, per robot packet, to find the newest.
+const MAX_DRAIN: usize = 16;
+
+/// Cycles without an accepted packet after which the robot's session is over (RSI off, EGM
+/// stopped, a restart): the next packet starts a new one.
+const SILENT_CYCLES: f64 = 25.0;
+
 /// What a run did.
 #[derive(Clone, Debug, serde::Serialize)]
 pub struct BridgeReport {
@@ -87,11 +94,14 @@ pub fn run<P: RobotProtocol>(session: &mut Session<P>, opts: &BridgeOptions, sto
     let mut latency = Histogram::new();
     let deadline_ns = (opts.reply_deadline * 1e9) as u64;
     let period_ns = (opts.period * 1e9) as u64;
-    let (mut previous_q, mut previous_t): (Option<[f64; strand_ipc::MAX_JOINTS]>, u64) = (None, 0);
+    let mut previous_q: Option<[f64; strand_ipc::MAX_JOINTS]> = None;
     let mut control_seq = 0u64;
+    let silent_ns = (SILENT_CYCLES * opts.period * 1e9) as u64;
+    let mut last_accepted = monotonic_ns();
     let mut last_state_seq = 0u64;
     let mut clamps_logged = 0u64;
     let mut stopping_since: Option<u64> = None;
+    let mut rest_cycles = 0u32;
     let mut logged_drops = 0u64;
     loop {
         if stop.load(Ordering::Relaxed) && stopping_since.is_none() {
@@ -99,10 +109,25 @@ pub fn run<P: RobotProtocol>(session: &mut Session<P>, opts: &BridgeOptions, sto
             stopping_since = Some(monotonic_ns());
         }
         if let Some(t) = stopping_since {
-            let quiet = monotonic_ns().saturating_sub(t) > 500_000_000 || session.state() == DriverState::WaitingForRobot;
-            if quiet {
+            // Hold until the robot is at rest (a few cycles), at most as long as the slowest
+            // joint takes to stop from full speed, plus a margin; a robot that stopped streaming
+            // needs no hold.
+            let cap = ((session.guard().longest_stop() + 0.5) * 1e9) as u64;
+            if session.guard().at_rest() {
+                rest_cycles += 1;
+            } else {
+                rest_cycles = 0;
+            }
+            if rest_cycles > 5 || monotonic_ns().saturating_sub(t) > cap || session.state() == DriverState::WaitingForRobot {
                 break;
             }
+        }
+        // The robot went quiet: its session is over (a new one gets a new reference).
+        if session.state() != DriverState::WaitingForRobot && monotonic_ns().saturating_sub(last_accepted) > silent_ns {
+            if let Some(t) = session.reset() {
+                log_transition(name, t, " (no packet from the robot: its session ended)");
+            }
+            previous_q = None;
         }
         let (n, from) = match socket.recv_from(&mut buf) {
             Ok(x) => x,
@@ -118,23 +143,21 @@ pub fn run<P: RobotProtocol>(session: &mut Session<P>, opts: &BridgeOptions, sto
         // Packets from anybody else go to the session to be refused and counted, so that no
         // other sender can push the robot's packet out.
         let (mut n, mut from) = (n, from);
-        if socket.set_nonblocking(true).is_ok() {
-            while let Ok((m, f)) = socket.recv_from(&mut spare) {
-                let robot = session.sender().unwrap_or(from);
-                if f == robot {
-                    // The robot's newer packet replaces the one in hand: an older one of the
-                    // robot's is stale; another sender's goes to the session to be refused.
-                    if from == robot {
-                        stale += 1;
-                    } else if let Err(dropped) = session.on_packet(&buf[..n], from) {
-                        logged_drops += 1;
-                        if logged_drops <= 10 {
-                            eprintln!("strand-{name}: dropped a packet: {dropped}");
-                        }
-                    }
+        // Drain only once the robot is known (before, the first packet decides who it is), and at
+        // most a few packets: a flood from elsewhere must not keep the robot's answer waiting.
+        if session.is_robot(from) == Some(true) && socket.set_nonblocking(true).is_ok() {
+            let mut drained = 0;
+            while drained < MAX_DRAIN
+                && let Ok((m, f)) = socket.recv_from(&mut spare)
+            {
+                drained += 1;
+                if session.is_robot(f) == Some(true) {
+                    // The robot's newer packet replaces the one in hand, which is stale.
+                    stale += 1;
                     std::mem::swap(&mut buf, &mut spare);
                     (n, from) = (m, f);
                 } else if let Err(dropped) = session.on_packet(&spare[..m], f) {
+                    // Another sender's: refused and counted by the session.
                     logged_drops += 1;
                     if logged_drops <= 10 {
                         eprintln!("strand-{name}: dropped a packet: {dropped}");
@@ -154,19 +177,18 @@ pub fn run<P: RobotProtocol>(session: &mut Session<P>, opts: &BridgeOptions, sto
                 continue;
             }
         };
+        last_accepted = received;
         if let Some(t) = transition {
             log_transition(name, t, &format!(" (robot at {from})"));
         }
         let mut state = JointState { seq, stamp_ns: received, dof: session.dof() as u32, position: q, ..Default::default() };
+        // Velocity over the robot's own period (the receive times carry the network's jitter).
         if let Some(p) = previous_q {
-            let dt = (received - previous_t) as f64 * 1e-9;
-            if dt > 0.0 {
-                for k in 0..state.dof as usize {
-                    state.velocity[k] = (q[k] - p[k]) / dt;
-                }
+            for k in 0..state.dof as usize {
+                state.velocity[k] = (q[k] - p[k]) / opts.period;
             }
         }
-        (previous_q, previous_t) = (Some(q), received);
+        previous_q = Some(q);
         // Held (after a fault, or shutting down): answer the robot first, so that nothing the
         // service's side costs (a dead service's clean-up in iceoryx2 takes milliseconds) can
         // make the hold late; then see whether the service answers again.
@@ -207,6 +229,7 @@ pub fn run<P: RobotProtocol>(session: &mut Session<P>, opts: &BridgeOptions, sto
             r
         } else {
             let _ = ports.send_joint_state(&state);
+            last_state_seq = seq;
             let command = wait_command(&ports, seq, received + deadline_ns);
             let r = session.reply(command.as_ref(), &mut reply);
             if !reply.is_empty() {

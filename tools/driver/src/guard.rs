@@ -24,7 +24,7 @@ pub struct JointBounds {
 pub struct ReplyGuard {
     bounds: Vec<JointBounds>,
     period: f64,
-    /// The last target sent, and the one before (joint space).
+    /// The last target sent (joint space).
     last: Option<[f64; MAX_JOINTS]>,
     velocity: [f64; MAX_JOINTS],
     /// The state before the last target, for [`ReplyGuard::take_back`].
@@ -50,10 +50,21 @@ impl ReplyGuard {
     /// Forgets the last target: the robot never got it (it came after the robot's cycle, and the
     /// robot kept the one before). The next target steps from the one before.
     pub fn take_back(&mut self) {
-        if let Some((last, velocity)) = self.before.take() {
+        if let Some((last, _)) = self.before.take() {
+            // The robot held its previous target this cycle: it is at rest there.
             self.last = Some(last);
-            self.velocity = velocity;
+            self.velocity = [0.0; MAX_JOINTS];
         }
+    }
+
+    /// Whether the last target left the robot at rest (every joint's step below `1e-9`).
+    pub fn at_rest(&self) -> bool {
+        self.velocity.iter().all(|v| v.abs() * self.period < 1e-9)
+    }
+
+    /// The longest a hold takes to bring the robot to rest from full speed (s).
+    pub fn longest_stop(&self) -> f64 {
+        self.bounds.iter().map(|b| b.velocity / b.acceleration.max(1e-9)).fold(0.0, f64::max)
     }
 
     /// The last target sent (None before the first).
@@ -83,7 +94,15 @@ impl ReplyGuard {
             // inside the velocity limit; braking first if the last step already was too fast.
             let v_wanted = (x_in - prev[k]) / dt;
             let dv = b.acceleration * dt;
-            let v = v_wanted.clamp(self.velocity[k] - dv, self.velocity[k] + dv).clamp(-b.velocity, b.velocity);
+            // Never faster than what can still stop before a position limit (the discrete
+            // square-root law: after this step, braking at the acceleration limit stops in time).
+            let stop = |room: f64| {
+                let h = 0.5 * dv;
+                (-h + (h * h + 2.0 * b.acceleration * room.max(0.0)).sqrt()).max(0.0)
+            };
+            let v_up = b.velocity.min(stop(b.upper - prev[k]));
+            let v_down = b.velocity.min(stop(prev[k] - b.lower));
+            let v = v_wanted.clamp(self.velocity[k] - dv, self.velocity[k] + dv).clamp(-v_down, v_up);
             let x_out = (prev[k] + v * dt).clamp(b.lower, b.upper);
             if (x_out - x).abs() > 1e-12 {
                 clamped = Some(k);
@@ -100,8 +119,9 @@ impl ReplyGuard {
     }
 
     /// The last target again (a hold), braking any motion left within the acceleration limit.
-    pub fn hold(&mut self) -> [f64; MAX_JOINTS] {
-        let Some(prev) = self.last else { return [0.0; MAX_JOINTS] };
+    /// Before any target ([`ReplyGuard::reset`] first), None.
+    pub fn hold(&mut self) -> Option<[f64; MAX_JOINTS]> {
+        let prev = self.last?;
         self.before = Some((prev, self.velocity));
         let dt = self.period;
         let mut out = prev;
@@ -110,11 +130,18 @@ impl ReplyGuard {
             // must not stop in one cycle (that is a jump in velocity).
             let dv = b.acceleration * dt;
             let v = if self.velocity[k] > 0.0 { (self.velocity[k] - dv).max(0.0) } else { (self.velocity[k] + dv).min(0.0) };
-            out[k] = (prev[k] + v * dt).clamp(b.lower, b.upper);
+            // No clamp to the limits: a hold stays where the robot is, even a hair outside them
+            // (the session refuses a robot that starts clearly outside).
+            out[k] = prev[k] + v * dt;
             self.velocity[k] = (out[k] - prev[k]) / dt;
         }
         self.last = Some(out);
-        out
+        Some(out)
+    }
+
+    /// The first joint of `q` outside its limits by more than `tolerance` (rad or m), if any.
+    pub fn outside_limits(&self, q: &[f64; MAX_JOINTS], tolerance: f64) -> Option<usize> {
+        self.bounds.iter().enumerate().find(|(k, b)| q[*k] < b.lower - tolerance || q[*k] > b.upper + tolerance).map(|(k, _)| k)
     }
 }
 
@@ -163,12 +190,50 @@ mod tests {
         let mut v_prev = (prev - before) / 0.004;
         assert!(v_prev > 0.4, "moving: {v_prev}");
         for _ in 0..100 {
-            let x = g.hold()[0];
+            let x = g.hold().unwrap()[0];
             let v = (x - prev) / 0.004;
             assert!(((v - v_prev) / 0.004).abs() <= 10.0 + 1e-6);
             (prev, v_prev) = (x, v);
         }
         assert_eq!(v_prev, 0.0, "at rest");
+    }
+
+    #[test]
+    fn a_limit_is_approached_braking_not_hit() {
+        // A target past the upper limit (1 rad), from 0.5 rad: the guard brakes in time.
+        let mut g = guard();
+        let mut t = [0.0; MAX_JOINTS];
+        t[0] = 5.0;
+        g.reset(&{
+            let mut q = [0.0; MAX_JOINTS];
+            q[0] = 0.5;
+            q
+        });
+        let (mut prev, mut v_prev) = (0.5, 0.0);
+        for _ in 0..500 {
+            let x = g.admit(&t)[0];
+            let v = (x - prev) / 0.004;
+            assert!(x <= 1.0 + 1e-12, "past the limit: {x}");
+            assert!(((v - v_prev) / 0.004).abs() <= 10.0 + 1e-6, "{} rad/s² at {x}", (v - v_prev) / 0.004);
+            (prev, v_prev) = (x, v);
+        }
+        assert!(prev > 0.99 && v_prev.abs() < 1e-9, "at the limit, at rest: {prev} {v_prev}");
+    }
+
+    #[test]
+    fn a_taken_back_target_leaves_the_robot_at_rest_where_it_was() {
+        let mut g = guard();
+        let mut t = [0.0; MAX_JOINTS];
+        for k in 1..=50 {
+            t[0] = k as f64 * 0.0001;
+            g.admit(&t);
+        }
+        let before = g.last().unwrap()[0];
+        t[0] += 0.0001;
+        g.admit(&t);
+        g.take_back();
+        assert_eq!(g.last().unwrap()[0], before);
+        assert!(g.at_rest(), "the robot held its previous target: at rest");
     }
 
     #[test]

@@ -62,7 +62,18 @@ pub fn driver_config(cfg: &Config, protocol: DriverProtocol) -> Result<DriverCon
         return Err(SetupError::Section { file, why: format!("[driver] protocol = \"{}\", not \"{}\"", name(d.protocol), name(protocol)) });
     }
     let model = cfg.robot.build_model()?;
-    d.validate(model.dof()).map_err(|source| SetupError::Setting { file, source })?;
+    d.validate(model.dof()).map_err(|source| SetupError::Setting { file: file.clone(), source })?;
+    // The answer must leave inside the robot's cycle, with room for the answer itself.
+    let period = 1.0 / cfg.controller.rate_hz;
+    if d.reply_deadline > 0.75 * period {
+        return Err(SetupError::Section {
+            file,
+            why: format!(
+                "[driver] reply_deadline = {} s does not fit the robot's cycle ([controller] rate_hz = {} Hz: {} s); at most 0.75 of it",
+                d.reply_deadline, cfg.controller.rate_hz, period
+            ),
+        });
+    }
     Ok(d)
 }
 

@@ -52,6 +52,10 @@ pub trait RobotProtocol {
     /// Decodes a packet from the robot.
     fn decode(&mut self, packet: &[u8]) -> Result<RobotPacket, PacketError>;
 
+    /// Forgets the connection (the robot's interface session ended: RSI off, EGM stopped, a
+    /// controller restart): the next packet starts a new one.
+    fn reset(&mut self);
+
     /// Encodes into `out` (cleared first) the answer to `to`: the robot's axes should go to `axes`
     /// (rad, the robot's own axes, `to.dof` of them).
     fn encode_reply(&mut self, to: &RobotPacket, axes: &[f64], out: &mut Vec<u8>);

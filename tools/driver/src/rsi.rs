@@ -139,6 +139,10 @@ impl RobotProtocol for Rsi {
         Ok(RobotPacket { seq: ipoc, axes: out, dof: AXES, following: true })
     }
 
+    fn reset(&mut self) {
+        self.reference = None;
+    }
+
     fn encode_reply(&mut self, to: &RobotPacket, axes: &[f64], out: &mut Vec<u8>) {
         use std::io::Write;
         out.clear();

@@ -21,6 +21,10 @@ use crate::axes::AxisMap;
 use crate::guard::ReplyGuard;
 use crate::protocol::{PacketError, RobotPacket, RobotProtocol};
 
+/// How far outside its limits a joint may be at the start (rad): encoder noise and rounding, not a
+/// wrong mapping (0.5°).
+const START_LIMIT_TOLERANCE: f64 = 0.0087;
+
 /// The driver's state, as its log lines name it.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum DriverState {
@@ -35,7 +39,7 @@ pub enum DriverState {
 }
 
 /// What happened to a packet the session dropped.
-#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
 pub enum Dropped {
     /// From a sender other than the robot.
     #[error("from {0}, not the robot")]
@@ -50,6 +54,17 @@ pub enum Dropped {
         seq: u64,
         /// The last accepted sequence.
         last: u64,
+    },
+    /// The robot's first packet puts a joint outside its URDF limits: a wrong `[driver]` axis
+    /// mapping or a wrong robot config. Nothing is answered.
+    #[error(
+        "joint {joint} at {value:.4} (rad or m) lies outside its limits at the start: check [driver] axis_sign and axis_offset, and the robot"
+    )]
+    OutsideLimits {
+        /// The joint (1-based, chain order).
+        joint: usize,
+        /// Its position (rad or m).
+        value: f64,
     },
     /// More axes than the robot has, or fewer.
     #[error("{got} axes; the robot has {want}")]
@@ -83,8 +98,10 @@ pub struct Counters {
     pub missed_cycle: u64,
     /// Packets dropped: from another sender.
     pub foreign: u64,
-    /// Packets dropped: malformed or truncated.
+    /// Packets dropped: malformed, truncated, a bad value, or the wrong number of axes.
     pub malformed: u64,
+    /// Packets dropped: the robot's first packets, with a joint outside its limits.
+    pub outside_limits: u64,
     /// Packets dropped: oversized.
     pub oversized: u64,
     /// Packets dropped: a duplicate sequence.
@@ -173,6 +190,35 @@ impl<P: RobotProtocol> Session<P> {
         self.map.dof()
     }
 
+    /// A hold from the guard, or (before the guard has a target) the measured joints.
+    fn hold_or_measured(&mut self, packet: &RobotPacket) -> [f64; MAX_JOINTS] {
+        let measured = self.map.joints_from_axes(&packet.axes[..packet.dof]);
+        self.guard.hold().unwrap_or(measured)
+    }
+
+    /// Whether `from` is the robot: the configured address, or the sender accepted first (None:
+    /// not known yet — nothing configured, no packet accepted).
+    pub fn is_robot(&self, from: SocketAddr) -> Option<bool> {
+        match (self.rules.robot, self.sender) {
+            (Some(robot), _) => Some(robot.matches(from)),
+            (None, Some(first)) => Some(first == from),
+            (None, None) => None,
+        }
+    }
+
+    /// Ends the connection (the robot stopped streaming: RSI off, EGM stopped, a controller
+    /// restart): the next packet starts a new one — new reference, new sequence, new sender if
+    /// none is configured — and the robot is held until the service commands it again.
+    pub fn reset(&mut self) -> Option<Transition> {
+        self.protocol.reset();
+        self.sender = None;
+        self.last_seq = None;
+        self.current = None;
+        self.late_run = 0;
+        self.good_run = 0;
+        self.enter(DriverState::WaitingForRobot)
+    }
+
     /// Whether the robot follows corrections now (the last accepted packet says so).
     pub fn robot_following(&self) -> bool {
         self.current.is_some_and(|p| p.following)
@@ -189,7 +235,7 @@ impl<P: RobotProtocol> Session<P> {
             out.clear();
             return (ReplyKind::Hold, None);
         };
-        let q = self.guard.hold();
+        let q = self.hold_or_measured(&packet);
         let axes = self.map.axes_from_joints(&q[..self.map.dof()]);
         self.protocol.encode_reply(&packet, &axes[..packet.dof], out);
         self.counters.held += 1;
@@ -217,7 +263,7 @@ impl<P: RobotProtocol> Session<P> {
 
     /// The last answer left after the robot's cycle (the bridge measured it): if the protocol's
     /// robot throws such answers away, the guard forgets it, so the next answer steps from what
-    /// the robot really has. Counted as late.
+    /// the robot really has. Counted in `missed_cycle`.
     pub fn answer_missed_its_cycle(&mut self) {
         self.counters.missed_cycle += 1;
         if P::LATE_ANSWER_DISCARDED {
@@ -238,6 +284,7 @@ impl<P: RobotProtocol> Session<P> {
             Err(Dropped::Foreign(_)) => self.counters.foreign += 1,
             Err(Dropped::Packet(PacketError::Oversized(_))) => self.counters.oversized += 1,
             Err(Dropped::Packet(_) | Dropped::Axes { .. }) => self.counters.malformed += 1,
+            Err(Dropped::OutsideLimits { .. }) => self.counters.outside_limits += 1,
             Err(Dropped::Order { seq, last }) if seq == last => self.counters.duplicate += 1,
             Err(Dropped::Order { .. }) => self.counters.out_of_order += 1,
             Ok(_) => self.counters.packets += 1,
@@ -266,9 +313,17 @@ impl<P: RobotProtocol> Session<P> {
         {
             return Err(Dropped::Order { seq: packet.seq, last });
         }
+        let q = self.map.joints_from_axes(&packet.axes[..packet.dof]);
+        if self.state == DriverState::WaitingForRobot
+            && let Some(joint) = self.guard.outside_limits(&q, START_LIMIT_TOLERANCE)
+        {
+            // A robot that starts outside the URDF's limits is a wrong axis mapping (sign,
+            // offset) or a wrong robot: following it would start with a jump to the limit.
+            self.protocol.reset();
+            return Err(Dropped::OutsideLimits { joint: joint + 1, value: q[joint] });
+        }
         self.sender.get_or_insert(from);
         self.last_seq = Some(packet.seq);
-        let q = self.map.joints_from_axes(&packet.axes[..packet.dof]);
         let mut transition = None;
         if self.state == DriverState::WaitingForRobot {
             self.guard.reset(&q);
@@ -309,19 +364,19 @@ impl<P: RobotProtocol> Session<P> {
                     self.counters.faults += 1;
                     transition = self.enter(DriverState::HeldAfterFault);
                 }
-                (ReplyKind::Late, self.guard.hold())
+                (ReplyKind::Late, self.hold_or_measured(&packet))
             }
             Some(cmd) => {
                 self.late_run = 0;
                 let valid = cmd.valid == 1 && cmd.position[..self.map.dof()].iter().all(|x| x.is_finite());
                 match self.state {
-                    _ if !packet.following || !valid => (ReplyKind::Hold, self.guard.hold()),
+                    _ if !packet.following || !valid => (ReplyKind::Hold, self.hold_or_measured(&packet)),
                     DriverState::HeldAfterFault => {
                         self.good_run += 1;
                         if self.good_run >= self.rules.recover_cycles {
                             transition = self.enter(DriverState::Following);
                         }
-                        (ReplyKind::Hold, self.guard.hold())
+                        (ReplyKind::Hold, self.hold_or_measured(&packet))
                     }
                     _ => {
                         if self.state != DriverState::Following {
@@ -435,6 +490,27 @@ mod tests {
         assert_eq!(released.map(|(k, t)| (k, t.to)), Some((4, DriverState::Following)));
         // The guard never let a step pass the limits (the hold braked within 10 rad/s²).
         assert_eq!(s.guard().clamps, 0, "holds brake, they do not clamp");
+    }
+
+    #[test]
+    fn a_robot_starting_outside_its_limits_is_refused_and_a_restart_is_a_new_session() {
+        let mut s = session();
+        let robot: SocketAddr = "127.0.0.1:5000".parse().unwrap();
+        // A1 at 200°: outside ±3 rad (a wrong mapping would look like this).
+        assert!(matches!(s.on_packet(&rob(100, 200.0), robot), Err(Dropped::OutsideLimits { joint: 1, .. })));
+        assert_eq!((s.counters.outside_limits, s.state()), (1, DriverState::WaitingForRobot));
+        assert!(s.on_packet(&rob(104, 10.0), robot).is_ok(), "a later good packet starts the session");
+        // RSI off and on again at another pose, the controller's IPOC lower after a reboot.
+        let t = s.reset().unwrap();
+        assert_eq!(t.to, DriverState::WaitingForRobot);
+        let other: SocketAddr = "127.0.0.1:5001".parse().unwrap();
+        let (_, q, t) = s.on_packet(&rob(8, 20.0), other).expect("a new session: new sender, new sequence");
+        assert_eq!(t.map(|t| t.to), Some(DriverState::Holding));
+        let mut out = Vec::new();
+        s.reply(None, &mut out);
+        let text = String::from_utf8(out).unwrap();
+        assert!(text.contains("A1=\"0.000000\""), "the new reference is the new pose (no jump): {text}");
+        assert!((q[0] - 20f64.to_radians()).abs() < 1e-12);
     }
 
     #[test]

@@ -120,7 +120,7 @@ impl Cell {
         if cfg!(debug_assertions) {
             // Unoptimised, the service's tick costs ten times more: a wider deadline, and more
             // late cycles before a fault, so that the tests check behaviour, not the build.
-            driver.args(["--set", "driver.reply_deadline=0.0035", "--set", "driver.max_late_cycles=10"]);
+            driver.args(["--set", "driver.reply_deadline=0.003", "--set", "driver.max_late_cycles=10"]);
         }
         let driver = Kid(driver
             .args(["--prefix", &prefix, "--bind", &format!("127.0.0.1:{port}"), "--config"])
@@ -249,7 +249,9 @@ fn a_killed_service_leaves_the_robot_held_without_a_jump_and_the_driver_faulted(
     let (report, stats, log) = cell.finish();
     assert!(log.contains("HeldAfterFault"), "the driver latched the hold:\n{log}");
     assert!(stats["counters"]["faults"].as_u64().unwrap() >= 1, "{stats}");
-    assert_eq!(stats["final_state"], "HeldAfterFault", "{stats}");
+    // Held to the end; once the fake stopped streaming, its session ended.
+    assert!(stats["final_state"] == "HeldAfterFault" || stats["final_state"] == "WaitingForRobot", "{stats}");
+    assert!(!log.contains("HeldAfterFault → Following"), "a dead service never released the hold:\n{log}");
     // The robot kept its answers: after the three late cycles that latch the hold, holds are sent
     // before anything else, so they stay in time (RSI's own limit is 100 late cycles).
     assert!(report.missing + report.late <= 50, "answers missing after the kill: {report:?}");

@@ -11,6 +11,8 @@
 //! undefined, a RobotWare quirk after restart). Before that the answer repeats the measured joints,
 //! so the robot starts from where it is. A new EGM session (RAPID runs `EGMRunJoint` again) restarts
 //! `seqno` at 0: that is a new epoch of the driver's sequence, not an out-of-order packet.
+//! External axes are converted as rotary (degrees): a linear external axis (a track, in mm) is not
+//! supported yet.
 
 pub mod proto;
 
@@ -94,7 +96,7 @@ impl RobotProtocol for Egm {
             && matches!(rapid, RapidCtrlExecStateType::RapidRunning | RapidCtrlExecStateType::RapidUndefined);
         if let Some(last) = self.last_seqno
             && seqno < last
-            && last - seqno > NEW_SESSION_GAP
+            && (seqno == 0 || last - seqno > NEW_SESSION_GAP)
         {
             self.epoch += 1 << 32;
         }
@@ -103,6 +105,10 @@ impl RobotProtocol for Egm {
         self.first_tm.get_or_insert(tm);
         self.last_tm = tm;
         Ok(RobotPacket { seq: self.epoch + u64::from(seqno), axes, dof: ROBOT_AXES + external.len(), following })
+    }
+
+    fn reset(&mut self) {
+        *self = Egm::default();
     }
 
     fn encode_reply(&mut self, to: &RobotPacket, axes: &[f64], out: &mut Vec<u8>) {

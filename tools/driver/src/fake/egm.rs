@@ -2,10 +2,9 @@
 //! header (`seqno` counting from 0, `tm` in ms, `MSGTYPE_DATA`), the actual joints in `feedBack`
 //! (degrees), motors on, the motion-control state (`MCI_STOPPED` for the first `stopped_cycles`,
 //! as while `EGMRunJoint` ramps in, then `MCI_RUNNING`) and RAPID running; the answer is an
-//! `EgmSensor` with the absolute joint targets in `planned.joints` (degrees). The controller takes
-//! the latest answer; this fake also checks that the answer's `seqno` is the one for this cycle (the
-//! driver answers every packet once), to count late answers. Corrections are applied only while
-//! `MCI_RUNNING`, as the controller does.
+//! `EgmSensor` with the absolute joint targets in `planned.joints` (degrees). Like the controller it
+//! takes the newest answer, in time if it arrives during the cycle. Corrections are applied only
+//! while `MCI_RUNNING`, as the controller does.
 
 use prost::Message;
 
@@ -22,14 +21,14 @@ pub struct FakeEgm {
     pub stopped_cycles: u64,
     /// The cycle (ms).
     pub period_ms: u32,
-    /// The first answer's `seqno` against its cycle: the driver may have started after the fake.
-    offset: Option<u64>,
+    /// The newest answer's `seqno` taken so far.
+    last_seqno: Option<u64>,
 }
 
 impl FakeEgm {
     /// A controller whose EGM session runs after `stopped_cycles`.
     pub fn new(stopped_cycles: u64, period_ms: u32) -> FakeEgm {
-        FakeEgm { stopped_cycles, period_ms, offset: None }
+        FakeEgm { stopped_cycles, period_ms, last_seqno: None }
     }
 }
 
@@ -46,11 +45,14 @@ impl FakeProtocol for FakeEgm {
         if header.mtype() != MessageType::MsgtypeCorrection {
             return Err(None);
         }
+        // Like the controller, take the newest answer: one that arrives during the cycle is in
+        // time (EGM answers carry the sensor's own count, not the packet's, so an answer cannot be
+        // matched to its packet); an answer older than one already taken is late.
         let seqno = u64::from(header.seqno.ok_or(None)?);
-        let offset = *self.offset.get_or_insert(k.saturating_sub(seqno));
-        if seqno + offset < k {
-            return Err(Some(seqno + offset));
+        if self.last_seqno.is_some_and(|last| seqno <= last) {
+            return Err(Some(k.saturating_sub(1)));
         }
+        self.last_seqno = Some(seqno);
         let joints = sensor.planned.and_then(|p| p.joints).ok_or(None)?.joints;
         if joints.len() < axes.len().min(6) || joints.iter().any(|j| !j.is_finite()) {
             return Err(None);
