@@ -360,7 +360,16 @@ fn a_crashed_feeder_is_cleaned_up() {
     // The dead feeder counts as a publisher until its resources are cleaned up (node creation
     // elsewhere may do that first, so 0 or 1 here).
     assert!(service.segment_publishers() <= 1);
-    let cleanup = cleanup_dead_nodes().unwrap();
-    assert_eq!(service.segment_publishers(), 0, "{cleanup:?}");
+    // The clean-up races with the other tests of this binary (their nodes come and go, and a
+    // node another process is cleaning up counts as "failed" here): retry for up to a second.
+    let mut cleanups = Vec::new();
+    for _ in 0..50 {
+        cleanups.push(cleanup_dead_nodes().unwrap());
+        if service.segment_publishers() == 0 {
+            break;
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    assert_eq!(service.segment_publishers(), 0, "{cleanups:?}");
     assert!(service.receive_segments().unwrap().is_none());
 }
