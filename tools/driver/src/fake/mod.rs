@@ -103,7 +103,9 @@ impl FakeReport {
         let n = self.axes.first().map_or(0, Vec::len);
         let (mut v_max, mut a_max) = (vec![0.0f64; n], vec![0.0f64; n]);
         for (i, w) in self.axes.windows(3).enumerate() {
-            if !(self.fresh.get(i + 1).copied().unwrap_or(true) && self.fresh.get(i + 2).copied().unwrap_or(true)) {
+            // Rows near a cycle without a fresh answer carry its step (spread by the drive lag
+            // over the next cycles): they measure the lateness, not the commands.
+            if (i.saturating_sub(2)..=i + 2).any(|r| !self.fresh.get(r).copied().unwrap_or(true)) {
                 continue;
             }
             for k in 0..n {
@@ -151,6 +153,7 @@ pub fn run(protocol: &mut dyn FakeProtocol, opts: &FakeOptions, stop: &AtomicBoo
         // k is in time (its round trip recorded); answers to older packets are late.
         let next = t0 + (k + 1) * period_ns;
         let mut answered = false;
+        let mut answers = 0u32;
         loop {
             let now = monotonic_ns();
             if now + 20_000 >= next {
@@ -163,12 +166,16 @@ pub fn run(protocol: &mut dyn FakeProtocol, opts: &FakeOptions, stop: &AtomicBoo
             }
             match socket.recv_from(&mut buf) {
                 Ok((n, _)) => match protocol.answer(k, &buf[..n], &mut commanded) {
-                    Ok(()) if !answered => {
+                    Ok(()) => {
+                        // The newest answer counts (a controller takes the latest); two in one
+                        // cycle mean the first was the last cycle's, late.
+                        answers += 1;
+                        if !answered {
+                            report.round_trip.record(monotonic_ns() - sent_at);
+                        }
                         answered = true;
-                        report.round_trip.record(monotonic_ns() - sent_at);
                         target.clone_from(&commanded);
                     }
-                    Ok(()) => report.garbage += 1,
                     Err(Some(_)) => report.late += 1,
                     Err(None) => report.garbage += 1,
                 },
@@ -177,7 +184,10 @@ pub fn run(protocol: &mut dyn FakeProtocol, opts: &FakeOptions, stop: &AtomicBoo
                 Err(e) => return Err(e),
             }
         }
-        report.fresh.push(answered);
+        if answers > 1 {
+            report.late += u64::from(answers - 1);
+        }
+        report.fresh.push(answered && answers == 1);
         if answered {
             report.in_time += 1;
             silent = 0;
