@@ -195,14 +195,7 @@ pub fn run<P: RobotProtocol>(session: &mut Session<P>, opts: &BridgeOptions, sto
         let held = stopping_since.is_some() || session.state() == DriverState::HeldAfterFault;
         let (kind, transition) = if held {
             let r = session.reply_hold(&mut reply);
-            if !reply.is_empty() {
-                let _ = socket.send_to(&reply, from);
-            }
-            let took = monotonic_ns() - received;
-            latency.record(took);
-            if took > period_ns {
-                session.answer_missed_its_cycle();
-            }
+            answer(&socket, &reply, from, received, period_ns, &mut latency, session);
             let transition = if stopping_since.is_none() {
                 // Did the service answer the last state within its cycle? (No waiting here: the
                 // robot's next packet must find the driver ready.)
@@ -222,24 +215,14 @@ pub fn run<P: RobotProtocol>(session: &mut Session<P>, opts: &BridgeOptions, sto
             // is, and do not clock the service — its commands would run ahead of a robot that
             // ignores them.
             let r = session.reply_hold(&mut reply);
-            if !reply.is_empty() {
-                let _ = socket.send_to(&reply, from);
-            }
-            latency.record(monotonic_ns() - received);
+            answer(&socket, &reply, from, received, period_ns, &mut latency, session);
             r
         } else {
             let _ = ports.send_joint_state(&state);
             last_state_seq = seq;
             let command = wait_command(&ports, seq, received + deadline_ns);
             let r = session.reply(command.as_ref(), &mut reply);
-            if !reply.is_empty() {
-                let _ = socket.send_to(&reply, from);
-            }
-            let took = monotonic_ns() - received;
-            latency.record(took);
-            if took > period_ns {
-                session.answer_missed_its_cycle();
-            }
+            answer(&socket, &reply, from, received, period_ns, &mut latency, session);
             r
         };
         if let Some(t) = transition {
@@ -284,6 +267,28 @@ pub fn run<P: RobotProtocol>(session: &mut Session<P>, opts: &BridgeOptions, sto
         }
     }
     Ok(BridgeReport { counters: session.counters, stale, latency, final_state: format!("{:?}", session.state()) })
+}
+
+/// Sends `reply` to the robot at `from` and records how long after the packet's receipt it left;
+/// an answer that left after the robot's cycle is told to the session (the robot may have thrown
+/// it away).
+fn answer<P: RobotProtocol>(
+    socket: &UdpSocket,
+    reply: &[u8],
+    from: SocketAddr,
+    received: u64,
+    period_ns: u64,
+    latency: &mut Histogram,
+    session: &mut Session<P>,
+) {
+    if !reply.is_empty() {
+        let _ = socket.send_to(reply, from);
+    }
+    let took = monotonic_ns() - received;
+    latency.record(took);
+    if took > period_ns {
+        session.answer_missed_its_cycle();
+    }
 }
 
 /// The command answering state `seq`, if it comes by `deadline_ns` (older ones are drained).

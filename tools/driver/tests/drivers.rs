@@ -149,6 +149,7 @@ impl Cell {
                 lag: 0.008,
                 cycles: 0,
                 give_up_after: 0,
+                rt_priority: Some(90),
             };
             run(p.as_mut(), &opts, &stop).unwrap()
         });

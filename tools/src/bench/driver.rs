@@ -7,9 +7,9 @@
 
 use std::net::{SocketAddr, UdpSocket};
 use std::path::PathBuf;
-use std::process::{Child, Command, Stdio};
+use std::process::{Command, Stdio};
 use std::sync::atomic::{AtomicBool, Ordering};
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use serde::Serialize;
 use strand::config::Config;
@@ -18,7 +18,7 @@ use strand_driver::fake::egm::FakeEgm;
 use strand_driver::fake::rsi::FakeRsi;
 use strand_driver::fake::{FakeOptions, FakeProtocol};
 
-use super::{Dist, bench_job, stream_job};
+use super::{Dist, Reaped, bench_job, stream_job};
 use crate::error::{Result, ToolError};
 
 /// What to run.
@@ -75,15 +75,6 @@ pub struct DriverReport {
     pub histograms: Vec<(String, Histogram)>,
 }
 
-struct Reaped(Child);
-
-impl Drop for Reaped {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
-}
-
 /// Runs the service, the driver and the fake for `opts.seconds` with the job printing.
 pub fn run(opts: &DriverOptions) -> Result<DriverReport> {
     let cfg = Config::load(&opts.config)?;
@@ -109,7 +100,7 @@ pub fn run(opts: &DriverOptions) -> Result<DriverReport> {
     if let Some(p) = opts.rt_priority {
         driver.args(["--rt", &p.to_string()]);
     }
-    let mut driver = spawn(driver, &driver_bin.display().to_string())?;
+    let driver = spawn(driver, &driver_bin.display().to_string())?;
     std::thread::sleep(Duration::from_millis(500));
     let start_deg: Vec<f64> = cfg.service.initial_joints.iter().map(|q| q.to_degrees()).collect();
     let period_ms = (cycle * 1e3).round() as u64;
@@ -126,6 +117,7 @@ pub fn run(opts: &DriverOptions) -> Result<DriverReport> {
         lag: 0.0,
         cycles: (opts.seconds / cycle).round() as u64,
         give_up_after: 0,
+        rt_priority: Some(90),
     };
     let job = bench_job(&opts.root, &cfg)?;
     let (stop_fake, stop_feed) = (AtomicBool::new(false), AtomicBool::new(false));
@@ -143,14 +135,7 @@ pub fn run(opts: &DriverOptions) -> Result<DriverReport> {
         .map_err(|e| ToolError::Measurement(format!("the fake robot: {e}")))?;
     let sent = sent.map_err(|_| ToolError::Measurement("the feeder panicked".into()))??;
     // The driver's own figures: it writes them at exit.
-    // SAFETY: kill(2) on our own child.
-    unsafe {
-        libc::kill(driver.0.id() as libc::pid_t, libc::SIGTERM);
-    }
-    let until = Instant::now() + Duration::from_secs(10);
-    while Instant::now() < until && !matches!(driver.0.try_wait(), Ok(Some(_))) {
-        std::thread::sleep(Duration::from_millis(20));
-    }
+    driver.terminate(Duration::from_secs(10));
     drop(service);
     let text = std::fs::read_to_string(&stats).map_err(ToolError::file(&stats))?;
     let _ = std::fs::remove_file(&stats);

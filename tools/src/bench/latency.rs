@@ -10,7 +10,7 @@
 //! service adds, and the aim is that it stays within the tick's own cost plus a few microseconds.
 
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Stdio};
+use std::process::{Command, Stdio};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
@@ -23,7 +23,7 @@ use strand_ipc as ipc;
 use strand_ipc::ServiceNames;
 use strand_ipc::ports::{ClientPorts, ClientRoles, ServicePorts};
 
-use super::{Dist, bench_job, stream_job};
+use super::{Dist, Reaped, bench_job, stream_job};
 use crate::error::{Result, ToolError};
 
 /// What to run.
@@ -72,28 +72,6 @@ pub struct LatencyReport {
     /// The histograms, for the plot (not printed).
     #[serde(skip)]
     pub histograms: Vec<(String, Histogram)>,
-}
-
-struct Reaped(Child);
-
-impl Drop for Reaped {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
-}
-
-impl Reaped {
-    /// Waits up to `grace` for the child to exit by itself, then kills it.
-    fn finish(mut self, grace: Duration) {
-        let until = Instant::now() + grace;
-        while Instant::now() < until {
-            if let Ok(Some(_)) = self.0.try_wait() {
-                return;
-            }
-            std::thread::sleep(Duration::from_millis(20));
-        }
-    }
 }
 
 /// Ping-pong, then the service; see the module docs.

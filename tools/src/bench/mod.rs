@@ -26,6 +26,39 @@ use strand_ipc::ports::{ClientPorts, ClientRoles};
 use crate::error::{Result, ToolError};
 use crate::feed::{Job, batch, credit, load_gcode};
 
+/// A child process of a benchmark (the service, a driver, the ping-pong), killed if still running
+/// when dropped.
+pub(crate) struct Reaped(pub(crate) std::process::Child);
+
+impl Drop for Reaped {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+impl Reaped {
+    /// Waits up to `grace` for the child to exit by itself, then kills it.
+    pub(crate) fn finish(mut self, grace: std::time::Duration) {
+        let until = std::time::Instant::now() + grace;
+        while std::time::Instant::now() < until {
+            if let Ok(Some(_)) = self.0.try_wait() {
+                return;
+            }
+            std::thread::sleep(std::time::Duration::from_millis(20));
+        }
+    }
+
+    /// SIGTERM, then [`Reaped::finish`]: for a child that writes its report when it exits.
+    pub(crate) fn terminate(self, grace: std::time::Duration) {
+        // SAFETY: kill(2) on our own child's pid.
+        unsafe {
+            libc::kill(self.0.id() as libc::pid_t, libc::SIGTERM);
+        }
+        self.finish(grace);
+    }
+}
+
 /// The job a loaded controller prints in `jitter` and `latency`: 004's 35 mm box (PrusaSlicer),
 /// 16 k segments, 21 minutes of printing, far longer than any benchmark run.
 pub fn bench_job(root: &Path, cfg: &Config) -> Result<Job> {

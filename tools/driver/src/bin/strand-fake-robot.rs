@@ -47,6 +47,9 @@ struct Cli {
     /// Give up after this many cycles without an answer once answers have come (RSI's timeout: 100).
     #[arg(long, default_value_t = 100)]
     give_up_after: u64,
+    /// Run the fake's loop with SCHED_FIFO at this priority (as a controller's is real-time).
+    #[arg(long)]
+    rt: Option<i32>,
     /// Write the report as JSON here.
     #[arg(long)]
     stats: Option<PathBuf>,
@@ -85,6 +88,7 @@ fn main() -> ExitCode {
         lag: cli.lag,
         cycles: cli.cycles,
         give_up_after: cli.give_up_after,
+        rt_priority: cli.rt,
     };
     let report = match run(protocol.as_mut(), &opts, &STOP) {
         Ok(r) => r,

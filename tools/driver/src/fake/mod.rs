@@ -43,6 +43,10 @@ pub struct FakeOptions {
     pub lag: f64,
     /// Cycles to run (0: until stopped).
     pub cycles: u64,
+    /// SCHED_FIFO priority for the fake's thread (a robot controller is hard real-time; on a
+    /// shared machine a fake that is not would count its own stalls as missing answers). Refused
+    /// without the privilege: it then runs as it is.
+    pub rt_priority: Option<i32>,
     /// Cycles without a single answer after which it gives up (a real controller stops; RSI's
     /// ETHERNET timeout is 100 packets).
     pub give_up_after: u64,
@@ -130,6 +134,13 @@ fn sleep_until(deadline_ns: u64) {
 pub fn run(protocol: &mut dyn FakeProtocol, opts: &FakeOptions, stop: &AtomicBool) -> std::io::Result<FakeReport> {
     let socket = UdpSocket::bind(opts.bind)?;
     socket.set_nonblocking(true)?;
+    if let Some(priority) = opts.rt_priority {
+        let param = libc::sched_param { sched_priority: priority };
+        // SAFETY: this thread (0), a valid sched_param. Failure (no privilege) leaves it as it is.
+        unsafe {
+            libc::sched_setscheduler(0, libc::SCHED_FIFO, &param);
+        }
+    }
     let period_ns = (opts.period * 1e9).round() as u64;
     let mut actual = opts.start_deg.clone();
     let mut target = opts.start_deg.clone();
