@@ -12,6 +12,7 @@ pub mod check;
 pub mod driver;
 pub mod locate;
 pub mod log;
+pub mod view;
 
 use std::path::{Path, PathBuf};
 
@@ -31,6 +32,7 @@ use driver::DriverConfig;
 use log::LogConfig;
 use strand_job::bed::BedConfig;
 use strand_job::bed::BedTransform;
+use view::ViewConfig;
 
 /// A configuration problem, naming the file and what in it is wrong.
 #[derive(Clone, Debug, Error)]
@@ -222,6 +224,8 @@ pub struct Config {
     pub check: CheckConfig,
     /// The robot driver bridge (`strand-egm`, `strand-rsi`), if the robot has one.
     pub driver: Option<DriverConfig>,
+    /// The live view and the log's scene channels.
+    pub view: ViewConfig,
 }
 
 #[derive(Deserialize, Serialize)]
@@ -250,6 +254,8 @@ struct ConfigFile<R> {
     check: CheckConfig,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     driver: Option<DriverConfig>,
+    #[serde(default)]
+    view: ViewConfig,
 }
 
 impl<R> ConfigFile<R> {
@@ -263,6 +269,7 @@ impl<R> ConfigFile<R> {
         self.extruder.validate().map_err(|m| ConfigError::new(path, m.message))?;
         self.log.validate().map_err(|m| ConfigError::new(path, m.to_string()))?;
         self.check.validate().map_err(|m| ConfigError::new(path, m.to_string()))?;
+        self.view.validate().map_err(|m| ConfigError::new(path, m.to_string()))?;
         if let Some(d) = &self.driver {
             // The per-joint lists are checked against the robot by the driver, which loads it.
             d.validate(d.axis_sign.len().max(d.axis_offset.len())).map_err(|m| ConfigError::new(path, m.to_string()))?;
@@ -286,6 +293,7 @@ impl<R> ConfigFile<R> {
             log: self.log,
             check: self.check,
             driver: self.driver,
+            view: self.view,
         }
     }
 }
@@ -342,6 +350,7 @@ impl Config {
             log: self.log.clone(),
             check: self.check.clone(),
             driver: self.driver.clone(),
+            view: self.view.clone(),
         };
         toml::to_string(&file).expect("every config value is representable in TOML")
     }

@@ -11,5 +11,6 @@ pub use strand_core as core;
 
 pub mod check;
 pub mod config;
+pub mod ctl;
 pub mod io;
 pub mod log;

@@ -50,6 +50,9 @@ enum Command {
         /// Do not write a log (overrides `[log] enabled`).
         #[arg(long)]
         no_log: bool,
+        /// Serve the live view (overrides `[view] enabled`): open ws://127.0.0.1:8765 in Foxglove.
+        #[arg(long)]
+        view: bool,
         /// Override one config key, e.g. `--set base.estimator=moving-average` (repeatable; the
         /// value is TOML, or else a string). The log's effective config records the result.
         #[arg(long = "set", value_name = "SECTION.KEY=VALUE")]
@@ -78,6 +81,19 @@ enum Command {
         #[arg(long = "set", value_name = "SECTION.KEY=VALUE")]
         set: Vec<String>,
     },
+    /// Control a running service: status, pause, resume, stop, estop, clear-fault, feed, flow.
+    /// Each command waits for the service to acknowledge it in its Status; exit 0: done, 3:
+    /// refused or not acknowledged (the reason on stderr), 1: no service.
+    Ctl {
+        /// The service prefix (`[service] prefix` of the running service).
+        #[arg(long, default_value = strand_ipc::DEFAULT_PREFIX)]
+        prefix: String,
+        /// Longest wait for the service and its acknowledgement (s).
+        #[arg(long, default_value_t = 3.0)]
+        timeout: f64,
+        #[command(subcommand)]
+        verb: CtlCommand,
+    },
     /// Load and validate a configuration and the robot it names; print what it describes.
     CheckConfig {
         /// The service configuration: a file, or a NAME (`iiwa7`, `free-flyer`) found like the
@@ -85,6 +101,55 @@ enum Command {
         /// the built-in copy).
         config: Option<PathBuf>,
     },
+}
+
+#[derive(Subcommand)]
+enum CtlCommand {
+    /// Print the state, job progress (layer, line, path), queue, overrides and faults.
+    Status {
+        /// Keep printing, as a live line on a terminal, until Ctrl-C.
+        #[arg(long)]
+        watch: bool,
+        /// JSON instead of the text line.
+        #[arg(long)]
+        json: bool,
+    },
+    /// Pause the job: it stops on the path within the jerk limits and retracts.
+    Pause,
+    /// Resume a paused job: it primes and continues where it stopped.
+    Resume,
+    /// Stop the job: it brakes on the path and ends Stopped.
+    Stop,
+    /// Emergency stop: a latched fault.
+    Estop,
+    /// Clear a latched fault.
+    ClearFault,
+    /// Feed override in percent (1 to 200).
+    Feed {
+        /// Percent of the programmed feed.
+        percent: f64,
+    },
+    /// Flow override in percent (0 to 200).
+    Flow {
+        /// Percent of the programmed extrusion.
+        percent: f64,
+    },
+}
+
+impl From<CtlCommand> for strand::ctl::CtlVerb {
+    fn from(c: CtlCommand) -> Self {
+        use strand::ctl::CtlVerb;
+        match c {
+            CtlCommand::Status { watch, json } => CtlVerb::Status { watch, json },
+            CtlCommand::Pause => CtlVerb::Pause,
+            CtlCommand::Resume => CtlVerb::Resume,
+            CtlCommand::Stop => CtlVerb::Stop,
+            CtlCommand::Estop => CtlVerb::EmergencyStop,
+            CtlCommand::ClearFault => CtlVerb::ClearFault,
+            CtlCommand::Feed { percent } => CtlVerb::Feed(percent),
+            CtlCommand::Flow { percent } => CtlVerb::Flow(percent),
+        }
+    }
 }
 
 fn parse_clock(s: &str) -> Result<ClockMode, String> {
@@ -104,7 +169,7 @@ extern "C" fn on_signal(_: libc::c_int) {
 
 fn main() -> ExitCode {
     match Cli::parse().command {
-        Command::Run { config, prefix, clock, echo, ticks, exit_when_done, log, no_log, set } => {
+        Command::Run { config, prefix, clock, echo, ticks, exit_when_done, log, no_log, view, set } => {
             tracing_subscriber::fmt()
                 .with_env_filter(tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info".into()))
                 .with_writer(std::io::stderr)
@@ -128,6 +193,9 @@ fn main() -> ExitCode {
             if no_log {
                 cfg.log.enabled = false;
             }
+            if view {
+                cfg.view.enabled = true;
+            }
             if log.is_some() {
                 cfg.log.enabled = true;
             }
@@ -140,6 +208,7 @@ fn main() -> ExitCode {
             }
             check_job(&file, config.as_deref(), &set, json, png.as_deref(), base_trajectory.as_deref())
         }
+        Command::Ctl { prefix, timeout, verb } => ctl(&prefix, timeout, verb.into()),
         Command::CheckConfig { config } => {
             // A closed pipe (`strand check-config | head`) ends it quietly instead of a panic.
             // SAFETY: setting a signal's disposition to the default; no other thread runs yet.
@@ -147,6 +216,37 @@ fn main() -> ExitCode {
                 libc::signal(libc::SIGPIPE, libc::SIG_DFL);
             }
             check_config(config.as_deref())
+        }
+    }
+}
+
+fn ctl(prefix: &str, timeout: f64, verb: strand::ctl::CtlVerb) -> ExitCode {
+    use strand::ctl::{CtlError, CtlVerb};
+    // SAFETY: as for check-config; the handler only stores to an atomic.
+    unsafe {
+        libc::signal(libc::SIGPIPE, libc::SIG_DFL);
+        libc::signal(libc::SIGINT, on_signal as *const () as libc::sighandler_t);
+    }
+    let timeout = std::time::Duration::from_secs_f64(if timeout.is_finite() { timeout.clamp(0.05, 3600.0) } else { 3.0 });
+    let result = match verb {
+        CtlVerb::Status { watch: true, json } => strand::ctl::watch(prefix, json, timeout, &STOP).map(|()| None),
+        v => strand::ctl::run(prefix, v, timeout).map(Some),
+    };
+    match result {
+        Ok(Some(s)) => {
+            match verb {
+                CtlVerb::Status { json: true, .. } => println!("{}", strand::ctl::status_json(&s)),
+                _ => println!("{}", strand::ctl::status_line(&s)),
+            }
+            ExitCode::SUCCESS
+        }
+        Ok(None) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("strand ctl: {e}");
+            match e {
+                CtlError::NoService { .. } | CtlError::Port(_) => ExitCode::from(1),
+                _ => ExitCode::from(3),
+            }
         }
     }
 }
@@ -235,6 +335,29 @@ fn check_job(file: &Path, config: Option<&Path>, set: &[String], json: bool, png
     if report.clean { ExitCode::SUCCESS } else { ExitCode::from(3) }
 }
 
+/// Starts the live view (`[view]`): warns when it listens beyond this machine or takes control.
+fn start_view(cfg: &Config, model: &strand::core::kin::RobotModel) -> Result<strand_view::LiveView, String> {
+    let address = cfg.view.socket_addr().map_err(|e| format!("{}: {e}", cfg.file.display()))?;
+    if cfg.view.exposed() {
+        tracing::warn!(
+            "live view listens on {address}, beyond this machine: anyone who reaches it sees the cell{}",
+            if cfg.view.allow_control { " and can pause, stop or change the overrides" } else { "" }
+        );
+    }
+    let options = strand_view::ViewOptions {
+        address,
+        name: format!("strand {} · {} · {}", env!("CARGO_PKG_VERSION"), model.name(), cfg.service.prefix),
+        control: cfg.view.allow_control.then(|| strand_ipc::ServiceNames::new(&cfg.service.prefix)),
+    };
+    let view = strand_view::LiveView::start(&options).map_err(|e| e.to_string())?;
+    tracing::info!(
+        "live view on ws://{} ({}): open it in Foxglove with the layout tools/foxglove/strand.json",
+        view.address(),
+        if cfg.view.allow_control { "control allowed" } else { "read-only" }
+    );
+    Ok(view)
+}
+
 fn run(cfg: &Config, log_path: Option<&Path>, when: StopWhen) -> ExitCode {
     // SAFETY: the handler only stores to an atomic; SIG_IGN is always valid. A log file that
     // reaches the file-size limit must fail its write (EFBIG, handled: logging stops), not kill the
@@ -251,15 +374,29 @@ fn run(cfg: &Config, log_path: Option<&Path>, when: StopWhen) -> ExitCode {
             return ExitCode::from(2);
         }
     };
-    let logger = if cfg.log.enabled {
+    let live = if cfg.view.enabled {
+        match start_view(cfg, &model) {
+            Ok(v) => Some(v),
+            Err(e) => {
+                eprintln!("strand: {e}");
+                return ExitCode::from(2);
+            }
+        }
+    } else {
+        None
+    };
+    let logger = if cfg.log.enabled || live.is_some() {
         let ctx = LogContext::new(cfg, &model);
-        let started = match log_path {
-            Some(p) => Logger::start_at(&cfg.log, ctx, p),
-            None => Logger::start(&cfg.log, ctx),
+        let file = match (cfg.log.enabled, log_path) {
+            (false, _) => Ok(None),
+            (true, Some(p)) => Ok(Some(p.to_path_buf())),
+            (true, None) => Logger::new_file_path(&cfg.log).map(Some),
         };
-        match started {
+        match file.and_then(|f| Logger::start_with(&cfg.log, ctx, f.as_deref(), live)) {
             Ok(l) => {
-                tracing::info!("logging every tick to {}", l.path().display());
+                if l.records() {
+                    tracing::info!("logging every tick to {}", l.path().display());
+                }
                 Some(l)
             }
             Err(e) => {
@@ -300,10 +437,12 @@ fn run(cfg: &Config, log_path: Option<&Path>, when: StopWhen) -> ExitCode {
         None => runner.run(&cfg.realtime, &STOP, when, &mut NullSink),
     };
     if let Some(l) = logger {
+        let records = l.records();
         let r = l.finish();
         let files: Vec<String> = r.files.iter().map(|f| f.display().to_string()).collect();
         eprintln!(
-            "log {} | {} ticks, {} dropped, {:.1} MB | writer CPU {:.2} s of {:.2} s{}",
+            "log {}{} | {} ticks, {} dropped, {:.1} MB | writer CPU {:.2} s of {:.2} s{}",
+            if records { "" } else { "(none, live view only)" },
             files.join(" "),
             r.ticks_written,
             r.drops,
@@ -312,6 +451,9 @@ fn run(cfg: &Config, log_path: Option<&Path>, when: StopWhen) -> ExitCode {
             r.writer_wall_s,
             r.error.map_or(String::new(), |e| format!(" | STOPPED: {e}"))
         );
+        if cfg.view.enabled {
+            eprintln!("live view | {} messages, {:.1} MB sent to clients", r.live_sent.0, r.live_sent.1 as f64 / 1e6);
+        }
     }
     match result {
         Ok(s) => {

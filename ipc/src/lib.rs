@@ -467,8 +467,10 @@ pub struct Status {
     pub tcp_error: f64,
     /// [`LogState`] as u32: whether the MCAP log is being written.
     pub log_state: u32,
-    /// Padding (zero).
-    pub _reserved: u32,
+    /// Layer of the segment being executed: the segments flagged `LAYER_START` that have begun
+    /// executing since the job started (0 before the first). A feeder that resumes a job from
+    /// layer N adds N − 1 to show the program's layer number.
+    pub executing_layer: u32,
 }
 
 wire_enum! {

@@ -434,6 +434,9 @@ pub struct ClientRoles {
     pub tracker: bool,
     /// Subscribes to status (and can wait on its event) and to extruder commands.
     pub monitor: bool,
+    /// Publishes control commands only (an operator's console: `strand ctl`, the live view). Unlike
+    /// a feeder it holds no segment publisher, so it never hides a lost feeder from the service.
+    pub control: bool,
 }
 
 /// The other side of the contract: a feeder, robot driver (or simulator), tracker or monitor, or
@@ -464,7 +467,7 @@ impl ClientPorts {
         let monitor = roles.monitor;
         Ok(ClientPorts {
             segments: if feeder { Some(Channel::open(&node, names.segments(), SEGMENTS_QOS)?.publisher()?) } else { None },
-            control: if feeder { Some(Channel::open(&node, names.control(), CONTROL_QOS)?.publisher()?) } else { None },
+            control: if feeder || roles.control { Some(Channel::open(&node, names.control(), CONTROL_QOS)?.publisher()?) } else { None },
             joint_state: if driver { Some(Channel::open(&node, names.joint_state(), MEASUREMENT_QOS)?.publisher()?) } else { None },
             base_pose: if tracker { Some(Channel::open(&node, names.base_pose(), MEASUREMENT_QOS)?.publisher()?) } else { None },
             joint_command: if driver {

@@ -66,6 +66,10 @@ impl CdrWriter {
         self.align(8);
         self.buf.extend_from_slice(&v.to_le_bytes());
     }
+    /// An f32 (colours).
+    pub fn f32(&mut self, v: f32) {
+        self.u32(v.to_bits());
+    }
     /// An f64, bit for bit.
     pub fn f64(&mut self, v: f64) {
         self.u64(v.to_bits());

@@ -68,7 +68,8 @@ cdr_message!(
         path_position,
         path_speed,
         tcp_error,
-        log_state
+        log_state,
+        executing_layer
     ]
 );
 cdr_message!(CycleCounters, "strand_msgs/msg/CycleCounters", [overruns, late_wakeups, worst_lateness_ns, log_drops, log_state]);

@@ -9,6 +9,8 @@
 //!   and never control).
 //! - [`reader`]: reads a log (finished or cut short) back: metadata, attachments, ticks, channels.
 //! - [`recover`]: rewrites a log cut short by a crash into a valid, indexed file.
+//! - [`scene`]: what a 3D viewer draws (URDF, `/tf`, path and bead markers), for the log and the
+//!   live view alike.
 
 pub mod cdr;
 pub mod dynamic;
@@ -16,6 +18,7 @@ pub mod messages;
 pub mod reader;
 pub mod recover;
 pub mod replay;
+pub mod scene;
 pub mod writer;
 
 /// Channel topics.

@@ -25,8 +25,10 @@ use strand_ipc::LogState;
 
 use super::cdr::{CdrWriter, encode, schema_text};
 use super::messages::{Tick, TickTiming, ros};
+use super::scene::{Scene, SceneTopic};
 use super::{LogCompression, LogConfig, build_version, names, topics, unix_now_ns, utc_stamp};
 use crate::config::Config;
+use crate::config::view::ViewConfig;
 use crate::core::kin::{JointVector, RobotModel};
 use crate::core::{TickInput, TickOutput};
 use crate::io::runner::TickSink;
@@ -63,6 +65,8 @@ pub struct LogContext {
     pub model: RobotModel,
     /// Tick rate (Hz).
     pub rate_hz: f64,
+    /// The scene channels' rates (`[view]`).
+    pub view: ViewConfig,
 }
 
 impl LogContext {
@@ -74,6 +78,7 @@ impl LogContext {
             config_file: cfg.file.display().to_string(),
             model: model.clone(),
             rate_hz: cfg.controller.rate_hz,
+            view: cfg.view.clone(),
         }
     }
 }
@@ -102,6 +107,8 @@ pub struct LogReport {
     pub writer_cpu_s: f64,
     /// Wall time the writer thread ran (s).
     pub writer_wall_s: f64,
+    /// Messages and payload bytes handed to the live view's server (0 without one).
+    pub live_sent: (u64, u64),
 }
 
 /// The tick side of the log. See the module documentation.
@@ -111,20 +118,40 @@ pub struct Logger {
     shared: Arc<Shared>,
     thread: Option<JoinHandle<LogReport>>,
     first_file: PathBuf,
+    record: bool,
 }
 
 impl Logger {
     /// Creates the first file (so a bad folder is an error now, not later), allocates the queue and
     /// starts the writer thread.
     pub fn start(cfg: &LogConfig, ctx: LogContext) -> Result<Logger, LogError> {
+        Self::start_at(cfg, ctx, &Self::new_file_path(cfg)?)
+    }
+
+    /// Where [`start`](Logger::start) writes: `[log] dir` (created if missing) / `name` or
+    /// `strand-<UTC start time>`, `.mcap`.
+    pub fn new_file_path(cfg: &LogConfig) -> Result<PathBuf, LogError> {
         let dir = PathBuf::from(&cfg.dir);
         std::fs::create_dir_all(&dir).map_err(|e| LogError::io(&dir, e))?;
         let stem = if cfg.name.is_empty() { format!("strand-{}", utc_stamp(unix_now_ns())) } else { cfg.name.clone() };
-        Self::start_at(cfg, ctx, &dir.join(format!("{stem}.mcap")))
+        Ok(dir.join(format!("{stem}.mcap")))
     }
 
     /// As [`start`](Logger::start), writing to `path` (rotated parts go beside it as `STEM-001.mcap`...).
     pub fn start_at(cfg: &LogConfig, ctx: LogContext, path: &Path) -> Result<Logger, LogError> {
+        Self::start_with(cfg, ctx, Some(path), None)
+    }
+
+    /// The general start: a file at `path` (`None`: no file, the writer only feeds the live view)
+    /// and a live view the writer thread feeds every message it encodes (decimated by the view).
+    pub fn start_with(
+        cfg: &LogConfig,
+        ctx: LogContext,
+        path: Option<&Path>,
+        live: Option<strand_view::LiveView>,
+    ) -> Result<Logger, LogError> {
+        let record = path.is_some();
+        let path = path.unwrap_or(Path::new("(no log file)"));
         let free = Arc::new(ArrayQueue::new(cfg.queue_ticks));
         for _ in 0..cfg.queue_ticks {
             let _ = free.push(Box::default());
@@ -133,11 +160,22 @@ impl Logger {
         let shared = Arc::new(Shared::default());
         shared.state.store(LogState::Recording as u32, Ordering::Relaxed);
         let mut writer = WriterThread::new(cfg.clone(), ctx, path.to_path_buf(), shared.clone());
-        writer.open(0)?;
+        if let Some(view) = live {
+            writer.live = Some(LiveTap::new(view, &writer.ctx.view)?);
+            writer.publish_description();
+        }
+        if record {
+            writer.open(0)?;
+        }
         let (f, q) = (free.clone(), full.clone());
         let thread =
             std::thread::Builder::new().name("strand-log".into()).spawn(move || writer.run(&f, &q)).map_err(|e| LogError::io(path, e))?;
-        Ok(Logger { free, full, shared, thread: Some(thread), first_file: path.to_path_buf() })
+        Ok(Logger { free, full, shared, thread: Some(thread), first_file: path.to_path_buf(), record })
+    }
+
+    /// True when it writes a file (else it only feeds the live view).
+    pub fn records(&self) -> bool {
+        self.record
     }
 
     /// The first file.
@@ -254,22 +292,92 @@ impl Seek for LogSink {
 
 type McapWriter = mcap::Writer<LogSink>;
 
-struct Channels {
-    tick: u16,
-    joint_states: u16,
-    joint_command: u16,
-    tcp_target: u16,
-    tcp_actual: u16,
-    base_measured: u16,
-    base_estimated: u16,
-    extruder: u16,
-    status: u16,
-    segments: u16,
+/// The log's channels in a fixed order: the file's channel ids and the live view's channels are
+/// indexed by it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Channel {
+    Tick,
+    JointStates,
+    JointCommand,
+    TcpTarget,
+    TcpActual,
+    BaseMeasured,
+    BaseEstimated,
+    Extruder,
+    Status,
+    Segments,
+    Scene(SceneTopic),
+}
+
+const TICK_CHANNELS: usize = 10;
+const CHANNELS: usize = TICK_CHANNELS + SceneTopic::ALL.len();
+
+impl Channel {
+    fn index(self) -> usize {
+        match self {
+            Channel::Tick => 0,
+            Channel::JointStates => 1,
+            Channel::JointCommand => 2,
+            Channel::TcpTarget => 3,
+            Channel::TcpActual => 4,
+            Channel::BaseMeasured => 5,
+            Channel::BaseEstimated => 6,
+            Channel::Extruder => 7,
+            Channel::Status => 8,
+            Channel::Segments => 9,
+            Channel::Scene(t) => TICK_CHANNELS + t.index(),
+        }
+    }
+}
+
+/// Every channel: topic, schema name and schema text (in [`Channel::index`] order).
+fn channel_list() -> Vec<(&'static str, String, String)> {
+    let js = ros::joint_state_schema();
+    let pose = ros::pose_stamped_schema();
+    let mut list = vec![
+        (topics::TICK, "strand_msgs/msg/Tick".to_string(), schema_text::<Tick>()),
+        (topics::JOINT_STATES, ros::JOINT_STATE.to_string(), js.clone()),
+        (topics::JOINT_COMMAND, ros::JOINT_STATE.to_string(), js),
+        (topics::TCP_TARGET, ros::POSE_STAMPED.to_string(), pose.clone()),
+        (topics::TCP_ACTUAL, ros::POSE_STAMPED.to_string(), pose.clone()),
+        (topics::BASE_MEASURED, ros::POSE_STAMPED.to_string(), pose.clone()),
+        (topics::BASE_ESTIMATED, ros::POSE_STAMPED.to_string(), pose),
+        (topics::EXTRUDER, "strand_msgs/msg/ExtruderCommand".to_string(), schema_text::<strand_ipc::ExtruderCommand>()),
+        (topics::STATUS, "strand_msgs/msg/Status".to_string(), schema_text::<strand_ipc::Status>()),
+        (topics::SEGMENTS, "strand_msgs/msg/Segment".to_string(), schema_text::<strand_ipc::Segment>()),
+    ];
+    for t in SceneTopic::ALL {
+        let (name, text) = t.schema();
+        list.push((t.topic(), name.to_string(), text));
+    }
+    list
+}
+
+/// The live view and its channels, in [`Channel::index`] order.
+struct LiveTap {
+    view: strand_view::LiveView,
+    channels: Vec<strand_view::ChannelIndex>,
+}
+
+impl LiveTap {
+    /// Advertises every channel, each at its `[view]` rate (`/robot_description` latched).
+    fn new(mut view: strand_view::LiveView, cfg: &ViewConfig) -> Result<LiveTap, LogError> {
+        let mut channels = Vec::with_capacity(CHANNELS);
+        for (topic, name, text) in channel_list() {
+            let latched = topic == SceneTopic::RobotDescription.topic();
+            let rate = if latched { 0.0 } else { cfg.rate_for(topic) };
+            let index = view
+                .add_channel(topic, &name, &text, rate, latched)
+                .map_err(|e| LogError::Io { path: view.address().to_string(), message: e.to_string() })?;
+            channels.push(index);
+        }
+        Ok(LiveTap { view, channels })
+    }
 }
 
 struct OpenFile {
     mcap: McapWriter,
-    channels: Channels,
+    channels: [u16; CHANNELS],
     path: PathBuf,
     bytes: Arc<AtomicU64>,
     first_time_ns: Option<u64>,
@@ -290,6 +398,8 @@ struct WriterThread {
     cdr: CdrWriter,
     last_measured: Option<JointVector>,
     bytes_closed: u64,
+    scene: Scene,
+    live: Option<LiveTap>,
 }
 
 impl WriterThread {
@@ -298,7 +408,6 @@ impl WriterThread {
         let clock_offset_ns = unix_now_ns() as i128 - crate::io::clock::monotonic_ns() as i128;
         WriterThread {
             cfg,
-            ctx,
             first_path,
             shared,
             file: None,
@@ -309,6 +418,9 @@ impl WriterThread {
             cdr: CdrWriter::new(),
             last_measured: None,
             bytes_closed: 0,
+            scene: Scene::new(&ctx.urdf_text, &ctx.model, &ctx.view),
+            live: None,
+            ctx,
         }
     }
 
@@ -367,29 +479,20 @@ impl WriterThread {
             })
             .map_err(io)?;
         }
-        let mut channel = |topic: &str, schema_name: &str, schema: &str| -> Result<u16, LogError> {
-            let sid = w.add_schema(schema_name, "ros2msg", schema.as_bytes()).map_err(io)?;
-            w.add_channel(sid, topic, "cdr", &BTreeMap::new()).map_err(io)
-        };
-        let js = ros::joint_state_schema();
-        let pose = ros::pose_stamped_schema();
-        let channels = Channels {
-            tick: channel(topics::TICK, "strand_msgs/msg/Tick", &schema_text::<Tick>())?,
-            joint_states: channel(topics::JOINT_STATES, ros::JOINT_STATE, &js)?,
-            joint_command: channel(topics::JOINT_COMMAND, ros::JOINT_STATE, &js)?,
-            tcp_target: channel(topics::TCP_TARGET, ros::POSE_STAMPED, &pose)?,
-            tcp_actual: channel(topics::TCP_ACTUAL, ros::POSE_STAMPED, &pose)?,
-            base_measured: channel(topics::BASE_MEASURED, ros::POSE_STAMPED, &pose)?,
-            base_estimated: channel(topics::BASE_ESTIMATED, ros::POSE_STAMPED, &pose)?,
-            extruder: channel(topics::EXTRUDER, "strand_msgs/msg/ExtruderCommand", &schema_text::<strand_ipc::ExtruderCommand>())?,
-            status: channel(topics::STATUS, "strand_msgs/msg/Status", &schema_text::<strand_ipc::Status>())?,
-            segments: channel(topics::SEGMENTS, "strand_msgs/msg/Segment", &schema_text::<strand_ipc::Segment>())?,
-        };
+        let mut channels = [0u16; CHANNELS];
+        for (id, (topic, name, text)) in channels.iter_mut().zip(channel_list()) {
+            let sid = w.add_schema(&name, "ros2msg", text.as_bytes()).map_err(io)?;
+            *id = w.add_channel(sid, topic, "cdr", &BTreeMap::new()).map_err(io)?;
+        }
+        // The URDF once per file, as the first message, for a viewer's 3D panel.
+        let description = Channel::Scene(SceneTopic::RobotDescription).index();
+        let header = MessageHeader { channel_id: channels[description], sequence: 0, log_time: now, publish_time: now };
+        w.write_to_known_channel(&header, self.scene.robot_description()).map_err(io)?;
         // Make the header, metadata and attachments durable at once: a crash in the first
         // chunk still leaves a file that names its config.
         w.flush().map_err(io)?;
         self.report.files.push(path.clone());
-        self.file = Some(OpenFile { mcap: w, channels, path, bytes, first_time_ns: None, sequence: 0 });
+        self.file = Some(OpenFile { mcap: w, channels, path, bytes, first_time_ns: None, sequence: 1 });
         Ok(())
     }
 
@@ -414,7 +517,7 @@ impl WriterThread {
             let mut any = false;
             while let Some(tick) = full.pop() {
                 any = true;
-                if self.file.is_some() {
+                if self.file.is_some() || (self.live.is_some() && self.report.error.is_none()) {
                     match self.write_tick(&tick) {
                         Ok(()) => {
                             dirty = true;
@@ -452,6 +555,10 @@ impl WriterThread {
         self.report.bytes = self.bytes_closed;
         self.report.drops = self.shared.drops.load(Ordering::Relaxed);
         self.report.writer_cpu_s = thread_cpu_s() - cpu0;
+        if let Some(live) = self.live.take() {
+            self.report.live_sent = live.view.sent();
+            live.view.stop();
+        }
         self.report.writer_wall_s = started.elapsed().as_secs_f64();
         self.report
     }
@@ -474,14 +581,22 @@ impl WriterThread {
         Ok(())
     }
 
+    /// Offers `/robot_description` to the live view (latched there for every client).
+    fn publish_description(&mut self) {
+        if let Some(live) = self.live.as_mut() {
+            let now = unix_now_ns();
+            let index = live.channels[Channel::Scene(SceneTopic::RobotDescription).index()];
+            live.view.publish(index, now, self.scene.robot_description());
+        }
+    }
+
     fn write_tick(&mut self, t: &Tick) -> Result<(), LogError> {
         // Rotation, between ticks.
-        let rotate = {
-            let f = self.file.as_ref().expect("open");
+        let rotate = self.file.as_ref().is_some_and(|f| {
             (self.cfg.rotate_bytes > 0 && f.mcap_bytes() >= self.cfg.rotate_bytes)
                 || (self.cfg.rotate_seconds > 0.0
                     && f.first_time_ns.is_some_and(|t0| t.input.time_ns.saturating_sub(t0) as f64 >= self.cfg.rotate_seconds * 1e9))
-        };
+        });
         if rotate {
             self.close()?;
             self.part += 1;
@@ -490,24 +605,33 @@ impl WriterThread {
         let log_time = (t.input.time_ns as i128 + self.clock_offset_ns).max(0) as u64;
         let stamp = |ns: u64| (ns as i128 + self.clock_offset_ns).max(0) as u64;
         let dof = self.joint_names.len();
-        let f = self.file.as_mut().expect("open");
-        f.first_time_ns.get_or_insert(t.input.time_ns);
-        let cdr = &mut self.cdr;
-        let put = |f: &mut OpenFile, channel: u16, bytes: &[u8]| -> Result<(), LogError> {
-            f.sequence = f.sequence.wrapping_add(1);
-            let header = MessageHeader { channel_id: channel, sequence: f.sequence, log_time, publish_time: log_time };
-            f.mcap.write_to_known_channel(&header, bytes).map_err(|e| LogError::io(&f.path, e))
+        if let Some(f) = self.file.as_mut() {
+            f.first_time_ns.get_or_insert(t.input.time_ns);
+        }
+        let (file, live, cdr) = (&mut self.file, &mut self.live, &mut self.cdr);
+        // Every message goes to the file and is offered to the live view (which decimates).
+        let mut put = |channel: Channel, time: u64, bytes: &[u8]| -> Result<(), LogError> {
+            let c = channel.index();
+            if let Some(f) = file.as_mut() {
+                f.sequence = f.sequence.wrapping_add(1);
+                let header = MessageHeader { channel_id: f.channels[c], sequence: f.sequence, log_time: time, publish_time: time };
+                f.mcap.write_to_known_channel(&header, bytes).map_err(|e| LogError::io(&f.path, e))?;
+            }
+            if let Some(l) = live.as_mut() {
+                l.view.publish(l.channels[c], time, bytes);
+            }
+            Ok(())
         };
         encode(cdr, t);
-        put(f, f.channels.tick, cdr.bytes())?;
+        put(Channel::Tick, log_time, cdr.bytes())?;
         for s in t.input.segments() {
             encode(cdr, s);
-            put(f, f.channels.segments, cdr.bytes())?;
+            put(Channel::Segments, log_time, cdr.bytes())?;
         }
         if let Some(js) = &t.input.joint_state {
             let n = (js.dof as usize).min(dof);
             ros::joint_state(cdr, stamp(js.stamp_ns), &self.joint_names, &js.position[..n], &js.velocity[..n], &js.effort[..n]);
-            put(f, f.channels.joint_states, cdr.bytes())?;
+            put(Channel::JointStates, log_time, cdr.bytes())?;
             if n == dof && js.position[..n].iter().all(|v| v.is_finite()) {
                 let mut q = JointVector::zeros();
                 q.as_mut_slice()[..n].copy_from_slice(&js.position[..n]);
@@ -518,30 +642,30 @@ impl WriterThread {
         if o.joint_command.valid == 1 {
             let c = &o.joint_command;
             ros::joint_state(cdr, log_time, &self.joint_names, &c.position[..dof], &c.velocity[..dof], &[]);
-            put(f, f.channels.joint_command, cdr.bytes())?;
+            put(Channel::JointCommand, log_time, cdr.bytes())?;
         }
         let d = &o.diagnostics;
         let quat = |q: &nalgebra::UnitQuaternion<f64>| [q.w, q.i, q.j, q.k];
         ros::pose_stamped(cdr, log_time, "world", d.tcp_target_world.into(), quat(&d.tcp_target_orientation));
-        put(f, f.channels.tcp_target, cdr.bytes())?;
+        put(Channel::TcpTarget, log_time, cdr.bytes())?;
         if let Some(q) = &self.last_measured {
             let tcp_b = self.ctx.model.forward_kinematics(q);
             let rot_b = nalgebra::UnitQuaternion::from_rotation_matrix(&tcp_b.rotation);
             let (p_w, r_w) = d.base.base_to_world(&tcp_b.translation.vector, &rot_b);
             ros::pose_stamped(cdr, log_time, "world", p_w.into(), quat(&r_w));
-            put(f, f.channels.tcp_actual, cdr.bytes())?;
+            put(Channel::TcpActual, log_time, cdr.bytes())?;
         }
         for p in t.input.base_poses() {
             ros::pose_stamped(cdr, stamp(p.stamp_ns), "world", p.position, p.orientation);
-            put(f, f.channels.base_measured, cdr.bytes())?;
+            put(Channel::BaseMeasured, log_time, cdr.bytes())?;
         }
         ros::pose_stamped(cdr, log_time, "world", d.base.position.into(), quat(&d.base.orientation));
-        put(f, f.channels.base_estimated, cdr.bytes())?;
+        put(Channel::BaseEstimated, log_time, cdr.bytes())?;
         encode(cdr, &o.extruder);
-        put(f, f.channels.extruder, cdr.bytes())?;
+        put(Channel::Extruder, log_time, cdr.bytes())?;
         encode(cdr, &o.status);
-        put(f, f.channels.status, cdr.bytes())?;
-        Ok(())
+        put(Channel::Status, log_time, cdr.bytes())?;
+        self.scene.tick(t, log_time, self.last_measured.as_ref(), &mut |topic, bytes| put(Channel::Scene(topic), log_time, bytes))
     }
 }
 

@@ -395,7 +395,7 @@ class Status(_Message):
         ("path_speed", _f64),
         ("tcp_error", _f64),
         ("log_state", _u32),
-        ("_reserved", _u32),
+        ("executing_layer", _u32),
     ]
 
     @staticmethod

@@ -88,6 +88,7 @@ pub struct Controller {
     intake: Intake,
     flow_override: f64,
     last_sample: Option<PathSample>,
+    layer: LayerCount,
     last_clik: Option<ClikStep>,
     out_seq: u64,
     /// The path's progress measure when it last changed, and when (ns): the stall watchdog.
@@ -136,6 +137,7 @@ impl Controller {
             intake: Intake::new(settings.controller.bounds_min, settings.controller.bounds_max),
             flow_override: 1.0,
             last_sample: None,
+            layer: LayerCount::default(),
             last_clik: None,
             out_seq: 0,
             progress_mark: (0.0, 0.0),
@@ -451,6 +453,7 @@ impl Controller {
 
     fn start_job(&mut self, now_ns: u64) {
         if !self.job_open {
+            self.layer = LayerCount::default();
             // Nothing queued yet: the job starts where the tool is and waits for segments.
             let (p, q) = self.tool_world(now_ns);
             self.engine.reset_at(p, q);
@@ -570,6 +573,7 @@ impl Controller {
                 d.clik_scale = step.scale;
                 d.sigma_min = step.sigma_min;
                 d.path_speed = sample.speed;
+                self.layer.note(&sample);
                 self.last_sample = Some(sample);
                 self.last_clik = Some(step);
                 step.q
@@ -779,13 +783,31 @@ impl Controller {
             clamps: self.command.clamps,
             log_drops: input.cycle.log_drops,
             log_state: input.cycle.log_state,
-            _reserved: 0,
+            executing_layer: self.layer.count,
             feed_override: self.engine.feed_override(),
             flow_override: self.flow_override,
             path_position: sample.map_or(0.0, |s| s.s),
             path_speed: sample.map_or(0.0, |s| s.speed),
             tcp_error: self.last_clik.map_or(0.0, |c| c.position_error),
         };
+    }
+}
+
+/// The layer being printed: `LAYER_START` segments that have begun executing in this job.
+#[derive(Clone, Copy, Debug, Default)]
+struct LayerCount {
+    /// Layers begun (0 before the first).
+    count: u32,
+    /// The segment that began the last one (0: none).
+    seq: u64,
+}
+
+impl LayerCount {
+    fn note(&mut self, sample: &PathSample) {
+        if sample.flags.contains(SegmentFlags::LAYER_START) && sample.seq != self.seq {
+            self.count = self.count.saturating_add(1);
+            self.seq = sample.seq;
+        }
     }
 }
 

@@ -47,6 +47,9 @@ pub struct ControllerConfig {
     /// along the nozzle, and that travel then brings the tool straight down onto it on the path: a
     /// joint-space move sags between its ends, and next to the bed that is a crash.
     pub approach_lift: f64,
+    /// `strand-feed --resume-layer`: how far above everything printed before the layer (m) the tool
+    /// travels to the layer's start before it goes straight down onto it.
+    pub resume_clearance: f64,
     /// The tool counts as at the first point within this distance (m) …
     pub approach_position_tolerance: f64,
     /// … and this nozzle-axis angle (rad).
@@ -68,6 +71,7 @@ impl Default for ControllerConfig {
             tcp_error_lag: 0.1,
             approach_speed_fraction: 0.3,
             approach_lift: 0.01,
+            resume_clearance: 0.01,
             approach_position_tolerance: 0.1e-3,
             approach_orientation_tolerance: 0.01,
             bounds_min: [-2.0, -2.0, -1.0],
@@ -96,6 +100,7 @@ impl ControllerConfig {
             ("tcp_error_lag", self.tcp_error_lag, 1.0),
             ("approach_position_tolerance", self.approach_position_tolerance, 0.1),
             ("approach_lift", self.approach_lift, 0.2),
+            ("resume_clearance", self.resume_clearance, 0.5),
             ("approach_orientation_tolerance", self.approach_orientation_tolerance, 1.0),
         ] {
             if !(v.is_finite() && (0.0..=hi).contains(&v)) {

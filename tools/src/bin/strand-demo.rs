@@ -62,6 +62,11 @@ struct Cli {
     /// Give up after this many seconds (wall).
     #[arg(long, default_value_t = 600.0)]
     timeout: f64,
+    /// Watch it live: serve the Foxglove view on ws://127.0.0.1:8765 (the config's `[view]
+    /// address`) and run the plant in real time. Open Foxglove, connect, and import the layout
+    /// tools/foxglove/strand.json.
+    #[arg(long)]
+    view: bool,
 }
 
 fn main() -> ExitCode {
@@ -78,6 +83,7 @@ fn main() -> ExitCode {
         out: cli.out,
         json: cli.json,
         timeout: cli.timeout,
+        view: cli.view,
     };
     match run(&opts) {
         Ok(true) => ExitCode::SUCCESS,

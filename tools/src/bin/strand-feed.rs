@@ -21,7 +21,7 @@ use std::time::Instant;
 use clap::Parser;
 use strand::config::{Config, locate};
 use strand_ipc as ipc;
-use strand_tools::feed::{Ending, StreamOptions, check, load_gcode, stream};
+use strand_tools::feed::{Ending, Keys, LayerResume, StreamOptions, check, load_gcode, stream};
 
 #[derive(Parser)]
 #[command(
@@ -44,12 +44,21 @@ struct Cli {
     /// travel to where it starts.
     #[arg(long)]
     resume_from: Option<u64>,
+    /// Start at the first segment of this layer (the layer number the progress line shows): a
+    /// travel up to `[controller] resume_clearance` above the part, over the layer's start, straight
+    /// down onto it, a prime of `[extruder] retract_length`, then the layer.
+    #[arg(long, conflicts_with = "resume_from")]
+    resume_layer: Option<i32>,
     /// Seconds to wait for the service's Status.
     #[arg(long, default_value_t = 10.0)]
     wait_service: f64,
     /// Stream only the program's first N layers (by its layer comments).
     #[arg(long)]
     layers: Option<usize>,
+    /// Read keys from stdin even when it is not a terminal (p pause/resume, +/- feed override,
+    /// s stop; on a terminal they are always read).
+    #[arg(long)]
+    keys: bool,
     /// No progress bar (one line per 10 % instead).
     #[arg(long)]
     quiet: bool,
@@ -80,7 +89,18 @@ fn main() -> ExitCode {
             return ExitCode::from(2);
         }
     };
-    let job = match load_gcode(&cli.file, &cfg, cli.resume_from) {
+    let resume = cli.resume_layer.map(|layer| LayerResume {
+        layer,
+        clearance: cfg.controller.resume_clearance,
+        prime: cfg.extruder.retract_length,
+        prime_speed: cfg.extruder.retract_speed,
+        travel_feed: strand_job::gcode::GcodeOptions::default().rapid_feed,
+    });
+    let loaded = load_gcode(&cli.file, &cfg, cli.resume_from).and_then(|j| match &resume {
+        Some(r) => j.from_layer(r),
+        None => Ok(j),
+    });
+    let job = match loaded {
         Ok(j) => match cli.layers {
             Some(n) => j.first_layers(n),
             None => j,
@@ -130,7 +150,10 @@ fn main() -> ExitCode {
         wait_service: cli.wait_service,
         quiet: cli.quiet,
     };
-    match stream(&job, &opts, &INTERRUPTS) {
+    let keys = Keys::start(cli.keys);
+    let streamed = stream(&job, &opts, &INTERRUPTS, keys.as_ref());
+    drop(keys);
+    match streamed {
         Ok(ending) => {
             let text = match ending {
                 Ending::Finished => "finished".to_string(),

@@ -63,6 +63,9 @@ pub struct DemoOptions {
     pub json: bool,
     /// Give up after this long (s, wall).
     pub timeout: f64,
+    /// Serve the live view (`[view]`, ws://127.0.0.1:8765 by default) and run the plant at the
+    /// robot's real rate, so a viewer sees the print at its real speed.
+    pub view: bool,
 }
 
 /// Runs the demo: the cell on `opts`' job until it ends, then the summary. Ok(true) when the job
@@ -144,7 +147,16 @@ pub fn run(opts: &DemoOptions) -> Result<bool> {
     for s in &opts.set {
         svc.args(["--set", s]);
     }
+    if opts.view {
+        svc.arg("--view").env("RUST_LOG", "warn,strand=info");
+    }
     let mut service = Proc::spawn("service", svc, &out)?;
+    if opts.view {
+        println!(
+            "strand-demo: live view on ws://{} — open Foxglove, \"Open connection\" → Foxglove WebSocket, and import the layout tools/foxglove/strand.json",
+            cfg.view.address
+        );
+    }
     let mut sim = Command::new(&sim_bin);
     sim.arg("--config")
         .arg(&config)
@@ -157,6 +169,9 @@ pub fn run(opts: &DemoOptions) -> Result<bool> {
         .arg(&stats);
     if let Some(s) = opts.seed {
         sim.args(["--seed", &s.to_string()]);
+    }
+    if opts.view {
+        sim.arg("--realtime");
     }
     let mut sim = Proc::spawn("sim", sim, &out)?;
     // Start the job once the sim clocks the service (and tracking has arrived): 200 ticks.

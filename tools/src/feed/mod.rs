@@ -4,12 +4,15 @@
 //! streaming itself (credit from Status, never a dropped segment, Ctrl-C as a controlled stop) is
 //! [`stream`]; the job check before it, [`check`].
 
+mod keys;
 mod stream;
 
+pub use keys::{Key, Keys};
 pub use stream::{StreamOptions, check, stream};
 
 use std::path::Path;
 
+use nalgebra::Vector3;
 use strand::config::Config;
 use strand::core::{Segment, SegmentFlags, SegmentKind};
 use strand_ipc as ipc;
@@ -149,6 +152,91 @@ impl Job {
     }
 }
 
+/// How `--resume-layer` gets back onto the part.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct LayerResume {
+    /// The layer to start at, as the progress line shows it (the slicer's layer number; by height
+    /// from 0 in a program without layer comments).
+    pub layer: i32,
+    /// Height above the highest point printed before that layer at which the tool travels (m).
+    pub clearance: f64,
+    /// Filament pushed at the layer's start before its first extruding move (m).
+    pub prime: f64,
+    /// Filament speed of the prime (m/s).
+    pub prime_speed: f64,
+    /// Travel speed (m/s).
+    pub travel_feed: f64,
+}
+
+impl Job {
+    /// Starts the job at the first segment of layer `r.layer`: a travel up to `r.clearance` above
+    /// everything printed before it (over the layer's start point), a travel straight down onto
+    /// it, a prime, then the layer and the rest of the program. The controller's approach takes
+    /// the arm to the first point above the part in joint space, so the tool never crosses the part
+    /// lower than the clearance. Segment numbers stay the program's (the three new ones take the
+    /// numbers just below the layer's first, or the program is renumbered when there are none).
+    pub fn from_layer(mut self, r: &LayerResume) -> Result<Job> {
+        if self.layers.iter().all(|l| l.is_none()) {
+            self.layers = layers_from_heights(&self.segments);
+        }
+        let Some(k) = self.layers.iter().position(|l| *l == Some(r.layer)) else {
+            let known: Vec<i32> = self.layers.iter().flatten().copied().collect();
+            let range = match (known.iter().min(), known.iter().max()) {
+                (Some(a), Some(b)) => format!("layers {a} to {b}"),
+                _ => "no layers".to_string(),
+            };
+            return Err(ToolError::Usage(format!("--resume-layer {}: the program has {range}", r.layer)));
+        };
+        if k == 0 {
+            return Ok(self);
+        }
+        let printed = &self.segments[..k];
+        let start = printed[k - 1].end;
+        let top = printed.iter().filter(|s| s.flags & ipc::segment_flags::EXTRUDE != 0).map(|s| s.end[2]).fold(start[2], f64::max);
+        let safe = [start[0], start[1], top + r.clearance];
+        let orientation = self.segments[k].orientation;
+        let travel = |end: [f64; 3]| ipc::Segment {
+            kind: ipc::SegmentKind::Line as u32,
+            flags: ipc::segment_flags::TRAVEL,
+            end,
+            orientation,
+            feed: r.travel_feed,
+            source_line: self.segments[k].source_line,
+            ..ipc::Segment::default()
+        };
+        let mut lead = vec![travel(safe), travel(start)];
+        if r.prime > 0.0 && r.prime_speed > 0.0 {
+            lead.push(ipc::Segment {
+                kind: ipc::SegmentKind::Dwell as u32,
+                flags: ipc::segment_flags::EXTRUDE,
+                end: start,
+                orientation,
+                filament: r.prime,
+                duration: r.prime / r.prime_speed,
+                source_line: self.segments[k].source_line,
+                ..ipc::Segment::default()
+            });
+        }
+        let layer = self.layers[k];
+        let first_seq = self.segments[k].seq;
+        let shift = (lead.len() as u64 + 1).saturating_sub(first_seq);
+        let mut segments: Vec<ipc::Segment> = lead.iter().copied().collect();
+        segments.extend(self.segments[k..].iter().map(|s| ipc::Segment { seq: s.seq + shift, ..*s }));
+        let base = first_seq + shift - lead.len() as u64;
+        for (i, s) in segments.iter_mut().take(lead.len()).enumerate() {
+            s.seq = base + i as u64;
+        }
+        let mut lengths = vec![(Vector3::from(safe) - Vector3::from(start)).norm(), r.clearance.max(safe[2] - start[2])];
+        lengths.resize(lead.len(), 0.0);
+        lengths[0] = 0.0; // from wherever the approach leaves the tool
+        lengths.extend_from_slice(&self.lengths[k..]);
+        let mut layers = vec![layer; lead.len()];
+        layers.extend_from_slice(&self.layers[k..]);
+        self.skipped += k;
+        Ok(Job { segments, layers, lengths, skipped: self.skipped, warnings: self.warnings })
+    }
+}
+
 /// Layers of a program without layer comments (Slic3r 1.3): a layer starts with the first
 /// extruding segment above every earlier one (by more than 1 µm); moves before any extrusion have
 /// none.
@@ -243,6 +331,37 @@ mod tests {
         assert!(two.segments.last().unwrap().flags & ipc::segment_flags::LAST != 0);
         assert_eq!(two.lengths.len(), two.segments.len());
         assert_eq!(whole.clone().first_layers(10_000).segments.len(), whole.segments.len());
+    }
+
+    #[test]
+    fn resume_at_a_layer_lifts_over_the_part_and_primes() {
+        let cfg = Config::load(Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../config/default.toml"))).unwrap();
+        let path = Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../tests/data/gcode/slic3r/box35.gcode"));
+        let whole = load_gcode(path, &cfg, None).unwrap();
+        let layers: Vec<i32> = whole.layers.iter().flatten().copied().collect();
+        let third = *layers.iter().filter(|l| **l > layers[0]).nth(0).unwrap() + 1;
+        let r = LayerResume { layer: third, clearance: 0.01, prime: 0.001, prime_speed: 0.02, travel_feed: 0.1 };
+        let resumed = whole.clone().from_layer(&r).unwrap();
+        let k = whole.layers.iter().position(|l| *l == Some(third)).unwrap();
+        let top =
+            whole.segments[..k].iter().filter(|s| s.flags & ipc::segment_flags::EXTRUDE != 0).map(|s| s.end[2]).fold(f64::MIN, f64::max);
+        let start = whole.segments[k - 1].end;
+        // Up to the clearance above the part, over the layer's start; straight down; a prime.
+        let (up, down, prime) = (&resumed.segments[0], &resumed.segments[1], &resumed.segments[2]);
+        assert!((up.end[2] - (top.max(start[2]) + 0.01)).abs() < 1e-12, "{:?} vs top {top}", up.end);
+        assert_eq!((up.end[0], up.end[1]), (start[0], start[1]));
+        assert_eq!(down.end, start);
+        assert!(up.flags & ipc::segment_flags::TRAVEL != 0 && down.flags & ipc::segment_flags::TRAVEL != 0);
+        assert_eq!((prime.kind, prime.filament), (ipc::SegmentKind::Dwell as u32, 0.001));
+        // Then the layer, with the program's numbers, consecutive throughout.
+        assert_eq!(resumed.segments[3].seq, whole.segments[k].seq);
+        assert_eq!(resumed.segments[3].end, whole.segments[k].end);
+        assert!(resumed.segments.windows(2).all(|w| w[1].seq == w[0].seq + 1));
+        assert_eq!(resumed.segments.len(), whole.segments.len() - k + 3);
+        assert_eq!((resumed.layers.len(), resumed.lengths.len()), (resumed.segments.len(), resumed.segments.len()));
+        // A layer the program does not have is an error naming the range.
+        let e = whole.from_layer(&LayerResume { layer: 100_000, ..r }).unwrap_err().to_string();
+        assert!(e.contains("--resume-layer 100000") && e.contains("layers"), "{e}");
     }
 
     #[test]

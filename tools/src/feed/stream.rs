@@ -14,7 +14,7 @@ use strand_ipc as ipc;
 use strand_ipc::ports::{ClientPorts, ClientRoles};
 use strand_ipc::{Command, JobOutcome, RunState, SEGMENT_BATCH_CAPACITY, ServiceNames};
 
-use super::{Ending, Job, batch, credit};
+use super::{Ending, Job, Key, Keys, batch, credit};
 use crate::error::{Result, ToolError};
 
 /// Where and how to stream.
@@ -41,7 +41,10 @@ pub fn check(job: &Job, file: &Path, base_trajectory: Option<&Path>, cfg: &Confi
 /// the job ends (how: the [`Ending`]). Each increment of `interrupts` (the caller's Ctrl-C count)
 /// sends a controlled stop, the second an emergency stop. An error: no service, a service in
 /// fault or with a job in progress, a service that went away, a port that failed.
-pub fn stream(job: &Job, opts: &StreamOptions, interrupts: &AtomicU32) -> Result<Ending> {
+///
+/// With `keys`, `p` pauses and resumes, `+` / `-` step the feed override by 10 points and `s`
+/// stops; the progress line shows the override and the state.
+pub fn stream(job: &Job, opts: &StreamOptions, interrupts: &AtomicU32, keys: Option<&Keys>) -> Result<Ending> {
     let prefix = opts.prefix.as_str();
     let names = ServiceNames::new(prefix);
     let ports = ClientPorts::open(&names, "strand-feed", ClientRoles { feeder: true, monitor: true, ..Default::default() })?;
@@ -78,11 +81,12 @@ pub fn stream(job: &Job, opts: &StreamOptions, interrupts: &AtomicU32) -> Result
     let mut interrupts_handled = 0;
     let mut last_quiet_decile = 0;
     let mut silent_since: Option<Instant> = None;
-    let send_control = |seq: &mut u64, command: Command| {
+    let send_control_value = |seq: &mut u64, command: Command, value: f64| {
         *seq += 1;
-        let c = ipc::Control { seq: *seq, stamp_ns: strand::io::clock::monotonic_ns(), command: command as u32, value: 0.0, _reserved: 0 };
+        let c = ipc::Control { seq: *seq, stamp_ns: strand::io::clock::monotonic_ns(), command: command as u32, value, _reserved: 0 };
         ports.send_control(&c)
     };
+    let send_control = |seq: &mut u64, command: Command| send_control_value(seq, command, 0.0);
     loop {
         if let Some(s) = ports.latest_status() {
             status = s;
@@ -95,6 +99,24 @@ pub fn stream(job: &Job, opts: &StreamOptions, interrupts: &AtomicU32) -> Result
             let command = if interrupts_handled == 1 { Command::Stop } else { Command::EmergencyStop };
             bar.suspend(|| eprintln!("strand-feed: {command:?} sent"));
             send_control(&mut control_seq, command)?;
+        }
+        // Keys: pause/resume, feed override, stop.
+        while let Some(key) = keys.and_then(Keys::next) {
+            let state = RunState::from_u32(status.run_state);
+            let (command, value) = match key {
+                Key::PauseResume if matches!(state, Some(RunState::Pausing | RunState::Paused)) => (Command::Resume, 0.0),
+                Key::PauseResume => (Command::Pause, 0.0),
+                Key::Faster => (Command::FeedOverride, ((status.feed_override * 10.0).round() + 1.0).min(20.0) / 10.0),
+                Key::Slower => (Command::FeedOverride, ((status.feed_override * 10.0).round() - 1.0).max(1.0) / 10.0),
+                Key::Stop => {
+                    interrupts_handled = interrupts_handled.max(1);
+                    (Command::Stop, 0.0)
+                }
+            };
+            bar.suspend(|| {
+                eprintln!("strand-feed: {command:?}{} sent", if value > 0.0 { format!(" {:.0} %", value * 100.0) } else { String::new() })
+            });
+            send_control_value(&mut control_seq, command, value)?;
         }
         // A rejection of one of ours ends the job: stop the rest.
         if started && status.last_rejected_seq >= first_seq && status.last_rejected_seq <= last_seq && status.rejected > 0 {
@@ -128,9 +150,11 @@ pub fn stream(job: &Job, opts: &StreamOptions, interrupts: &AtomicU32) -> Result
         let fraction = if total_length > 0.0 { done_length / total_length } else { 0.0 };
         bar.set_position(done as u64);
         bar.set_message(format!(
-            "layer {layer} | sent {sent} | {:?}{}",
+            "layer {layer} | sent {sent} | {:?} | feed {:.0} %{}{}",
             RunState::from_u32(status.run_state).unwrap_or_default(),
-            eta(started_at.elapsed(), fraction)
+            status.feed_override * 100.0,
+            eta(started_at.elapsed(), fraction),
+            if keys.is_some() { " | p pause/resume, +/- feed, s stop" } else { "" }
         ));
         if opts.quiet && (fraction * 10.0) as u32 > last_quiet_decile {
             last_quiet_decile = (fraction * 10.0) as u32;

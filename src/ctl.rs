@@ -1,0 +1,266 @@
+//! `strand ctl`: the operator's console. Sends one control command to a running service and waits
+//! for the service to acknowledge it in `Status` — the state it asked for, the override it set, or
+//! a refusal (the `rejected` count rises, with the reason) — so a script or a person learns at once
+//! whether a pause, a stop or an override took. `status` prints the service's state once or, with
+//! `--watch`, as a live line.
+//!
+//! It opens a control-only client (no segment publisher: a console never hides a lost feeder).
+
+use std::fmt::Write as _;
+use std::time::{Duration, Instant};
+
+use strand_ipc as ipc;
+use strand_ipc::ports::{ClientPorts, ClientRoles};
+use strand_ipc::{Command, FaultCode, JobOutcome, RejectReason, RunState, ServiceNames, Status};
+
+use crate::io::clock::monotonic_ns;
+
+/// What `strand ctl` does.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum CtlVerb {
+    /// Print the status (once, or live).
+    Status {
+        /// Keep printing (a live line on a terminal) until interrupted.
+        watch: bool,
+        /// One JSON object per status instead of the text line.
+        json: bool,
+    },
+    /// Pause the job (stops on the path within the jerk limits and retracts).
+    Pause,
+    /// Resume a paused job (primes, continues where it stopped).
+    Resume,
+    /// Stop the job (brakes on the path; the job ends Stopped).
+    Stop,
+    /// Emergency stop (latches a fault).
+    EmergencyStop,
+    /// Clear a latched fault.
+    ClearFault,
+    /// Feed override (percent, 1 to 200).
+    Feed(f64),
+    /// Flow override (percent, 0 to 200).
+    Flow(f64),
+}
+
+/// Why a command did not take.
+#[derive(Debug, thiserror::Error)]
+pub enum CtlError {
+    /// No service answers under the prefix.
+    #[error("no strand service under prefix {prefix:?} (no status within {timeout_s} s): is `strand run` running with this prefix?")]
+    NoService {
+        /// The prefix.
+        prefix: String,
+        /// How long it waited (s).
+        timeout_s: f64,
+    },
+    /// The service refused the command.
+    #[error("refused by the service: {reason:?} ({why}); state {state:?}")]
+    Refused {
+        /// The service's reason.
+        reason: RejectReason,
+        /// What it means for this command.
+        why: String,
+        /// The state it was in.
+        state: RunState,
+    },
+    /// No acknowledgement in time.
+    #[error("not acknowledged within {timeout_s} s: the service is {state:?} (fault {fault:?})")]
+    NotAcknowledged {
+        /// How long it waited (s).
+        timeout_s: f64,
+        /// The state it stayed in.
+        state: RunState,
+        /// Its fault.
+        fault: FaultCode,
+    },
+    /// The ports could not be opened or used.
+    #[error("{0}")]
+    Port(#[from] ipc::ports::PortError),
+}
+
+impl CtlVerb {
+    /// The wire command and value (a fraction for the overrides); `None` for `status`.
+    pub fn control(self) -> Option<(Command, f64)> {
+        Some(match self {
+            CtlVerb::Status { .. } => return None,
+            CtlVerb::Pause => (Command::Pause, 0.0),
+            CtlVerb::Resume => (Command::Resume, 0.0),
+            CtlVerb::Stop => (Command::Stop, 0.0),
+            CtlVerb::EmergencyStop => (Command::EmergencyStop, 0.0),
+            CtlVerb::ClearFault => (Command::ClearFault, 0.0),
+            CtlVerb::Feed(p) => (Command::FeedOverride, p / 100.0),
+            CtlVerb::Flow(p) => (Command::FlowOverride, p / 100.0),
+        })
+    }
+
+    /// True when `s` shows the command done (or under way: a pause is acknowledged by Pausing).
+    fn acknowledged(self, s: &Status) -> bool {
+        let state = RunState::from_u32(s.run_state);
+        match self {
+            CtlVerb::Status { .. } => true,
+            CtlVerb::Pause => matches!(state, Some(RunState::Pausing | RunState::Paused)),
+            CtlVerb::Resume => state == Some(RunState::Running),
+            CtlVerb::Stop => matches!(state, Some(RunState::Stopping | RunState::Idle)),
+            CtlVerb::EmergencyStop => {
+                matches!(state, Some(RunState::EmergencyStopping | RunState::Fault)) && s.fault == FaultCode::EmergencyStop as u32
+            }
+            CtlVerb::ClearFault => s.fault == FaultCode::None as u32 && state != Some(RunState::Fault),
+            CtlVerb::Feed(p) => (s.feed_override - p / 100.0).abs() < 1e-9,
+            CtlVerb::Flow(p) => (s.flow_override - p / 100.0).abs() < 1e-9,
+        }
+    }
+
+    fn why(self, reason: RejectReason) -> String {
+        match (self, reason) {
+            (CtlVerb::Feed(_), RejectReason::BadValue) => "the feed override must lie in 1 to 200 %".into(),
+            (CtlVerb::Flow(_), RejectReason::BadValue) => "the flow override must lie in 0 to 200 %".into(),
+            (CtlVerb::Pause, RejectReason::NotAllowed) => "only a running job can pause".into(),
+            (CtlVerb::Resume, RejectReason::NotAllowed) => "only a paused job can resume".into(),
+            (CtlVerb::Stop, RejectReason::NotAllowed) => "a fault or an emergency stop is in force: clear-fault first".into(),
+            (CtlVerb::ClearFault, RejectReason::NotAllowed) => "there is no fault to clear".into(),
+            (_, r) => format!("{r:?}"),
+        }
+    }
+}
+
+/// Connects to the service under `prefix`, sends the verb's command and waits up to `timeout` for
+/// its acknowledgement; returns the status that showed it. `status` verbs only read.
+pub fn run(prefix: &str, verb: CtlVerb, timeout: Duration) -> Result<Status, CtlError> {
+    let names = ServiceNames::new(prefix);
+    let roles = ClientRoles { monitor: true, control: verb.control().is_some(), ..ClientRoles::default() };
+    let node = format!("strand_ctl_{}", std::process::id());
+    let ports = ClientPorts::open(&names, &node, roles)?;
+    let no_service = || CtlError::NoService { prefix: prefix.to_string(), timeout_s: timeout.as_secs_f64() };
+    let before = wait_status(&ports, timeout)?.ok_or_else(no_service)?;
+    let Some((command, value)) = verb.control() else { return Ok(before) };
+    let control = ipc::Control { seq: monotonic_ns(), stamp_ns: monotonic_ns(), command: command as u32, _reserved: 0, value };
+    if ports.send_control(&control)? == 0 {
+        return Err(no_service());
+    }
+    let deadline = Instant::now() + timeout;
+    let mut last = before;
+    while Instant::now() < deadline {
+        let Some(s) = wait_status(&ports, deadline.saturating_duration_since(Instant::now()))? else { break };
+        last = s;
+        if s.rejected > before.rejected {
+            let reason = RejectReason::from_u32(s.last_reject_reason).unwrap_or(RejectReason::None);
+            if matches!(reason, RejectReason::NotAllowed | RejectReason::BadValue | RejectReason::NotReady | RejectReason::UnknownKind) {
+                let state = RunState::from_u32(s.run_state).unwrap_or(RunState::Idle);
+                return Err(CtlError::Refused { reason, why: verb.why(reason), state });
+            }
+        }
+        if verb.acknowledged(&s) {
+            return Ok(s);
+        }
+    }
+    Err(CtlError::NotAcknowledged {
+        timeout_s: timeout.as_secs_f64(),
+        state: RunState::from_u32(last.run_state).unwrap_or(RunState::Idle),
+        fault: FaultCode::from_u32(last.fault).unwrap_or(FaultCode::None),
+    })
+}
+
+/// Prints statuses until `stop` is set: one line a status at most 5 times a second (rewritten in
+/// place on a terminal), or one JSON object per line.
+pub fn watch(prefix: &str, json: bool, timeout: Duration, stop: &std::sync::atomic::AtomicBool) -> Result<(), CtlError> {
+    let names = ServiceNames::new(prefix);
+    let ports =
+        ClientPorts::open(&names, &format!("strand_ctl_{}", std::process::id()), ClientRoles { monitor: true, ..ClientRoles::default() })?;
+    let tty = unsafe { libc::isatty(1) } == 1;
+    let mut last_print = Instant::now() - Duration::from_secs(1);
+    while !stop.load(std::sync::atomic::Ordering::Relaxed) {
+        let Some(s) = wait_status(&ports, timeout)? else {
+            return Err(CtlError::NoService { prefix: prefix.to_string(), timeout_s: timeout.as_secs_f64() });
+        };
+        if last_print.elapsed() < Duration::from_millis(200) {
+            continue;
+        }
+        last_print = Instant::now();
+        if json {
+            println!("{}", status_json(&s));
+        } else if tty {
+            print!("\r\x1b[2K{}", status_line(&s));
+            let _ = std::io::Write::flush(&mut std::io::stdout());
+        } else {
+            println!("{}", status_line(&s));
+        }
+    }
+    if tty && !json {
+        println!();
+    }
+    Ok(())
+}
+
+/// The newest status within `timeout` (`None`: none came).
+fn wait_status(ports: &ClientPorts, timeout: Duration) -> Result<Option<Status>, CtlError> {
+    let deadline = Instant::now() + timeout;
+    loop {
+        if let Some(s) = ports.latest_status() {
+            return Ok(Some(s));
+        }
+        let left = deadline.saturating_duration_since(Instant::now());
+        if left.is_zero() {
+            return Ok(None);
+        }
+        ports.wait_status(left.min(Duration::from_millis(50)).as_nanos() as u64)?;
+    }
+}
+
+/// The status as one line: state, job, layer, line, path, queue, overrides, faults.
+pub fn status_line(s: &Status) -> String {
+    let mut out = String::new();
+    let state = RunState::from_u32(s.run_state).map_or(format!("state {}", s.run_state), |r| format!("{r:?}"));
+    let job = JobOutcome::from_u32(s.job_outcome).map_or(format!("{}", s.job_outcome), |j| format!("{j:?}"));
+    let _ = write!(out, "{state} · job {job}");
+    if s.executing_seq > 0 {
+        let _ = write!(
+            out,
+            " · layer {} · line {} · segment {} · {:.3} m at {:.1} mm/s",
+            s.executing_layer,
+            s.executing_line,
+            s.executing_seq,
+            s.path_position,
+            s.path_speed * 1e3
+        );
+    }
+    let used = s.queue_capacity.saturating_sub(s.queue_free);
+    let _ =
+        write!(out, " · queue {used}/{} · feed {:.0} % flow {:.0} %", s.queue_capacity, s.feed_override * 100.0, s.flow_override * 100.0);
+    let _ = write!(out, " · TCP error {:.3} mm", s.tcp_error * 1e3);
+    if s.fault != 0 {
+        let _ = write!(out, " · FAULT {:?}", FaultCode::from_u32(s.fault).unwrap_or(FaultCode::None));
+    }
+    if s.rejected > 0 {
+        let reason = RejectReason::from_u32(s.last_reject_reason).unwrap_or(RejectReason::None);
+        let _ = write!(out, " · {} rejected (last {reason:?})", s.rejected);
+    }
+    if s.underruns > 0 || s.overruns > 0 {
+        let _ = write!(out, " · underruns {} overruns {}", s.underruns, s.overruns);
+    }
+    out
+}
+
+/// The status as a JSON object (names for the enums beside their numbers).
+pub fn status_json(s: &Status) -> serde_json::Value {
+    let name = |v: Option<String>| v.unwrap_or_default();
+    serde_json::json!({
+        "run_state": name(RunState::from_u32(s.run_state).map(|r| format!("{r:?}"))),
+        "fault": name(FaultCode::from_u32(s.fault).map(|r| format!("{r:?}"))),
+        "job_outcome": name(JobOutcome::from_u32(s.job_outcome).map(|r| format!("{r:?}"))),
+        "last_reject_reason": name(RejectReason::from_u32(s.last_reject_reason).map(|r| format!("{r:?}"))),
+        "tick": s.tick,
+        "executing_seq": s.executing_seq,
+        "executing_line": s.executing_line,
+        "executing_layer": s.executing_layer,
+        "segments_accepted": s.segments_accepted,
+        "rejected": s.rejected,
+        "queue_capacity": s.queue_capacity,
+        "queue_free": s.queue_free,
+        "feed_override": s.feed_override,
+        "flow_override": s.flow_override,
+        "path_position_m": s.path_position,
+        "path_speed_m_s": s.path_speed,
+        "tcp_error_m": s.tcp_error,
+        "underruns": s.underruns,
+        "overruns": s.overruns,
+    })
+}

@@ -1,0 +1,486 @@
+//! The scene: what a 3D viewer needs beside the tick's own channels, encoded as the standard ROS 2
+//! messages Foxglove draws — the URDF once (`/robot_description`), every link's transform as
+//! `robot_state_publisher` would publish it (`/tf`), the joints against their limits
+//! (`/joints/normalized`), and three marker channels: the queued path ahead of the tool
+//! (`/path/ahead`), the path the tool has followed (`/path/executed`) and the bead it has laid
+//! (`/bead`, coloured by the TCP error). The log writer thread runs it, decimated
+//! (`[view] tf_rate_hz`, `marker_rate_hz`), and its messages go to the MCAP and to the live view
+//! alike, so a log opened afterwards draws the same scene.
+//!
+//! The executed path and the bead are sent as chunks of a line strip: each chunk is one marker
+//! (its `id` counts up) that grows until it holds [`CHUNK_POINTS`] points, and a viewer keeps every
+//! chunk (no lifetime), so each message carries only the newest chunk and the scene costs the same
+//! bytes at the end of a print as at its start.
+
+use std::collections::VecDeque;
+
+use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
+use strand_ipc as ipc;
+
+use super::cdr::CdrWriter;
+use super::messages::Tick;
+use crate::config::view::ViewConfig;
+use crate::core::kin::{JointVector, RobotModel, geom};
+
+/// Points a trail chunk holds before the next one starts.
+pub const CHUNK_POINTS: usize = 100;
+/// Shortest spacing of trail points (m): the trail follows corners without a point per tick.
+const TRAIL_SPACING: f64 = 0.0005;
+/// Line widths (m).
+const BEAD_WIDTH: f64 = 0.0008;
+const PATH_WIDTH: f64 = 0.0003;
+
+/// The scene's channels, in the order [`SceneTopic::ALL`] lists them.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum SceneTopic {
+    /// `std_msgs/msg/String`: the URDF.
+    RobotDescription,
+    /// `tf2_msgs/msg/TFMessage`.
+    Tf,
+    /// `sensor_msgs/msg/JointState`: positions mapped to [−1, 1] across the limits.
+    JointsNormalized,
+    /// `visualization_msgs/msg/MarkerArray`: the queued path.
+    PathAhead,
+    /// `visualization_msgs/msg/MarkerArray`: the TCP's trail.
+    PathExecuted,
+    /// `visualization_msgs/msg/MarkerArray`: the bead.
+    Bead,
+}
+
+impl SceneTopic {
+    /// Every scene channel.
+    pub const ALL: [SceneTopic; 6] = [
+        SceneTopic::RobotDescription,
+        SceneTopic::Tf,
+        SceneTopic::JointsNormalized,
+        SceneTopic::PathAhead,
+        SceneTopic::PathExecuted,
+        SceneTopic::Bead,
+    ];
+
+    /// Its topic.
+    pub fn topic(self) -> &'static str {
+        match self {
+            SceneTopic::RobotDescription => "/robot_description",
+            SceneTopic::Tf => "/tf",
+            SceneTopic::JointsNormalized => "/joints/normalized",
+            SceneTopic::PathAhead => "/path/ahead",
+            SceneTopic::PathExecuted => "/path/executed",
+            SceneTopic::Bead => "/bead",
+        }
+    }
+
+    /// Its schema name and text.
+    pub fn schema(self) -> (&'static str, String) {
+        match self {
+            SceneTopic::RobotDescription => ("std_msgs/msg/String", "string data\n".to_string()),
+            SceneTopic::Tf => ("tf2_msgs/msg/TFMessage", tf_schema()),
+            SceneTopic::JointsNormalized => (super::messages::ros::JOINT_STATE, super::messages::ros::joint_state_schema()),
+            _ => ("visualization_msgs/msg/MarkerArray", marker_array_schema()),
+        }
+    }
+
+    /// Its index in [`SceneTopic::ALL`].
+    pub fn index(self) -> usize {
+        self as usize
+    }
+}
+
+const SEPARATOR: &str = "================================================================================";
+
+fn msg(name: &str, body: &str) -> String {
+    format!("{SEPARATOR}\nMSG: {name}\n{body}")
+}
+
+fn header_and_geometry() -> String {
+    [
+        msg("std_msgs/Header", "builtin_interfaces/Time stamp\nstring frame_id\n"),
+        msg("builtin_interfaces/Time", "int32 sec\nuint32 nanosec\n"),
+        msg("geometry_msgs/Vector3", "float64 x\nfloat64 y\nfloat64 z\n"),
+        msg("geometry_msgs/Quaternion", "float64 x\nfloat64 y\nfloat64 z\nfloat64 w\n"),
+    ]
+    .concat()
+}
+
+/// `tf2_msgs/msg/TFMessage`, as in ROS 2 Humble.
+fn tf_schema() -> String {
+    format!(
+        "geometry_msgs/TransformStamped[] transforms\n{}{}{}",
+        msg("geometry_msgs/TransformStamped", "std_msgs/Header header\nstring child_frame_id\ngeometry_msgs/Transform transform\n"),
+        msg("geometry_msgs/Transform", "geometry_msgs/Vector3 translation\ngeometry_msgs/Quaternion rotation\n"),
+        header_and_geometry()
+    )
+}
+
+/// `visualization_msgs/msg/MarkerArray` with the Marker of ROS 2 Foxy (Humble appended texture
+/// and mesh-file fields, which strand does not use; a viewer decodes by the schema in the file).
+fn marker_array_schema() -> String {
+    format!(
+        "visualization_msgs/Marker[] markers\n{}{}{}{}{}{}",
+        msg(
+            "visualization_msgs/Marker",
+            "std_msgs/Header header\nstring ns\nint32 id\nint32 type\nint32 action\ngeometry_msgs/Pose pose\n\
+             geometry_msgs/Vector3 scale\nstd_msgs/ColorRGBA color\nbuiltin_interfaces/Duration lifetime\nbool frame_locked\n\
+             geometry_msgs/Point[] points\nstd_msgs/ColorRGBA[] colors\nstring text\nstring mesh_resource\n\
+             bool mesh_use_embedded_materials\n"
+        ),
+        msg("geometry_msgs/Pose", "geometry_msgs/Point position\ngeometry_msgs/Quaternion orientation\n"),
+        msg("geometry_msgs/Point", "float64 x\nfloat64 y\nfloat64 z\n"),
+        msg("std_msgs/ColorRGBA", "float32 r\nfloat32 g\nfloat32 b\nfloat32 a\n"),
+        msg("builtin_interfaces/Duration", "int32 sec\nuint32 nanosec\n"),
+        header_and_geometry()
+    )
+}
+
+/// One URDF joint, for `/tf`.
+struct TfJoint {
+    parent: String,
+    child: String,
+    origin: Isometry3<f64>,
+    axis: Vector3<f64>,
+    motion: JointMotion,
+    /// Its index in the chain (`None`: off the chain, drawn at 0).
+    chain: Option<usize>,
+}
+
+/// How a URDF joint moves its child.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum JointMotion {
+    Rotates,
+    Slides,
+    Fixed,
+}
+
+/// A colour (r, g, b, a in 0..1).
+type Rgba = [f32; 4];
+
+const EXTRUDE_COLOUR: Rgba = [0.15, 0.45, 1.0, 0.9];
+const TRAVEL_COLOUR: Rgba = [0.6, 0.6, 0.6, 0.5];
+const TRAIL_COLOUR: Rgba = [1.0, 0.6, 0.1, 0.8];
+
+/// A line strip that grows in chunks (see the module documentation).
+#[derive(Default)]
+struct Trail {
+    id: i32,
+    points: Vec<[f64; 3]>,
+    colours: Vec<Rgba>,
+    /// Points added since it was last sent.
+    fresh: bool,
+    /// The next point starts a new chunk (the bead stopped).
+    broken: bool,
+}
+
+impl Trail {
+    fn add(&mut self, p: [f64; 3], colour: Rgba) {
+        if self.broken || self.points.len() >= CHUNK_POINTS {
+            // A full chunk starts the next at its last point, so the line stays continuous; a
+            // broken one starts afresh.
+            let last = if self.broken { None } else { self.points.last().copied().zip(self.colours.last().copied()) };
+            if !self.points.is_empty() {
+                self.id += 1;
+            }
+            self.points.clear();
+            self.colours.clear();
+            if let Some((q, c)) = last {
+                self.points.push(q);
+                self.colours.push(c);
+            }
+            self.broken = false;
+        }
+        let far = self.points.last().is_none_or(|q| dist(q, &p) >= TRAIL_SPACING);
+        if far {
+            self.points.push(p);
+            self.colours.push(colour);
+            self.fresh = true;
+        }
+    }
+}
+
+fn dist(a: &[f64; 3], b: &[f64; 3]) -> f64 {
+    ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt()
+}
+
+/// Builds the scene's messages from the ticks (see the module documentation).
+pub struct Scene {
+    joints: Vec<TfJoint>,
+    model: RobotModel,
+    names: Vec<String>,
+    urdf: String,
+    cfg: ViewConfig,
+    next_tf_ns: u64,
+    next_marker_ns: u64,
+    /// Segments received and not yet passed: (seq, kind, flags, end, centre, normal, sweep).
+    ahead: VecDeque<ipc::Segment>,
+    /// The end of the last segment already executed (the start of the first one ahead).
+    ahead_start: Option<[f64; 3]>,
+    executed: Trail,
+    bead: Trail,
+    cdr: CdrWriter,
+}
+
+impl Scene {
+    /// From the robot's URDF text and chain. An URDF that does not parse leaves `/tf` empty (the
+    /// model was built from the same text, so it does).
+    pub fn new(urdf: &str, model: &RobotModel, cfg: &ViewConfig) -> Scene {
+        let chain: Vec<&str> = model.joints().iter().map(|j| j.name.as_str()).collect();
+        let joints = urdf_rs::read_from_string(urdf)
+            .map(|robot| {
+                robot
+                    .joints
+                    .iter()
+                    .map(|j| {
+                        let (xyz, rpy) = (j.origin.xyz.0, j.origin.rpy.0);
+                        let rot = UnitQuaternion::from_rotation_matrix(&geom::rpy(rpy[0], rpy[1], rpy[2]));
+                        let axis = Vector3::from(j.axis.xyz.0);
+                        let motion = match j.joint_type {
+                            urdf_rs::JointType::Revolute | urdf_rs::JointType::Continuous => JointMotion::Rotates,
+                            urdf_rs::JointType::Prismatic => JointMotion::Slides,
+                            _ => JointMotion::Fixed,
+                        };
+                        TfJoint {
+                            parent: j.parent.link.clone(),
+                            child: j.child.link.clone(),
+                            origin: Isometry3::from_parts(Translation3::new(xyz[0], xyz[1], xyz[2]), rot),
+                            axis: if axis.norm() > 0.0 { axis.normalize() } else { Vector3::z() },
+                            motion,
+                            chain: chain.iter().position(|n| *n == j.name),
+                        }
+                    })
+                    .collect()
+            })
+            .unwrap_or_default();
+        Scene {
+            joints,
+            model: model.clone(),
+            names: chain.iter().map(|s| s.to_string()).collect(),
+            urdf: urdf.to_string(),
+            cfg: cfg.clone(),
+            next_tf_ns: 0,
+            next_marker_ns: 0,
+            ahead: VecDeque::new(),
+            ahead_start: None,
+            executed: Trail::default(),
+            bead: Trail::default(),
+            cdr: CdrWriter::new(),
+        }
+    }
+
+    /// `/robot_description`: the URDF (sent once per file, and to each live client that subscribes).
+    pub fn robot_description(&mut self) -> &[u8] {
+        self.cdr.begin();
+        self.cdr.string(&self.urdf);
+        self.cdr.bytes()
+    }
+
+    /// Takes one tick (log time `stamp_ns`, Unix ns; `measured`: the last measured joints, when
+    /// known) and emits the messages that are due.
+    pub fn tick<E>(
+        &mut self,
+        t: &Tick,
+        stamp_ns: u64,
+        measured: Option<&JointVector>,
+        emit: &mut impl FnMut(SceneTopic, &[u8]) -> Result<(), E>,
+    ) -> Result<(), E> {
+        for s in t.input.segments() {
+            if self.ahead.len() >= self.cfg.path_ahead_segments.max(1) * 4 {
+                self.ahead.pop_front();
+            }
+            self.ahead.push_back(*s);
+        }
+        let status = &t.output.status;
+        while self.ahead.front().is_some_and(|s| s.seq < status.executing_seq) {
+            self.ahead_start = self.ahead.pop_front().map(|s| s.end);
+        }
+        let dof = self.model.dof();
+        let q = measured.copied().or_else(|| {
+            let c = &t.output.joint_command;
+            (c.valid == 1).then(|| {
+                let mut q = JointVector::zeros();
+                q.as_mut_slice()[..dof].copy_from_slice(&c.position[..dof]);
+                q
+            })
+        });
+        let base = &t.output.diagnostics.base;
+        // The trail and the bead take a point every tick the tool has moved far enough.
+        if let Some(q) = &q {
+            let tcp = self.model.forward_kinematics(q);
+            let (p, _) = base.base_to_world(&tcp.translation.vector, &UnitQuaternion::identity());
+            let p = [p.x, p.y, p.z];
+            if p.iter().all(|v| v.is_finite()) {
+                self.executed.add(p, TRAIL_COLOUR);
+                if t.output.extruder.flags & ipc::extruder_flags::EXTRUDING != 0 && status.run_state == ipc::RunState::Running as u32 {
+                    self.bead.add(p, error_colour(status.tcp_error / self.cfg.bead_error_scale));
+                } else {
+                    self.bead.broken = true;
+                }
+            }
+        }
+        if stamp_ns >= self.next_tf_ns {
+            self.next_tf_ns = stamp_ns + (1e9 / self.cfg.tf_rate_hz) as u64;
+            if let Some(q) = &q {
+                self.encode_tf(stamp_ns, q, base);
+                emit(SceneTopic::Tf, self.cdr.bytes())?;
+                self.encode_normalized(stamp_ns, q);
+                emit(SceneTopic::JointsNormalized, self.cdr.bytes())?;
+            }
+        }
+        if stamp_ns >= self.next_marker_ns {
+            self.next_marker_ns = stamp_ns + (1e9 / self.cfg.marker_rate_hz) as u64;
+            let target = t.output.diagnostics.tcp_target_world;
+            self.encode_ahead(stamp_ns, [target.x, target.y, target.z]);
+            emit(SceneTopic::PathAhead, self.cdr.bytes())?;
+            for topic in [SceneTopic::PathExecuted, SceneTopic::Bead] {
+                let trail = if topic == SceneTopic::Bead { &self.bead } else { &self.executed };
+                if trail.fresh && trail.points.len() >= 2 {
+                    let (ns, width) = if topic == SceneTopic::Bead { ("bead", BEAD_WIDTH) } else { ("executed", PATH_WIDTH) };
+                    encode_strip(&mut self.cdr, stamp_ns, ns, trail.id, width, &trail.points, &trail.colours);
+                    emit(topic, self.cdr.bytes())?;
+                    if topic == SceneTopic::Bead { self.bead.fresh = false } else { self.executed.fresh = false }
+                }
+            }
+        }
+        Ok(())
+    }
+
+    fn encode_tf(&mut self, stamp_ns: u64, q: &JointVector, base: &crate::core::BaseState) {
+        let w = &mut self.cdr;
+        w.begin();
+        let root = self.model.root_link().to_string();
+        let base = Isometry3::from_parts(Translation3::from(base.position), base.orientation);
+        // A URDF whose root link is called `world` (the iiwa's) is the base frame under W's name:
+        // the base pose then goes onto the root's own joints instead of a world → world loop.
+        let root_is_world = root == "world";
+        w.len(self.joints.len() + 1 + usize::from(!root_is_world));
+        if !root_is_world {
+            transform(w, stamp_ns, "world", &root, &base);
+        }
+        for j in &self.joints {
+            let v = j.chain.map_or(0.0, |i| q[i]);
+            let motion = match j.motion {
+                JointMotion::Rotates => Isometry3::from_parts(Translation3::identity(), UnitQuaternion::from_scaled_axis(j.axis * v)),
+                JointMotion::Slides => Isometry3::from_parts(Translation3::from(j.axis * v), UnitQuaternion::identity()),
+                JointMotion::Fixed => Isometry3::identity(),
+            };
+            let x = j.origin * motion;
+            transform(w, stamp_ns, &j.parent, &j.child, &if root_is_world && j.parent == root { base * x } else { x });
+        }
+        let tcp = self.model.forward_kinematics(q);
+        let tcp = Isometry3::from_parts(Translation3::from(tcp.translation.vector), UnitQuaternion::from_rotation_matrix(&tcp.rotation));
+        transform(w, stamp_ns, &root, "tcp", &if root_is_world { base * tcp } else { tcp });
+    }
+
+    fn encode_normalized(&mut self, stamp_ns: u64, q: &JointVector) {
+        let n = self.model.dof();
+        let mut x = [0.0; crate::core::kin::MAX_JOINTS];
+        for (i, x) in x.iter_mut().enumerate().take(n) {
+            let l = self.model.limits(i);
+            let half = 0.5 * (l.upper - l.lower);
+            *x = if half > 0.0 { (q[i] - l.middle()) / half } else { 0.0 };
+        }
+        super::messages::ros::joint_state(&mut self.cdr, stamp_ns, &self.names, &x[..n], &[], &[]);
+    }
+
+    fn encode_ahead(&mut self, stamp_ns: u64, from: [f64; 3]) {
+        let mut points = Vec::with_capacity(2 * self.cfg.path_ahead_segments);
+        let mut colours = Vec::with_capacity(points.capacity());
+        let mut start = from;
+        for s in self.ahead.iter().filter(|s| s.seq >= 1).take(self.cfg.path_ahead_segments) {
+            let colour = if s.flags & ipc::segment_flags::EXTRUDE != 0 && s.filament > 0.0 { EXTRUDE_COLOUR } else { TRAVEL_COLOUR };
+            let mut line = |a: [f64; 3], b: [f64; 3]| {
+                points.extend([a, b]);
+                colours.extend([colour, colour]);
+            };
+            if s.kind == ipc::SegmentKind::Arc as u32 && s.sweep.is_finite() {
+                // Eight chords per arc: the start turned about the normal through the centre.
+                let (c, n) = (Vector3::from(s.centre), Vector3::from(s.normal));
+                let r0 = Vector3::from(start) - c;
+                let mut a = start;
+                for k in 1..=8 {
+                    let rot = UnitQuaternion::from_scaled_axis(n.normalize() * (s.sweep * k as f64 / 8.0));
+                    let p = c + rot * r0;
+                    let b = if k == 8 { s.end } else { [p.x, p.y, p.z] };
+                    line(a, b);
+                    a = b;
+                }
+            } else if s.kind != ipc::SegmentKind::Dwell as u32 {
+                line(start, s.end);
+            }
+            if s.kind != ipc::SegmentKind::Dwell as u32 {
+                start = s.end;
+            }
+        }
+        let w = &mut self.cdr;
+        w.begin();
+        w.len(1);
+        // LINE_LIST (5): a pair of points per chord, each segment in its own colour.
+        marker(w, stamp_ns, "ahead", 0, 5, PATH_WIDTH, &points, &colours);
+    }
+}
+
+/// Green (0) through yellow to red (1 and above).
+fn error_colour(x: f64) -> Rgba {
+    let x = if x.is_finite() { x.clamp(0.0, 1.0) as f32 } else { 1.0 };
+    [(2.0 * x).min(1.0), (2.0 * (1.0 - x)).min(1.0), 0.1, 1.0]
+}
+
+fn header(w: &mut CdrWriter, stamp_ns: u64, frame: &str) {
+    w.i32((stamp_ns / 1_000_000_000) as i32);
+    w.u32((stamp_ns % 1_000_000_000) as u32);
+    w.string(frame);
+}
+
+fn transform(w: &mut CdrWriter, stamp_ns: u64, parent: &str, child: &str, x: &Isometry3<f64>) {
+    header(w, stamp_ns, parent);
+    w.string(child);
+    for v in x.translation.vector.iter() {
+        w.f64(*v);
+    }
+    let r = x.rotation;
+    for v in [r.i, r.j, r.k, r.w] {
+        w.f64(v);
+    }
+}
+
+fn encode_strip(w: &mut CdrWriter, stamp_ns: u64, ns: &str, id: i32, width: f64, points: &[[f64; 3]], colours: &[Rgba]) {
+    w.begin();
+    w.len(1);
+    // LINE_STRIP (4).
+    marker(w, stamp_ns, ns, id, 4, width, points, colours);
+}
+
+/// One `visualization_msgs/Marker` (action ADD, identity pose, no lifetime) in the world frame.
+#[allow(clippy::too_many_arguments)]
+fn marker(w: &mut CdrWriter, stamp_ns: u64, ns: &str, id: i32, kind: i32, width: f64, points: &[[f64; 3]], colours: &[Rgba]) {
+    header(w, stamp_ns, "world");
+    w.string(ns);
+    w.i32(id);
+    w.i32(kind);
+    w.i32(0);
+    for v in [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0] {
+        w.f64(v);
+    }
+    for v in [width, width, width] {
+        w.f64(v);
+    }
+    for v in [1.0f32, 1.0, 1.0, 1.0] {
+        w.f32(v);
+    }
+    w.i32(0);
+    w.u32(0);
+    w.u8(0);
+    w.len(points.len());
+    for p in points {
+        for v in p {
+            w.f64(*v);
+        }
+    }
+    w.len(colours.len());
+    for c in colours {
+        for v in c {
+            w.f32(*v);
+        }
+    }
+    w.string("");
+    w.string("");
+    w.u8(0);
+}

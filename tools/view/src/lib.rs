@@ -1,0 +1,321 @@
+//! strand-view: the live view. A Foxglove WebSocket server (`foxglove.websocket.v1`) that serves
+//! the channels the MCAP log writes — the same topics, the same `ros2msg` schemas, the same CDR
+//! bytes — so one Foxglove layout opens the live stream and a log alike.
+//!
+//! It is fed by the log writer thread, never by the tick: [`LiveView::publish`] takes a message the
+//! writer has already encoded, drops it if its channel was sent less than `1 / rate` ago (the
+//! network gets a decimated stream; the file gets everything), and otherwise hands it to the
+//! server's own threads. With no client subscribed a publish costs one atomic load.
+//!
+//! Latched channels (`/robot_description`) keep their last message and send it to each client that
+//! subscribes, as a ROS latched topic does, so a viewer opened mid-print still draws the robot.
+//!
+//! Control: read-only unless [`ViewOptions::control`] names the service. Then the server advertises
+//! `clientPublish`, and a client may publish JSON [`ControlRequest`]s on [`CONTROL_TOPIC`]; each
+//! becomes one `Control` message to the service over iceoryx2, sent from a thread of its own
+//! (iceoryx2 ports stay on the thread that opened them). The service acknowledges in `/status`.
+
+use std::collections::HashMap;
+use std::net::SocketAddr;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::mpsc::{Sender, channel};
+use std::sync::{Arc, Mutex};
+
+use foxglove::websocket::{Capability, ChannelView, Client, ClientChannel, ServerListener};
+use foxglove::{ChannelBuilder, Context, PartialMetadata, RawChannel, Schema, WebSocketServer, WebSocketServerHandle};
+use serde::Deserialize;
+use strand_ipc as ipc;
+
+/// The client channel a viewer publishes control requests on (JSON, [`ControlRequest`]).
+pub const CONTROL_TOPIC: &str = "/strand/control";
+
+/// Why the live view could not start or add a channel.
+#[derive(Debug, thiserror::Error)]
+pub enum ViewError {
+    /// The server could not start (address in use, not an address of this machine).
+    #[error("live view on {address}: {message}")]
+    Start {
+        /// The address asked for.
+        address: SocketAddr,
+        /// What failed.
+        message: String,
+    },
+    /// A channel could not be added.
+    #[error("live view channel {topic}: {message}")]
+    Channel {
+        /// Its topic.
+        topic: String,
+        /// What failed.
+        message: String,
+    },
+    /// A control request that cannot be sent.
+    #[error("control request: {0}")]
+    Control(String),
+}
+
+/// How the server starts.
+#[derive(Clone, Debug)]
+pub struct ViewOptions {
+    /// Where it listens.
+    pub address: SocketAddr,
+    /// The name clients show (the robot and the config).
+    pub name: String,
+    /// The service to send control requests to; `None`: read-only.
+    pub control: Option<ipc::ServiceNames>,
+}
+
+/// A control request as a viewer publishes it on [`CONTROL_TOPIC`]:
+/// `{"command": "pause"}`, `{"command": "feed", "percent": 80}`.
+#[derive(Clone, Debug, PartialEq, Deserialize)]
+pub struct ControlRequest {
+    /// `pause`, `resume`, `stop`, `estop`, `clear-fault`, `feed` or `flow`.
+    pub command: String,
+    /// The override in percent (`feed`, `flow`).
+    #[serde(default)]
+    pub percent: Option<f64>,
+}
+
+impl ControlRequest {
+    /// The wire command and its value (a fraction for the overrides).
+    pub fn to_wire(&self) -> Result<(ipc::Command, f64), ViewError> {
+        let need_percent = || {
+            self.percent
+                .filter(|p| p.is_finite())
+                .map(|p| p / 100.0)
+                .ok_or_else(|| ViewError::Control(format!("{:?} needs \"percent\": a number", self.command)))
+        };
+        Ok(match self.command.as_str() {
+            "start" => (ipc::Command::Start, 0.0),
+            "pause" => (ipc::Command::Pause, 0.0),
+            "resume" => (ipc::Command::Resume, 0.0),
+            "stop" => (ipc::Command::Stop, 0.0),
+            "estop" => (ipc::Command::EmergencyStop, 0.0),
+            "clear-fault" => (ipc::Command::ClearFault, 0.0),
+            "feed" => (ipc::Command::FeedOverride, need_percent()?),
+            "flow" => (ipc::Command::FlowOverride, need_percent()?),
+            other => {
+                return Err(ViewError::Control(format!(
+                    "unknown command {other:?}: start, pause, resume, stop, estop, clear-fault, feed or flow"
+                )));
+            }
+        })
+    }
+}
+
+/// A channel of the live view (an index into the server's list).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct ChannelIndex(usize);
+
+struct LiveChannel {
+    raw: Arc<RawChannel>,
+    /// Shortest spacing between two messages sent (ns of log time); 0: every message.
+    min_spacing_ns: u64,
+    last_sent_ns: Option<u64>,
+    latched: bool,
+}
+
+/// The last message of a latched channel.
+struct Latched {
+    raw: Arc<RawChannel>,
+    message: Vec<u8>,
+    log_time_ns: u64,
+}
+
+/// Bytes handed to the server, for the report (payloads only; the framing adds 13 bytes each).
+#[derive(Default)]
+struct Counters {
+    messages: AtomicU64,
+    bytes: AtomicU64,
+}
+
+/// The running server. See the crate documentation.
+pub struct LiveView {
+    handle: Option<WebSocketServerHandle>,
+    context: Arc<Context>,
+    channels: Vec<LiveChannel>,
+    latched: Arc<Mutex<HashMap<String, Latched>>>,
+    counters: Arc<Counters>,
+    address: SocketAddr,
+}
+
+impl LiveView {
+    /// Starts the server; it runs on its own threads until [`LiveView::stop`] or drop.
+    pub fn start(options: &ViewOptions) -> Result<LiveView, ViewError> {
+        let context = Context::new();
+        let latched: Arc<Mutex<HashMap<String, Latched>>> = Arc::default();
+        let control = options.control.clone().map(ControlSender::start);
+        let listener = Arc::new(Listener { latched: latched.clone(), control });
+        let mut server = WebSocketServer::new()
+            .name(options.name.clone())
+            .bind(options.address.ip().to_string(), options.address.port())
+            .context(&context)
+            .listener(listener.clone());
+        if options.control.is_some() {
+            server = server.capabilities([Capability::ClientPublish]).supported_encodings(["json"]);
+        }
+        let handle = server.start_blocking().map_err(|e| ViewError::Start { address: options.address, message: e.to_string() })?;
+        let address = SocketAddr::new(options.address.ip(), handle.port());
+        Ok(LiveView { handle: Some(handle), context, channels: Vec::new(), latched, counters: Arc::default(), address })
+    }
+
+    /// Where the server listens (the real port when 0 was asked for).
+    pub fn address(&self) -> SocketAddr {
+        self.address
+    }
+
+    /// Adds a channel: CDR messages of the `ros2msg` schema `schema_name` (text `schema`), sent at
+    /// most `rate_hz` times a second (0: every message). A latched channel keeps its last message
+    /// for clients that subscribe later.
+    pub fn add_channel(
+        &mut self,
+        topic: &str,
+        schema_name: &str,
+        schema: &str,
+        rate_hz: f64,
+        latched: bool,
+    ) -> Result<ChannelIndex, ViewError> {
+        let raw = ChannelBuilder::new(topic)
+            .message_encoding("cdr")
+            .schema(Schema::new(schema_name, "ros2msg", schema.as_bytes().to_vec()))
+            .context(&self.context)
+            .build_raw()
+            .map_err(|e| ViewError::Channel { topic: topic.to_string(), message: e.to_string() })?;
+        if latched {
+            let slot = Latched { raw: raw.clone(), message: Vec::new(), log_time_ns: 0 };
+            self.latched.lock().expect("not poisoned").insert(topic.to_string(), slot);
+        }
+        let min_spacing_ns = if rate_hz > 0.0 { (1e9 / rate_hz) as u64 } else { 0 };
+        self.channels.push(LiveChannel { raw, min_spacing_ns, last_sent_ns: None, latched });
+        Ok(ChannelIndex(self.channels.len() - 1))
+    }
+
+    /// Offers one encoded message (log time in Unix ns). Sent when its channel is due and a client
+    /// subscribes to it; dropped otherwise (a latched channel always keeps it).
+    pub fn publish(&mut self, channel: ChannelIndex, log_time_ns: u64, message: &[u8]) {
+        let Some(ch) = self.channels.get_mut(channel.0) else { return };
+        if ch.latched
+            && let Ok(mut latched) = self.latched.lock()
+            && let Some(slot) = latched.get_mut(ch.raw.topic())
+        {
+            slot.message.clear();
+            slot.message.extend_from_slice(message);
+            slot.log_time_ns = log_time_ns;
+        }
+        if !ch.raw.has_sinks() {
+            return;
+        }
+        if let Some(last) = ch.last_sent_ns
+            && log_time_ns.saturating_sub(last) < ch.min_spacing_ns
+            && log_time_ns >= last
+        {
+            return;
+        }
+        ch.last_sent_ns = Some(log_time_ns);
+        ch.raw.log_with_meta(message, PartialMetadata { log_time: Some(log_time_ns) });
+        self.counters.messages.fetch_add(1, Ordering::Relaxed);
+        self.counters.bytes.fetch_add(message.len() as u64, Ordering::Relaxed);
+    }
+
+    /// Messages and payload bytes handed to the server so far (for every subscribed client).
+    pub fn sent(&self) -> (u64, u64) {
+        (self.counters.messages.load(Ordering::Relaxed), self.counters.bytes.load(Ordering::Relaxed))
+    }
+
+    /// Stops the server and closes every connection.
+    pub fn stop(mut self) {
+        if let Some(h) = self.handle.take() {
+            let _ = h.stop();
+        }
+    }
+}
+
+impl Drop for LiveView {
+    fn drop(&mut self) {
+        if let Some(h) = self.handle.take() {
+            let _ = h.stop();
+        }
+    }
+}
+
+/// The server's callbacks: latched messages to new subscribers, control requests to the service.
+struct Listener {
+    latched: Arc<Mutex<HashMap<String, Latched>>>,
+    control: Option<ControlSender>,
+}
+
+impl ServerListener for Listener {
+    fn on_subscribe(&self, client: Client, channel: ChannelView) {
+        let Ok(latched) = self.latched.lock() else { return };
+        if let Some(slot) = latched.get(channel.topic())
+            && !slot.message.is_empty()
+        {
+            slot.raw.log_with_meta_to_sink(&slot.message, PartialMetadata { log_time: Some(slot.log_time_ns) }, client.sink_id());
+        }
+    }
+
+    fn on_message_data(&self, client: Client, channel: &ClientChannel, payload: &[u8]) {
+        let Some(control) = &self.control else { return };
+        if channel.topic != CONTROL_TOPIC {
+            return;
+        }
+        let request = serde_json::from_slice::<ControlRequest>(payload)
+            .map_err(|e| ViewError::Control(format!("not a control request ({e}): expected {{\"command\": \"pause\"}}")))
+            .and_then(|r| r.to_wire());
+        match request {
+            Ok((command, value)) => control.send(command, value),
+            Err(e) => {
+                tracing::warn!("live view client {:?}: {e}", client.id());
+                client.send_status(foxglove::websocket::Status::warning(e.to_string()));
+            }
+        }
+    }
+}
+
+/// Sends control requests to the service from a thread of its own (iceoryx2 ports are not `Send`;
+/// the server's callbacks run on its tokio threads).
+struct ControlSender {
+    requests: Mutex<Sender<(ipc::Command, f64)>>,
+}
+
+impl ControlSender {
+    fn start(names: ipc::ServiceNames) -> ControlSender {
+        let (tx, rx) = channel::<(ipc::Command, f64)>();
+        let spawned = std::thread::Builder::new().name("strand-view-control".into()).spawn(move || {
+            let roles = ipc::ports::ClientRoles { control: true, ..ipc::ports::ClientRoles::default() };
+            let ports = match ipc::ports::ClientPorts::open(&names, "strand_view_control", roles) {
+                Ok(p) => p,
+                Err(e) => {
+                    tracing::error!("live view: control requests cannot reach the service: {e}");
+                    return;
+                }
+            };
+            let mut seq = 0u64;
+            while let Ok((command, value)) = rx.recv() {
+                seq += 1;
+                let control = ipc::Control { seq, stamp_ns: monotonic_ns(), command: command as u32, _reserved: 0, value };
+                match ports.send_control(&control) {
+                    Ok(_) => tracing::info!("live view: control {command:?} {value} sent"),
+                    Err(e) => tracing::error!("live view: control {command:?}: {e}"),
+                }
+            }
+        });
+        if let Err(e) = spawned {
+            tracing::error!("live view: no control thread: {e}");
+        }
+        ControlSender { requests: Mutex::new(tx) }
+    }
+
+    fn send(&self, command: ipc::Command, value: f64) {
+        if let Ok(tx) = self.requests.lock() {
+            let _ = tx.send((command, value));
+        }
+    }
+}
+
+/// CLOCK_MONOTONIC (ns), the clock every stamp on the wire uses.
+fn monotonic_ns() -> u64 {
+    let mut ts = libc::timespec { tv_sec: 0, tv_nsec: 0 };
+    // SAFETY: `ts` is a valid out-pointer; CLOCK_MONOTONIC always exists on Linux.
+    unsafe { libc::clock_gettime(libc::CLOCK_MONOTONIC, &mut ts) };
+    ts.tv_sec as u64 * 1_000_000_000 + ts.tv_nsec as u64
+}
