@@ -112,23 +112,31 @@ fn tf_schema() -> String {
     )
 }
 
-/// `visualization_msgs/msg/MarkerArray` with the Marker of ROS 2 Foxy (Humble appended texture
-/// and mesh-file fields, which strand does not use; a viewer decodes by the schema in the file).
+/// `visualization_msgs/msg/MarkerArray`, as in ROS 2 Humble (constants included: readers such as
+/// rosbags compare the definition with their own).
 fn marker_array_schema() -> String {
     format!(
-        "visualization_msgs/Marker[] markers\n{}{}{}{}{}{}",
+        "visualization_msgs/Marker[] markers\n{}{}{}{}{}{}{}{}{}{}",
         msg(
             "visualization_msgs/Marker",
-            "std_msgs/Header header\nstring ns\nint32 id\nint32 type\nint32 action\ngeometry_msgs/Pose pose\n\
+            "int32 ARROW=0\nint32 CUBE=1\nint32 SPHERE=2\nint32 CYLINDER=3\nint32 LINE_STRIP=4\nint32 LINE_LIST=5\n\
+             int32 CUBE_LIST=6\nint32 SPHERE_LIST=7\nint32 POINTS=8\nint32 TEXT_VIEW_FACING=9\nint32 MESH_RESOURCE=10\n\
+             int32 TRIANGLE_LIST=11\nint32 ADD=0\nint32 MODIFY=0\nint32 DELETE=2\nint32 DELETEALL=3\n\
+             std_msgs/Header header\nstring ns\nint32 id\nint32 type\nint32 action\ngeometry_msgs/Pose pose\n\
              geometry_msgs/Vector3 scale\nstd_msgs/ColorRGBA color\nbuiltin_interfaces/Duration lifetime\nbool frame_locked\n\
-             geometry_msgs/Point[] points\nstd_msgs/ColorRGBA[] colors\nstring text\nstring mesh_resource\n\
-             bool mesh_use_embedded_materials\n"
+             geometry_msgs/Point[] points\nstd_msgs/ColorRGBA[] colors\nstring texture_resource\n\
+             sensor_msgs/CompressedImage texture\nvisualization_msgs/UVCoordinate[] uv_coordinates\nstring text\n\
+             string mesh_resource\nvisualization_msgs/MeshFile mesh_file\nbool mesh_use_embedded_materials\n"
         ),
         msg("geometry_msgs/Pose", "geometry_msgs/Point position\ngeometry_msgs/Quaternion orientation\n"),
         msg("geometry_msgs/Point", "float64 x\nfloat64 y\nfloat64 z\n"),
         msg("std_msgs/ColorRGBA", "float32 r\nfloat32 g\nfloat32 b\nfloat32 a\n"),
         msg("builtin_interfaces/Duration", "int32 sec\nuint32 nanosec\n"),
-        header_and_geometry()
+        msg("sensor_msgs/CompressedImage", "std_msgs/Header header\nstring format\nuint8[] data\n"),
+        msg("visualization_msgs/UVCoordinate", "float32 u\nfloat32 v\n"),
+        msg("visualization_msgs/MeshFile", "string filename\nuint8[] data\n"),
+        header_and_geometry(),
+        ""
     )
 }
 
@@ -480,7 +488,16 @@ fn marker(w: &mut CdrWriter, stamp_ns: u64, ns: &str, id: i32, kind: i32, width:
             w.f32(*v);
         }
     }
+    // Texture (none): resource, image (header, format, data), UV coordinates.
+    w.string("");
+    header(w, stamp_ns, "");
+    w.string("");
+    w.len(0);
+    w.len(0);
+    // Text, mesh resource, mesh file (name, data), embedded materials: none.
     w.string("");
     w.string("");
+    w.string("");
+    w.len(0);
     w.u8(0);
 }

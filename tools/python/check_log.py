@@ -287,7 +287,9 @@ def split_schema(text: str) -> list[tuple[str, str]]:
 def message_fields(msg: Any) -> Optional[list[str]]:
     """Field names of a decoded message of either reader (rosbags: dataclasses; mcap_ros2: slots), else None."""
     if dataclasses.is_dataclass(msg) and not isinstance(msg, type):
-        return [f.name for f in dataclasses.fields(msg) if not f.name.startswith("__")]
+        # rosbags lists a type's constants (`LINE_STRIP`, upper case by the ROS convention) as
+        # fields too; they are part of the type, not of the message.
+        return [f.name for f in dataclasses.fields(msg) if not f.name.startswith("__") and not f.name.isupper()]
     if isinstance(msg, (str, bytes, bytearray, list, tuple)):
         return None
     slots = getattr(type(msg), "__slots__", None)
@@ -518,7 +520,10 @@ def check_log_time_order(log: Log, topic: str, log_time: int, msg: Any) -> Optio
 
 
 def check_messages_in_their_tick(log: Log, topic: str, log_time: int, msg: Any) -> Optional[str]:
-    """Every other message follows its tick's /strand/tick in the file, with the same log time."""
+    """Every other message follows its tick's /strand/tick in the file, with the same log time
+    (/robot_description excepted: once per file, at its start, for a viewer's 3D panel)."""
+    if topic == "/robot_description":
+        return None
     if log.group is None:
         return f"{topic} at {log_time} before any {TICK}"
     if log_time != log.group.log_time:

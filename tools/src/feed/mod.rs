@@ -338,11 +338,14 @@ mod tests {
         let cfg = Config::load(Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../config/default.toml"))).unwrap();
         let path = Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../tests/data/gcode/slic3r/box35.gcode"));
         let whole = load_gcode(path, &cfg, None).unwrap();
-        let layers: Vec<i32> = whole.layers.iter().flatten().copied().collect();
-        let third = *layers.iter().filter(|l| **l > layers[0]).nth(0).unwrap() + 1;
+        // Slic3r 1.3 writes no layer comments: layers by height, as `from_layer` numbers them.
+        let layer_of = if whole.layers.iter().all(Option::is_none) { layers_from_heights(&whole.segments) } else { whole.layers.clone() };
+        let mut distinct: Vec<i32> = layer_of.iter().flatten().copied().collect();
+        distinct.dedup();
+        let third = distinct[2];
         let r = LayerResume { layer: third, clearance: 0.01, prime: 0.001, prime_speed: 0.02, travel_feed: 0.1 };
         let resumed = whole.clone().from_layer(&r).unwrap();
-        let k = whole.layers.iter().position(|l| *l == Some(third)).unwrap();
+        let k = layer_of.iter().position(|l| *l == Some(third)).unwrap();
         let top =
             whole.segments[..k].iter().filter(|s| s.flags & ipc::segment_flags::EXTRUDE != 0).map(|s| s.end[2]).fold(f64::MIN, f64::max);
         let start = whole.segments[k - 1].end;
