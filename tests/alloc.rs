@@ -2,7 +2,8 @@
 //! allocations over 10,000 CLIK steps (FK, Jacobian, SVD, gradient, limits) on the 7-axis iiwa and on
 //! the 6-axis VP6242 in the 5-D task, none in FK or the gradient alone, and none on the rare paths:
 //! joints saturating at their limits (re-solves), NaN targets (braking) and repaired joint input;
-//! and none in a whole controller tick with its log record queued.
+//! and none in a whole controller tick with its log record queued, with and without the live view
+//! streaming to a connected Foxglove client.
 
 mod common;
 #[path = "common/paths.rs"]
@@ -121,11 +122,69 @@ fn path_engine_and_extruder_ticks_allocate_nothing() {
     }
 }
 
+#[test]
+fn controller_steps_allocate_nothing() {
+    let dir = std::env::temp_dir().join(format!("strand-alloc-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let total = counted_cell_ticks(Some(&dir.join("a.mcap")), None);
+    assert_eq!(total, 0, "allocations inside Controller::step and Logger::push");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// The same ticks with the live view on and a Foxglove client (tungstenite, `foxglove.sdk.v1`)
+/// subscribed to every channel: the view is fed by the writer thread, so the tick side still
+/// allocates nothing — and the client did receive the stream while the ticks were counted.
+#[test]
+fn controller_steps_allocate_nothing_with_a_live_viewer() {
+    use std::sync::Arc;
+    use std::sync::atomic::{AtomicU64, Ordering};
+    let options = strand_view::ViewOptions { address: "127.0.0.1:0".parse().unwrap(), name: "alloc test".into(), control: None };
+    let view = strand_view::LiveView::start(&options).unwrap();
+    let url = format!("ws://{}", view.address());
+    let received = Arc::new(AtomicU64::new(0));
+    let counter = received.clone();
+    let client = std::thread::spawn(move || {
+        use tungstenite::client::IntoClientRequest;
+        let mut request = url.into_client_request().unwrap();
+        request.headers_mut().insert("Sec-WebSocket-Protocol", "foxglove.sdk.v1".parse().unwrap());
+        let (mut ws, _) = tungstenite::connect(request).unwrap();
+        let mut next_sub = 1;
+        loop {
+            match ws.read() {
+                Ok(tungstenite::Message::Text(t)) => {
+                    let v: serde_json::Value = serde_json::from_str(t.as_str()).unwrap();
+                    if v["op"] == "advertise" {
+                        let subs: Vec<_> = v["channels"]
+                            .as_array()
+                            .unwrap()
+                            .iter()
+                            .map(|c| {
+                                next_sub += 1;
+                                serde_json::json!({"id": next_sub, "channelId": c["id"]})
+                            })
+                            .collect();
+                        let msg = serde_json::json!({"op": "subscribe", "subscriptions": subs}).to_string();
+                        ws.send(tungstenite::Message::Text(msg.into())).unwrap();
+                    }
+                }
+                Ok(tungstenite::Message::Binary(b)) if b.first() == Some(&1) => {
+                    counter.fetch_add(1, Ordering::Relaxed);
+                }
+                Ok(_) => {}
+                Err(_) => return,
+            }
+        }
+    });
+    let total = counted_cell_ticks(None, Some(view));
+    assert_eq!(total, 0, "allocations inside Controller::step and Logger::push with the live view on");
+    let _ = client.join();
+    assert!(received.load(Ordering::Relaxed) > 1000, "the viewer received {} messages", received.load(Ordering::Relaxed));
+}
+
 /// `Controller::step` allocates nothing over a whole job on a tracked base: intake, approach (IK and
 /// the joint-space trajectory), running with base correction, pause, resume, feed override, stop, a
 /// second job, emergency stop, fault and clear.
-#[test]
-fn controller_steps_allocate_nothing() {
+fn counted_cell_ticks(file: Option<&std::path::Path>, view: Option<strand_view::LiveView>) -> usize {
     use common::cell::{Cell, IIWA_START, config, square_job};
     use strand_ipc::{BasePose, Command, RunState};
     let cfg = config(|c| c.base.mode = strand::core::BaseMode::Tracked);
@@ -133,14 +192,11 @@ fn controller_steps_allocate_nothing() {
     let job = square_job(1, [0.45, -0.02, 0.2], 0.03, 3, 0.04);
     let second = square_job(100, [0.45, -0.02, 0.2], 0.02, 1, 0.04);
     // The log's tick side runs in the same ticks (its writer thread allocates as it likes).
-    let dir = std::env::temp_dir().join(format!("strand-alloc-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
     let model = cfg.robot.build_model().unwrap();
     let log_cfg = strand::log::LogConfig { queue_ticks: 65536, ..Default::default() };
-    let logger =
-        strand::log::writer::Logger::start_at(&log_cfg, strand::log::writer::LogContext::new(&cfg, &model), &dir.join("a.mcap")).unwrap();
+    let logger = strand::log::writer::Logger::start_with(&log_cfg, strand::log::writer::LogContext::new(&cfg, &model), file, view).unwrap();
     let timing = strand::log::messages::TickTiming::default();
-    let mut total = 0;
+    let mut total = 0usize;
     let mut states = std::collections::BTreeSet::new();
     for k in 0..30_000u64 {
         match k {
@@ -183,8 +239,7 @@ fn controller_steps_allocate_nothing() {
     ] {
         assert!(states.contains(&(s as u32)), "never in {s:?}: {states:?}");
     }
-    assert_eq!(total, 0, "allocations inside Controller::step and Logger::push");
     let report = logger.finish();
     assert_eq!(report.ticks_written + report.drops, 30_000);
-    let _ = std::fs::remove_dir_all(&dir);
+    total
 }

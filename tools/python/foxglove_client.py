@@ -137,6 +137,7 @@ class FoxgloveClient:
         self._factory = DecoderFactory()
         self._schema_ids = 0  # DecoderFactory caches by schema id: one fresh id per advertisement
         self._next_sub_id = 1
+        self.count_only = False  # --count-only: bytes and counts, no decoding (a cheap viewer, for cost measurements)
 
     def _decoder_for(self, ch: dict) -> Any:
         if ch.get("encoding") == "json":
@@ -193,7 +194,7 @@ class FoxgloveClient:
             return
         stats = self.stats.setdefault(ch["topic"], TopicStats())
         decoded = None
-        decoder = self.decoders.get(ch["id"])
+        decoder = None if self.count_only else self.decoders.get(ch["id"])
         if decoder is not None:
             try:
                 decoded = decoder(payload)
@@ -313,6 +314,8 @@ def main() -> int:
     p.add_argument("--connect-timeout", type=float, default=10.0, help="seconds to keep retrying (default 10)")
     p.add_argument("--subprotocol", action="append",
                    help=f"offer this subprotocol instead of {', '.join(SUBPROTOCOLS)} (repeatable)")
+    p.add_argument("--count-only", action="store_true",
+                   help="count messages and bytes without decoding them (keeps this client's CPU off a cost measurement)")
     args = p.parse_args()
     if args.seconds <= 0:
         p.error("--seconds must be positive")
