@@ -11,7 +11,7 @@ use std::time::{Duration, Instant};
 
 use strand_ipc as ipc;
 use strand_ipc::ports::{ClientPorts, ClientRoles};
-use strand_ipc::{Command, FaultCode, JobOutcome, RejectReason, RunState, ServiceNames, Status};
+use strand_ipc::{Command, FaultCode, JobOutcome, JobProgress, RejectReason, RunState, ServiceNames, Status};
 
 use crate::io::clock::monotonic_ns;
 
@@ -159,29 +159,61 @@ pub fn run(prefix: &str, verb: CtlVerb, timeout: Duration) -> Result<Status, Ctl
     })
 }
 
+/// The service's status and, while a job runs, the feeder's progress of it (waiting up to 1.2 s
+/// for the feeder's next publication: it publishes about once a second).
+pub fn status(prefix: &str, timeout: Duration) -> Result<(Status, Option<JobProgress>), CtlError> {
+    let names = ServiceNames::new(prefix);
+    let roles = ClientRoles { monitor: true, progress: true, ..ClientRoles::default() };
+    let ports = ClientPorts::open(&names, &format!("strand_ctl_{}", std::process::id()), roles)?;
+    let no_service = || CtlError::NoService { prefix: prefix.to_string(), timeout_s: timeout.as_secs_f64() };
+    let mut s = wait_status(&ports, timeout)?.ok_or_else(no_service)?;
+    let mut progress = None;
+    if s.job_outcome == JobOutcome::InProgress as u32 {
+        let deadline = Instant::now() + Duration::from_millis(1200);
+        while progress.is_none() && Instant::now() < deadline {
+            progress = ports.latest_job_progress();
+            if let Some(newer) = wait_status(&ports, Duration::from_millis(50))? {
+                s = newer;
+            }
+        }
+    }
+    Ok((s, progress.filter(|p| fresh(p))))
+}
+
+/// A progress published in the last 3 s (a feeder that stopped publishing is not streaming).
+fn fresh(p: &JobProgress) -> bool {
+    monotonic_ns().saturating_sub(p.stamp_ns) < 3_000_000_000
+}
+
 /// Prints statuses until `stop` is set: one line a status at most 5 times a second (rewritten in
 /// place on a terminal), or one JSON object per line.
 pub fn watch(prefix: &str, json: bool, timeout: Duration, stop: &std::sync::atomic::AtomicBool) -> Result<(), CtlError> {
     let names = ServiceNames::new(prefix);
-    let ports =
-        ClientPorts::open(&names, &format!("strand_ctl_{}", std::process::id()), ClientRoles { monitor: true, ..ClientRoles::default() })?;
+    let roles = ClientRoles { monitor: true, progress: true, ..ClientRoles::default() };
+    let ports = ClientPorts::open(&names, &format!("strand_ctl_{}", std::process::id()), roles)?;
+    // SAFETY: isatty on fd 1 only reads.
     let tty = unsafe { libc::isatty(1) } == 1;
+    let mut progress: Option<JobProgress> = None;
     let mut last_print = Instant::now() - Duration::from_secs(1);
     while !stop.load(std::sync::atomic::Ordering::Relaxed) {
         let Some(s) = wait_status(&ports, timeout)? else {
             return Err(CtlError::NoService { prefix: prefix.to_string(), timeout_s: timeout.as_secs_f64() });
         };
+        if let Some(p) = ports.latest_job_progress() {
+            progress = Some(p);
+        }
         if last_print.elapsed() < Duration::from_millis(200) {
             continue;
         }
         last_print = Instant::now();
+        let p = progress.as_ref().filter(|p| fresh(p) && s.job_outcome == JobOutcome::InProgress as u32);
         if json {
-            println!("{}", status_json(&s));
+            println!("{}", status_json(&s, p));
         } else if tty {
-            print!("\r\x1b[2K{}", status_line(&s));
+            print!("\r\x1b[2K{}", status_line(&s, p));
             let _ = std::io::Write::flush(&mut std::io::stdout());
         } else {
-            println!("{}", status_line(&s));
+            println!("{}", status_line(&s, p));
         }
     }
     if tty && !json {
@@ -205,17 +237,30 @@ fn wait_status(ports: &ClientPorts, timeout: Duration) -> Result<Option<Status>,
     }
 }
 
-/// The status as one line: state, job, layer, line, path, queue, overrides, faults.
-pub fn status_line(s: &Status) -> String {
+/// The status as one line: state, job (with the feeder's progress: name, percent, the program's
+/// layer, ETA), layer, line, path, queue, overrides, faults.
+pub fn status_line(s: &Status, progress: Option<&JobProgress>) -> String {
     let mut out = String::new();
     let state = RunState::from_u32(s.run_state).map_or(format!("state {}", s.run_state), |r| format!("{r:?}"));
     let job = JobOutcome::from_u32(s.job_outcome).map_or(format!("{}", s.job_outcome), |j| format!("{j:?}"));
     let _ = write!(out, "{state} · job {job}");
+    if let Some(p) = progress {
+        let _ = write!(out, " {} {:.1} %", p.name(), p.fraction * 100.0);
+        if p.layer >= 0 {
+            let _ = write!(out, " · layer {} of {}", p.layer, p.last_layer);
+        }
+        if p.eta_s >= 0.0 {
+            let eta = p.eta_s.round() as u64;
+            let _ = write!(out, " · ETA {}:{:02}:{:02}", eta / 3600, eta / 60 % 60, eta % 60);
+        }
+    }
     if s.executing_seq > 0 {
+        if progress.is_none_or(|p| p.layer < 0) {
+            let _ = write!(out, " · layer {}", s.executing_layer);
+        }
         let _ = write!(
             out,
-            " · layer {} · line {} · segment {} · {:.3} m at {:.1} mm/s",
-            s.executing_layer,
+            " · line {} · segment {} · {:.3} m at {:.1} mm/s",
             s.executing_line,
             s.executing_seq,
             s.path_position,
@@ -239,10 +284,25 @@ pub fn status_line(s: &Status) -> String {
     out
 }
 
-/// The status as a JSON object (names for the enums beside their numbers).
-pub fn status_json(s: &Status) -> serde_json::Value {
+/// The status as a JSON object (names for the enums), with the feeder's progress under `job` when
+/// a job runs.
+pub fn status_json(s: &Status, progress: Option<&JobProgress>) -> serde_json::Value {
     let name = |v: Option<String>| v.unwrap_or_default();
+    let job = progress.map(|p| {
+        serde_json::json!({
+            "name": p.name(),
+            "fraction": p.fraction,
+            "layer": p.layer,
+            "last_layer": p.last_layer,
+            "elapsed_s": p.elapsed_s,
+            "eta_s": if p.eta_s >= 0.0 { serde_json::json!(p.eta_s) } else { serde_json::Value::Null },
+            "segments_sent": p.segments_sent,
+            "first_seq": p.first_seq,
+            "last_seq": p.last_seq,
+        })
+    });
     serde_json::json!({
+        "job": job,
         "run_state": name(RunState::from_u32(s.run_state).map(|r| format!("{r:?}"))),
         "fault": name(FaultCode::from_u32(s.fault).map(|r| format!("{r:?}"))),
         "job_outcome": name(JobOutcome::from_u32(s.job_outcome).map(|r| format!("{r:?}"))),

@@ -230,13 +230,14 @@ fn ctl(prefix: &str, timeout: f64, verb: strand::ctl::CtlVerb) -> ExitCode {
     let timeout = std::time::Duration::from_secs_f64(if timeout.is_finite() { timeout.clamp(0.05, 3600.0) } else { 3.0 });
     let result = match verb {
         CtlVerb::Status { watch: true, json } => strand::ctl::watch(prefix, json, timeout, &STOP).map(|()| None),
-        v => strand::ctl::run(prefix, v, timeout).map(Some),
+        CtlVerb::Status { watch: false, .. } => strand::ctl::status(prefix, timeout).map(Some),
+        v => strand::ctl::run(prefix, v, timeout).map(|s| Some((s, None))),
     };
     match result {
-        Ok(Some(s)) => {
+        Ok(Some((s, progress))) => {
             match verb {
-                CtlVerb::Status { json: true, .. } => println!("{}", strand::ctl::status_json(&s)),
-                _ => println!("{}", strand::ctl::status_line(&s)),
+                CtlVerb::Status { json: true, .. } => println!("{}", strand::ctl::status_json(&s, progress.as_ref())),
+                _ => println!("{}", strand::ctl::status_line(&s, progress.as_ref())),
             }
             ExitCode::SUCCESS
         }

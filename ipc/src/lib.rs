@@ -225,6 +225,74 @@ pub struct JointState {
     pub effort: [f64; MAX_JOINTS],
 }
 
+/// A feeder's view of the job it streams, for consoles (`strand ctl status`) and HMIs: what the
+/// controller cannot know — the job's name, its layers, how far it is and when it will end.
+/// Published by the feeder about once a second on its own service (the controller does not read
+/// it); history 1, so a console that opens late gets the latest at the next publish. 112 bytes.
+#[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
+#[type_name("strand.v2.JobProgress")]
+#[repr(C)]
+pub struct JobProgress {
+    /// Sequence number.
+    pub seq: u64,
+    /// When it was published (ns, monotonic).
+    pub stamp_ns: u64,
+    /// The job's first and last segment numbers.
+    pub first_seq: u64,
+    /// The job's last segment number.
+    pub last_seq: u64,
+    /// Segments sent so far (count).
+    pub segments_sent: u64,
+    /// The program's layer of the segment executing (the slicer's number; −1: none yet or unknown).
+    pub layer: i32,
+    /// The program's last layer (−1: unknown).
+    pub last_layer: i32,
+    /// Fraction of the job's path length done (0 to 1).
+    pub fraction: f64,
+    /// Time since streaming started (s).
+    pub elapsed_s: f64,
+    /// Estimated time left (s; < 0: not known yet).
+    pub eta_s: f64,
+    /// The job's file name (UTF-8, zero-padded, cut to 40 bytes).
+    pub name: [u8; 40],
+}
+
+impl Default for JobProgress {
+    fn default() -> Self {
+        JobProgress {
+            seq: 0,
+            stamp_ns: 0,
+            first_seq: 0,
+            last_seq: 0,
+            segments_sent: 0,
+            layer: -1,
+            last_layer: -1,
+            fraction: 0.0,
+            elapsed_s: 0.0,
+            eta_s: -1.0,
+            name: [0; 40],
+        }
+    }
+}
+
+impl JobProgress {
+    /// `name` cut to the field (on a character boundary).
+    pub fn set_name(&mut self, name: &str) {
+        let mut end = name.len().min(self.name.len());
+        while !name.is_char_boundary(end) {
+            end -= 1;
+        }
+        self.name = [0; 40];
+        self.name[..end].copy_from_slice(&name.as_bytes()[..end]);
+    }
+
+    /// The name as text.
+    pub fn name(&self) -> String {
+        let end = self.name.iter().position(|b| *b == 0).unwrap_or(self.name.len());
+        String::from_utf8_lossy(&self.name[..end]).into_owned()
+    }
+}
+
 /// A measured pose of the robot base B in W, from tracking. 72 bytes.
 #[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
 #[type_name("strand.v2.BasePose")]
@@ -530,6 +598,10 @@ impl ServiceNames {
     pub fn status(&self) -> String {
         format!("{}/status", self.prefix)
     }
+    /// [`JobProgress`] from the feeder.
+    pub fn job_progress(&self) -> String {
+        format!("{}/job_progress", self.prefix)
+    }
 }
 
 impl Default for ServiceNames {
@@ -554,6 +626,7 @@ mod tests {
         assert_eq!(size_of::<JointCommand>(), 48 + 3 * 64);
         assert_eq!(size_of::<ExtruderCommand>(), 64);
         assert_eq!(size_of::<Status>(), 192);
+        assert_eq!(size_of::<JobProgress>(), 112);
         for a in [align_of::<Segment>(), align_of::<Status>(), align_of::<JointCommand>()] {
             assert_eq!(a, 8);
         }

@@ -51,7 +51,7 @@
 use core::fmt::Debug;
 use core::time::Duration;
 
-use crate::{BasePose, Control, ExtruderCommand, JointCommand, JointState, SegmentBatch, ServiceNames, Status};
+use crate::{BasePose, Control, ExtruderCommand, JobProgress, JointCommand, JointState, SegmentBatch, ServiceNames, Status};
 use iceoryx2::port::listener::{Listener, ListenerWaitError};
 use iceoryx2::port::notifier::Notifier;
 use iceoryx2::port::publisher::Publisher;
@@ -162,6 +162,8 @@ pub const CONTROL_QOS: Qos = Qos { buffer: 64, history: 0, max_publishers: 4, ma
 pub const MEASUREMENT_QOS: Qos = Qos { buffer: 16, history: 0, max_publishers: 4, max_subscribers: 8 };
 /// Controller outputs (joint command, extruder command, status): one publisher, last sample kept.
 pub const OUTPUT_QOS: Qos = Qos { buffer: 16, history: 1, max_publishers: 1, max_subscribers: 8 };
+/// Job progress from the feeder: the last one kept for a console that opens late.
+pub const JOB_PROGRESS_QOS: Qos = Qos { buffer: 4, history: 1, max_publishers: 4, max_subscribers: 8 };
 /// Nodes that may use one service (count).
 const MAX_NODES: usize = 20;
 /// Notifiers and listeners per event service (count).
@@ -437,6 +439,8 @@ pub struct ClientRoles {
     /// Publishes control commands only (an operator's console: `strand ctl`, the live view). Unlike
     /// a feeder it holds no segment publisher, so it never hides a lost feeder from the service.
     pub control: bool,
+    /// Subscribes to the feeder's [`JobProgress`] (a console). A feeder publishes it.
+    pub progress: bool,
 }
 
 /// The other side of the contract: a feeder, robot driver (or simulator), tracker or monitor, or
@@ -452,6 +456,8 @@ pub struct ClientPorts {
     joint_command: Option<Inbox<JointCommand>>,
     extruder_command: Option<Inbox<ExtruderCommand>>,
     status: Option<Inbox<Status>>,
+    job_progress_out: Option<Outbox<JobProgress>>,
+    job_progress_in: Option<Inbox<JobProgress>>,
     // Last: every port above is dropped before the node.
     _node: Node<Ipc>,
 }
@@ -477,6 +483,12 @@ impl ClientPorts {
             },
             extruder_command: if monitor { Some(Channel::open(&node, names.extruder_command(), OUTPUT_QOS)?.subscriber()?) } else { None },
             status: if monitor { Some(Channel::open(&node, names.status(), OUTPUT_QOS)?.subscriber_with_listener()?) } else { None },
+            job_progress_out: if feeder { Some(Channel::open(&node, names.job_progress(), JOB_PROGRESS_QOS)?.publisher()?) } else { None },
+            job_progress_in: if roles.progress {
+                Some(Channel::open(&node, names.job_progress(), JOB_PROGRESS_QOS)?.subscriber()?)
+            } else {
+                None
+            },
             names: names.clone(),
             _node: node,
         })
@@ -565,6 +577,19 @@ impl ClientPorts {
             Some(inbox) => inbox.wait(timeout_ns),
             None => Err(self.missing(self.names.status(), "monitor")),
         }
+    }
+
+    /// Publishes the job's progress (feeder); returns the number of subscribers reached.
+    pub fn send_job_progress(&self, progress: &JobProgress) -> Result<usize, PortError> {
+        match &self.job_progress_out {
+            Some(out) => out.send(progress),
+            None => Err(self.missing(self.names.job_progress(), "feeder")),
+        }
+    }
+
+    /// The newest job progress a feeder published (progress role); `None` if none came.
+    pub fn latest_job_progress(&self) -> Option<JobProgress> {
+        self.job_progress_in.as_ref().and_then(Inbox::latest)
     }
 
     /// Publishers of the status now (count; monitor): 0 means no controller is running. 0 without

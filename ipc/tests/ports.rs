@@ -28,7 +28,7 @@ fn names(test: &str) -> ServiceNames {
     ServiceNames::new(&format!("strand/test-{}-{}", std::process::id(), test))
 }
 
-const ALL_ROLES: ClientRoles = ClientRoles { feeder: true, driver: true, tracker: true, monitor: true, control: true };
+const ALL_ROLES: ClientRoles = ClientRoles { feeder: true, driver: true, tracker: true, monitor: true, control: true, progress: true };
 
 /// The bytes of a wire message (the contract types have no implicit padding).
 fn bytes<T: Copy>(v: &T) -> &[u8] {

@@ -42,6 +42,7 @@ __all__ = [
     "JointCommand",
     "ExtruderCommand",
     "Status",
+    "JobProgress",
     "ServiceNames",
     "service_names",
     "MESSAGE_TYPES",
@@ -177,6 +178,8 @@ def enum_name(cls: type[enum.IntEnum], value: int) -> str:
 _u32 = ctypes.c_uint32
 _u64 = ctypes.c_uint64
 _f64 = ctypes.c_double
+_i32 = ctypes.c_int32
+_u8 = ctypes.c_uint8
 
 
 class _Message(ctypes.Structure):
@@ -419,6 +422,28 @@ class Status(_Message):
         )
 
 
+class JobProgress(_Message):
+    """A feeder's progress of the job it streams, for consoles (its own service). 112 bytes."""
+
+    _fields_ = [
+        ("seq", _u64),
+        ("stamp_ns", _u64),
+        ("first_seq", _u64),
+        ("last_seq", _u64),
+        ("segments_sent", _u64),
+        ("layer", _i32),
+        ("last_layer", _i32),
+        ("fraction", _f64),
+        ("elapsed_s", _f64),
+        ("eta_s", _f64),
+        ("name", _u8 * 40),
+    ]
+
+    @staticmethod
+    def type_name() -> str:
+        return "strand.v2.JobProgress"
+
+
 # --- service names ---------------------------------------------------------------------------------
 
 
@@ -434,6 +459,7 @@ class ServiceNames:
     joint_command: str
     extruder_command: str
     status: str
+    job_progress: str
 
 
 def service_names(prefix: str = DEFAULT_PREFIX) -> ServiceNames:
@@ -448,12 +474,13 @@ def service_names(prefix: str = DEFAULT_PREFIX) -> ServiceNames:
         joint_command=f"{p}/joint_command",
         extruder_command=f"{p}/extruder_command",
         status=f"{p}/status",
+        job_progress=f"{p}/job_progress",
     )
 
 
 # --- layout self-check -----------------------------------------------------------------------------
 
-MESSAGE_TYPES = (Segment, SegmentBatch, Control, JointState, BasePose, JointCommand, ExtruderCommand, Status)
+MESSAGE_TYPES = (Segment, SegmentBatch, Control, JointState, BasePose, JointCommand, ExtruderCommand, Status, JobProgress)
 
 #: Sizes from the Rust test ``sizes_are_stable`` (ipc/src/lib.rs).
 EXPECTED_SIZES = {
@@ -465,6 +492,7 @@ EXPECTED_SIZES = {
     JointCommand: 48 + 3 * 64,
     ExtruderCommand: 64,
     Status: 192,
+    JobProgress: 112,
 }
 
 assert ctypes.sizeof(Segment) == 176

@@ -20,7 +20,7 @@ import strand_ipc as ipc  # noqa: E402
 
 LIB_RS = os.path.join(HERE, "..", "..", "ipc", "src", "lib.rs")
 
-_SCALARS = {"u32": ctypes.c_uint32, "u64": ctypes.c_uint64, "f64": ctypes.c_double}
+_SCALARS = {"u32": ctypes.c_uint32, "u64": ctypes.c_uint64, "f64": ctypes.c_double, "i32": ctypes.c_int32, "u8": ctypes.c_uint8}
 
 
 def _source() -> str:

@@ -239,10 +239,19 @@ fn strand_ctl_pauses_overrides_resumes_stops_and_refuses_with_reasons() {
     let moving = status(&prefix);
     assert_eq!(moving["run_state"], "Running");
     assert!(moving["path_position_m"].as_f64().unwrap() > paused["path_position_m"].as_f64().unwrap());
-    // The live line: one line with the state, layer and overrides.
+    // The status: the job as the feeder sees it (name, progress, layer, ETA) beside the
+    // controller's state and overrides.
     let line = ctl(&prefix, &["status"]);
     let text = String::from_utf8_lossy(&line.stdout);
-    assert!(text.starts_with("Running · job InProgress · layer 1 ·") && text.contains("feed 50 % flow 90 %"), "{text}");
+    assert!(text.starts_with("Running · job InProgress square.gcode ") && text.contains("feed 50 % flow 90 %"), "{text}");
+    assert!(text.contains(" · layer ") && text.contains(" · ETA "), "{text}");
+    let s = status(&prefix);
+    let job = &s["job"];
+    assert_eq!(job["name"], "square.gcode", "{s}");
+    let fraction = job["fraction"].as_f64().unwrap();
+    assert!(fraction > 0.0 && fraction < 1.0, "{s}");
+    assert!(job["eta_s"].as_f64().is_some_and(|e| e > 0.0), "{s}");
+    assert_eq!(job["last_seq"].as_u64(), Some(161), "a travel and 40 × 4 lines: {s}");
     // Stop: the job ends Stopped and the feeder says so.
     assert_ok("stop", &ctl(&prefix, &["stop"]));
     assert_eq!(fed.wait().unwrap().code(), Some(6));

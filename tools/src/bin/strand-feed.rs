@@ -149,6 +149,7 @@ fn main() -> ExitCode {
         prefix: cli.prefix.clone().unwrap_or_else(|| cfg.service.prefix.clone()),
         wait_service: cli.wait_service,
         quiet: cli.quiet,
+        name: cli.file.file_name().map_or_else(|| cli.file.display().to_string(), |n| n.to_string_lossy().into_owned()),
     };
     let keys = Keys::start(cli.keys);
     let streamed = stream(&job, &opts, &INTERRUPTS, keys.as_ref());

@@ -26,6 +26,8 @@ pub struct StreamOptions {
     pub wait_service: f64,
     /// No progress bar: one line per 10 % on stderr instead.
     pub quiet: bool,
+    /// The job's name in the progress it publishes for consoles (`strand ctl status`).
+    pub name: String,
 }
 
 /// The job check before streaming (`strand check-job`'s, with the base trajectory of a tracked
@@ -81,6 +83,14 @@ pub fn stream(job: &Job, opts: &StreamOptions, interrupts: &AtomicU32, keys: Opt
     let mut interrupts_handled = 0;
     let mut last_quiet_decile = 0;
     let mut silent_since: Option<Instant> = None;
+    let mut progress = ipc::JobProgress {
+        first_seq,
+        last_seq,
+        last_layer: job.layers.iter().flatten().max().copied().unwrap_or(-1),
+        ..Default::default()
+    };
+    progress.set_name(&opts.name);
+    let mut progress_sent: Option<Instant> = None;
     let send_control_value = |seq: &mut u64, command: Command, value: f64| {
         *seq += 1;
         let c = ipc::Control { seq: *seq, stamp_ns: strand::io::clock::monotonic_ns(), command: command as u32, value, _reserved: 0 };
@@ -156,6 +166,18 @@ pub fn stream(job: &Job, opts: &StreamOptions, interrupts: &AtomicU32, keys: Opt
             eta(started_at.elapsed(), fraction),
             if keys.is_some() { " | p pause/resume, +/- feed, s stop" } else { "" }
         ));
+        // For consoles: about once a second.
+        if progress_sent.is_none_or(|t| t.elapsed() >= Duration::from_secs(1)) {
+            progress_sent = Some(Instant::now());
+            progress.seq += 1;
+            progress.stamp_ns = strand::io::clock::monotonic_ns();
+            progress.segments_sent = sent as u64;
+            progress.layer = job.layers.get(done).copied().flatten().unwrap_or(-1);
+            progress.fraction = fraction;
+            progress.elapsed_s = started_at.elapsed().as_secs_f64();
+            progress.eta_s = eta_s(started_at.elapsed(), fraction).unwrap_or(-1.0);
+            ports.send_job_progress(&progress)?;
+        }
         if opts.quiet && (fraction * 10.0) as u32 > last_quiet_decile {
             last_quiet_decile = (fraction * 10.0) as u32;
             eprintln!("strand-feed: {} % (segment {}, layer {layer})", last_quiet_decile * 10, status.executing_seq);
@@ -199,11 +221,12 @@ pub fn stream(job: &Job, opts: &StreamOptions, interrupts: &AtomicU32, keys: Opt
 }
 
 fn eta(elapsed: Duration, fraction: f64) -> String {
-    if fraction <= 0.01 {
-        return String::new();
-    }
-    let left = elapsed.as_secs_f64() * (1.0 - fraction) / fraction;
-    format!(" | ETA {:.0} s", left)
+    eta_s(elapsed, fraction).map_or(String::new(), |left| format!(" | ETA {left:.0} s"))
+}
+
+/// Time left (s) at the pace so far; `None` before 1 % is done.
+fn eta_s(elapsed: Duration, fraction: f64) -> Option<f64> {
+    (fraction > 0.01).then(|| elapsed.as_secs_f64() * (1.0 - fraction) / fraction)
 }
 
 fn progress_bar(len: u64, quiet: bool) -> ProgressBar {
