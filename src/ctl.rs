@@ -15,6 +15,10 @@ use strand_ipc::{Command, FaultCode, JobOutcome, JobProgress, RejectReason, RunS
 
 use crate::io::clock::monotonic_ns;
 
+/// How long after sending a command its acknowledgement is looked for: longer than a tick at the
+/// slowest rate (250 Hz) with margin for the robot clock's pace.
+const SETTLE: Duration = Duration::from_millis(25);
+
 /// What `strand ctl` does.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum CtlVerb {
@@ -137,10 +141,17 @@ pub fn run(prefix: &str, verb: CtlVerb, timeout: Duration) -> Result<Status, Ctl
         return Err(no_service());
     }
     let deadline = Instant::now() + timeout;
+    // A status already on its way when the command went out would show the old state (and a
+    // clear-fault with no fault would look done): judge only statuses that arrive SETTLE after
+    // the send, when every tick since has seen the command (the queue is drained each time).
+    let settle = Instant::now() + SETTLE;
     let mut last = before;
     while Instant::now() < deadline {
         let Some(s) = wait_status(&ports, deadline.saturating_duration_since(Instant::now()))? else { break };
         last = s;
+        if Instant::now() < settle {
+            continue;
+        }
         if s.rejected > before.rejected {
             let reason = RejectReason::from_u32(s.last_reject_reason).unwrap_or(RejectReason::None);
             if matches!(reason, RejectReason::NotAllowed | RejectReason::BadValue | RejectReason::NotReady | RejectReason::UnknownKind) {

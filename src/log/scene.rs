@@ -208,6 +208,49 @@ fn dist(a: &[f64; 3], b: &[f64; 3]) -> f64 {
     ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt()
 }
 
+/// The URDF a viewer draws: `urdf` with a stick figure added to every link that has no visual of
+/// its own — a cylinder from the link's origin to each child joint and a sphere at the joint —
+/// so a kinematics-only URDF (strand's robots carry no meshes) still shows the arm, not just its
+/// frames. Kinematics are untouched (joints, origins, limits); an URDF that does not parse is
+/// returned as it is.
+pub fn with_stick_visuals(urdf: &str) -> String {
+    let Ok(mut robot) = urdf_rs::read_from_string(urdf) else { return urdf.to_string() };
+    let offsets: Vec<(String, Vector3<f64>)> =
+        robot.joints.iter().map(|j| (j.parent.link.clone(), Vector3::from(j.origin.xyz.0))).collect();
+    let longest = offsets.iter().map(|(_, t)| t.norm()).fold(0.0, f64::max);
+    let radius = (0.12 * longest).clamp(0.008, 0.04);
+    let material = || urdf_rs::Material {
+        name: "strand_stick".to_string(),
+        color: Some(urdf_rs::Color { rgba: urdf_rs::Vec4([0.85, 0.55, 0.1, 1.0]) }),
+        texture: None,
+    };
+    for link in robot.links.iter_mut().filter(|l| l.visual.is_empty()) {
+        for (_, t) in offsets.iter().filter(|(parent, _)| *parent == link.name) {
+            let length = t.norm();
+            if length < 1e-4 {
+                continue;
+            }
+            let rot = UnitQuaternion::rotation_between(&Vector3::z(), t)
+                .unwrap_or_else(|| UnitQuaternion::from_scaled_axis(Vector3::x() * std::f64::consts::PI));
+            let (roll, pitch, yaw) = rot.euler_angles();
+            let mid = t * 0.5;
+            link.visual.push(urdf_rs::Visual {
+                name: None,
+                origin: urdf_rs::Pose { xyz: urdf_rs::Vec3([mid.x, mid.y, mid.z]), rpy: urdf_rs::Vec3([roll, pitch, yaw]) },
+                geometry: urdf_rs::Geometry::Cylinder { radius, length },
+                material: Some(material()),
+            });
+            link.visual.push(urdf_rs::Visual {
+                name: None,
+                origin: urdf_rs::Pose { xyz: urdf_rs::Vec3([t.x, t.y, t.z]), rpy: urdf_rs::Vec3([0.0; 3]) },
+                geometry: urdf_rs::Geometry::Sphere { radius: 1.3 * radius },
+                material: Some(material()),
+            });
+        }
+    }
+    urdf_rs::write_to_string(&robot).unwrap_or_else(|_| urdf.to_string())
+}
+
 /// Builds the scene's messages from the ticks (see the module documentation).
 pub struct Scene {
     joints: Vec<TfJoint>,
@@ -261,7 +304,7 @@ impl Scene {
             joints,
             model: model.clone(),
             names: chain.iter().map(|s| s.to_string()).collect(),
-            urdf: urdf.to_string(),
+            urdf: with_stick_visuals(urdf),
             cfg: cfg.clone(),
             next_tf_ns: 0,
             next_marker_ns: 0,
@@ -500,4 +543,32 @@ fn marker(w: &mut CdrWriter, stamp_ns: u64, ns: &str, id: i32, kind: i32, width:
     w.string("");
     w.len(0);
     w.u8(0);
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_stick_figure_keeps_the_kinematics() {
+        let dir = concat!(env!("CARGO_MANIFEST_DIR"), "/config/robots/");
+        for (robot, root, tip) in [("iiwa7", "world", "iiwa_link_ee"), ("kr6r900", "base_link", "tool0")] {
+            let urdf = std::fs::read_to_string(format!("{dir}{robot}.urdf")).unwrap();
+            let drawn = with_stick_visuals(&urdf);
+            let parsed = urdf_rs::read_from_string(&drawn).unwrap();
+            let sticks = parsed.links.iter().map(|l| l.visual.len()).sum::<usize>();
+            assert!(sticks >= 10, "{robot}: {sticks} visuals");
+            let a = RobotModel::from_urdf_str(&urdf, robot, root, tip).unwrap();
+            let b = RobotModel::from_urdf_str(&drawn, robot, root, tip).unwrap();
+            let mut q = JointVector::zeros();
+            for k in 0..20 {
+                for i in 0..a.dof() {
+                    q[i] = ((k * 7 + i * 3) % 11) as f64 * 0.1 - 0.5;
+                }
+                let (fa, fb) = (a.forward_kinematics(&q), b.forward_kinematics(&q));
+                assert!((fa.translation.vector - fb.translation.vector).norm() < 1e-12, "{robot}");
+                assert!((fa.rotation.matrix() - fb.rotation.matrix()).norm() < 1e-12, "{robot}");
+            }
+        }
+    }
 }

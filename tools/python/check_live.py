@@ -100,9 +100,18 @@ def main() -> int:
     description = (topics.get("/robot_description") or {}).get("first") or {}
     urdf = description.get("data", "")
     log_urdf = [m[0]["data"] for (t, _), m in by_time.items() if t == "/robot_description"]
-    if not urdf or not log_urdf or urdf != log_urdf[0] or urdf != urdf_attachment:
-        failures.append("/robot_description: missing live, or not the log's URDF")
+    if not urdf or not log_urdf or urdf != log_urdf[0]:
+        failures.append("/robot_description: missing live, or not the log's")
     links = {e.get("name") for e in ET.fromstring(urdf).iter("link")} if urdf else set()
+    # The drawn URDF is the robot's with a stick figure added: the same links and joints.
+    if urdf_attachment:
+        robot = ET.fromstring(urdf_attachment)
+        joints = lambda root: sorted((j.get("name"), j.find("parent").get("link"), j.find("child").get("link"))  # noqa: E731
+                                     for j in root.iter("joint"))
+        if links != {e.get("name") for e in robot.iter("link")} or (urdf and joints(ET.fromstring(urdf)) != joints(robot)):
+            failures.append("/robot_description: not the robot's links and joints")
+        if urdf and not any(True for _ in ET.fromstring(urdf).iter("visual")):
+            failures.append("/robot_description: nothing to draw (no visual)")
 
     tf = (topics.get("/tf") or {}).get("last") or {}
     children = {t["child_frame_id"] for t in tf.get("transforms", [])}
