@@ -188,7 +188,7 @@ pub fn status(prefix: &str, timeout: Duration) -> Result<(Status, Option<JobProg
             }
         }
     }
-    Ok((s, progress.filter(|p| fresh(p))))
+    Ok((s, progress.filter(fresh)))
 }
 
 /// A progress published in the last 3 s (a feeder that stopped publishing is not streaming).

@@ -8,7 +8,9 @@
 //! - `strand ctl`: every verb against a running job, acknowledged or refused with the reason, and
 //!   no service → exit 1;
 //! - strand-feed's keys: pause, feed override, resume and stop from its stdin;
-//! - `--resume-layer`: a job resumed at its second layer finishes.
+//! - `--resume-layer`: a job resumed at its second layer finishes;
+//! - `strand-demo --view`: the whole cell (plant in real time) served live, and it still finishes
+//!   with a log that replays identically.
 
 mod common;
 
@@ -321,5 +323,39 @@ fn a_job_resumed_at_a_layer_finishes() {
     let bad = feed(&prefix, &program, &["--resume-layer", "99"]).output().unwrap();
     assert_eq!(bad.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&bad.stderr).contains("--resume-layer 99: the program has layers"), "{bad:?}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn the_demo_serves_the_live_view_and_still_finishes() {
+    if !python_client_available() {
+        return;
+    }
+    let dir = temp_dir("live", "demo");
+    let program = square_program(&dir, 1, 2, 2400.0);
+    let port = 18_000 + (std::process::id() % 1000) as u16;
+    let address = format!("view.address=\"127.0.0.1:{port}\"");
+    let demo = Command::new(Path::new(env!("CARGO_BIN_EXE_strand-demo")))
+        .args(["--view", "--json", "--no-check", "--gcode", program.to_str().unwrap(), "--set", FAST_APPROACH, "--set", &address, "--out"])
+        .arg(dir.join("demo"))
+        .current_dir(root())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let watched =
+        python("foxglove_client.py", &[&format!("ws://127.0.0.1:{port}"), "--seconds", "120", "--json", "--connect-timeout", "60"])
+            .output()
+            .unwrap();
+    let out = demo.wait_with_output().unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert_eq!(out.status.code(), Some(0), "{stdout}\n{}", String::from_utf8_lossy(&out.stderr));
+    assert!(stdout.contains("live view on ws://127.0.0.1:"), "{stdout}");
+    let summary: serde_json::Value = serde_json::from_str(stdout.lines().last().unwrap()).unwrap();
+    assert_eq!(summary["identical"], true, "{summary}");
+    let live: serde_json::Value = serde_json::from_slice(&watched.stdout).unwrap_or_else(|e| panic!("{e}: {watched:?}"));
+    for topic in ["/robot_description", "/tf", "/bead", "/path/ahead", "/status", "/joint_states"] {
+        assert!(live["topics"][topic]["count"].as_u64().unwrap_or(0) > 0, "{topic} not received: {}", live["topics"]);
+    }
     let _ = std::fs::remove_dir_all(&dir);
 }

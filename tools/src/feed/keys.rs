@@ -3,7 +3,7 @@
 //! echo (Ctrl-C still interrupts) and restored when the [`Keys`] value is dropped; from a pipe
 //! (scripts, tests) the bytes are read as they come.
 
-use std::sync::mpsc::{Receiver, TryRecvError, channel};
+use std::sync::mpsc::{Receiver, channel};
 
 /// A key pressed while streaming.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -71,10 +71,7 @@ impl Keys {
 
     /// The next key pressed, if any.
     pub fn next(&self) -> Option<Key> {
-        match self.rx.try_recv() {
-            Ok(k) => Some(k),
-            Err(TryRecvError::Empty | TryRecvError::Disconnected) => None,
-        }
+        self.rx.try_recv().ok()
     }
 }
 

@@ -220,7 +220,7 @@ impl Job {
         let layer = self.layers[k];
         let first_seq = self.segments[k].seq;
         let shift = (lead.len() as u64 + 1).saturating_sub(first_seq);
-        let mut segments: Vec<ipc::Segment> = lead.iter().copied().collect();
+        let mut segments: Vec<ipc::Segment> = lead.to_vec();
         segments.extend(self.segments[k..].iter().map(|s| ipc::Segment { seq: s.seq + shift, ..*s }));
         let base = first_seq + shift - lead.len() as u64;
         for (i, s) in segments.iter_mut().take(lead.len()).enumerate() {
