@@ -34,6 +34,10 @@ pub struct ViewConfig {
     pub path_ahead_segments: usize,
     /// TCP error drawn fully red on the bead (m, > 0); 0 errors are green.
     pub bead_error_scale: f64,
+    /// Points of the bead and of the executed path (each) kept for viewers that connect
+    /// mid-print, who get the whole of it when they subscribe (about 40 bytes a point; the oldest
+    /// go first), 0 to 10,000,000.
+    pub history_points: usize,
 }
 
 impl Default for ViewConfig {
@@ -53,6 +57,7 @@ impl Default for ViewConfig {
             marker_rate_hz: 4.0,
             path_ahead_segments: 200,
             bead_error_scale: 0.001,
+            history_points: 1_000_000,
         }
     }
 }
@@ -98,6 +103,9 @@ impl ViewConfig {
         }
         if !(1..=10_000).contains(&self.path_ahead_segments) {
             return bad(format!("[view] path_ahead_segments = {}: must lie in [1, 10000]", self.path_ahead_segments));
+        }
+        if self.history_points > 10_000_000 {
+            return bad(format!("[view] history_points = {}: must lie in [0, 10000000]", self.history_points));
         }
         if !(self.bead_error_scale.is_finite() && self.bead_error_scale > 0.0) {
             return bad(format!("[view] bead_error_scale = {}: must be > 0 m", self.bead_error_scale));

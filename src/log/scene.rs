@@ -166,6 +166,9 @@ const EXTRUDE_COLOUR: Rgba = [0.15, 0.45, 1.0, 0.9];
 const TRAVEL_COLOUR: Rgba = [0.6, 0.6, 0.6, 0.5];
 const TRAIL_COLOUR: Rgba = [1.0, 0.6, 0.1, 0.8];
 
+/// One chunk of a trail: marker id, points (m, W), colours.
+type Chunk = (i32, Vec<[f64; 3]>, Vec<Rgba>);
+
 /// A line strip that grows in chunks (see the module documentation).
 #[derive(Default)]
 struct Trail {
@@ -176,15 +179,40 @@ struct Trail {
     fresh: bool,
     /// The next point starts a new chunk (the bead stopped).
     broken: bool,
+    /// Chunks that filled up or broke off since the last message while holding points not yet
+    /// sent: sent once more, whole, with the next message (else their last points would never be
+    /// drawn).
+    finished: Vec<Chunk>,
+    /// Finished chunks (id, points, colours), oldest first, for viewers that connect later.
+    history: VecDeque<Chunk>,
+    /// Points in `history`, and the most it keeps (the oldest chunks go first).
+    history_points: usize,
+    history_cap: usize,
 }
 
 impl Trail {
+    fn new(history_cap: usize) -> Trail {
+        Trail { history_cap, ..Trail::default() }
+    }
+
     fn add(&mut self, p: [f64; 3], colour: Rgba) {
         if self.broken || self.points.len() >= CHUNK_POINTS {
             // A full chunk starts the next at its last point, so the line stays continuous; a
             // broken one starts afresh.
             let last = if self.broken { None } else { self.points.last().copied().zip(self.colours.last().copied()) };
             if !self.points.is_empty() {
+                if self.points.len() >= 2 && self.fresh {
+                    self.finished.push((self.id, self.points.clone(), self.colours.clone()));
+                    self.fresh = false;
+                }
+                if self.points.len() >= 2 && self.history_cap > 0 {
+                    self.history_points += self.points.len();
+                    self.history.push_back((self.id, self.points.clone(), self.colours.clone()));
+                    while self.history_points > self.history_cap {
+                        let Some((_, dropped, _)) = self.history.pop_front() else { break };
+                        self.history_points -= dropped.len();
+                    }
+                }
                 self.id += 1;
             }
             self.points.clear();
@@ -310,8 +338,8 @@ impl Scene {
             next_marker_ns: 0,
             ahead: VecDeque::new(),
             ahead_start: None,
-            executed: Trail::default(),
-            bead: Trail::default(),
+            executed: Trail::new(cfg.history_points),
+            bead: Trail::new(cfg.history_points),
             cdr: CdrWriter::new(),
         }
     }
@@ -381,16 +409,39 @@ impl Scene {
             self.encode_ahead(stamp_ns, [target.x, target.y, target.z]);
             emit(SceneTopic::PathAhead, self.cdr.bytes())?;
             for topic in [SceneTopic::PathExecuted, SceneTopic::Bead] {
-                let trail = if topic == SceneTopic::Bead { &self.bead } else { &self.executed };
-                if trail.fresh && trail.points.len() >= 2 {
-                    let (ns, width) = if topic == SceneTopic::Bead { ("bead", BEAD_WIDTH) } else { ("executed", PATH_WIDTH) };
-                    encode_strip(&mut self.cdr, stamp_ns, ns, trail.id, width, &trail.points, &trail.colours);
-                    emit(topic, self.cdr.bytes())?;
-                    if topic == SceneTopic::Bead { self.bead.fresh = false } else { self.executed.fresh = false }
+                let (trail, ns, width) = match topic {
+                    SceneTopic::Bead => (&mut self.bead, "bead", BEAD_WIDTH),
+                    _ => (&mut self.executed, "executed", PATH_WIDTH),
+                };
+                let finished = std::mem::take(&mut trail.finished);
+                let current = (trail.fresh && trail.points.len() >= 2).then_some((trail.id, &trail.points, &trail.colours));
+                if finished.is_empty() && current.is_none() {
+                    continue;
                 }
+                let chunks = finished.iter().map(|(i, p, c)| (*i, p, c)).chain(current);
+                encode_strips(&mut self.cdr, stamp_ns, ns, width, chunks);
+                trail.fresh = false;
+                emit(topic, self.cdr.bytes())?;
             }
         }
         Ok(())
+    }
+
+    /// The whole trail of `topic` (`/path/executed` or `/bead`) as one MarkerArray — every kept
+    /// chunk with its own id, then the current one — for a viewer that subscribed late; `None`
+    /// while there is none.
+    pub fn history(&mut self, topic: SceneTopic, stamp_ns: u64) -> Option<&[u8]> {
+        let (trail, ns, width) = match topic {
+            SceneTopic::Bead => (&self.bead, "bead", BEAD_WIDTH),
+            _ => (&self.executed, "executed", PATH_WIDTH),
+        };
+        let current = (trail.points.len() >= 2).then_some((trail.id, &trail.points, &trail.colours));
+        if trail.history.is_empty() && current.is_none() {
+            return None;
+        }
+        let chunks = trail.history.iter().map(|(i, p, c)| (*i, p, c)).chain(current);
+        encode_strips(&mut self.cdr, stamp_ns, ns, width, chunks);
+        Some(self.cdr.bytes())
     }
 
     fn encode_tf(&mut self, stamp_ns: u64, q: &JointVector, base: &crate::core::BaseState) {
@@ -492,11 +543,19 @@ fn transform(w: &mut CdrWriter, stamp_ns: u64, parent: &str, child: &str, x: &Is
     }
 }
 
-fn encode_strip(w: &mut CdrWriter, stamp_ns: u64, ns: &str, id: i32, width: f64, points: &[[f64; 3]], colours: &[Rgba]) {
+/// A MarkerArray of line strips (LINE_STRIP, 4), one per chunk.
+fn encode_strips<'a>(
+    w: &mut CdrWriter,
+    stamp_ns: u64,
+    ns: &str,
+    width: f64,
+    chunks: impl Iterator<Item = (i32, &'a Vec<[f64; 3]>, &'a Vec<Rgba>)> + Clone,
+) {
     w.begin();
-    w.len(1);
-    // LINE_STRIP (4).
-    marker(w, stamp_ns, ns, id, 4, width, points, colours);
+    w.len(chunks.clone().count());
+    for (id, points, colours) in chunks {
+        marker(w, stamp_ns, ns, id, 4, width, points, colours);
+    }
 }
 
 /// One `visualization_msgs/Marker` (action ADD, identity pose, no lifetime) in the world frame.
@@ -548,6 +607,38 @@ fn marker(w: &mut CdrWriter, stamp_ns: u64, ns: &str, id: i32, kind: i32, width:
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// What a viewer ends up with — the last version of each chunk it was sent — is the whole
+    /// trail, whenever the sends fall, and the history a late viewer gets is the same.
+    #[test]
+    fn every_point_of_the_trail_reaches_the_viewer() {
+        let mut trail = Trail::new(1_000_000);
+        let mut drawn: std::collections::BTreeMap<i32, Vec<[f64; 3]>> = Default::default();
+        let mut all = Vec::new();
+        for k in 0..1000 {
+            let p = [k as f64 * 0.001, 0.0, 0.0];
+            trail.add(p, TRAIL_COLOUR);
+            all.push(p);
+            if k == 600 {
+                trail.broken = true; // the bead stops; the next point starts afresh
+            }
+            if k % 37 == 0 || k == 999 {
+                for (id, points, _) in std::mem::take(&mut trail.finished) {
+                    drawn.insert(id, points);
+                }
+                if trail.fresh && trail.points.len() >= 2 {
+                    drawn.insert(trail.id, trail.points.clone());
+                    trail.fresh = false;
+                }
+            }
+        }
+        let mut seen: Vec<[f64; 3]> = drawn.values().flatten().copied().collect();
+        seen.dedup();
+        assert!(seen == all, "{} points drawn of {}: chunks share their joining point, and nothing may be missing", seen.len(), all.len());
+        let mut history: Vec<(i32, Vec<[f64; 3]>)> = trail.history.iter().map(|(i, p, _)| (*i, p.clone())).collect();
+        history.push((trail.id, trail.points.clone()));
+        assert_eq!(history, drawn.into_iter().collect::<Vec<_>>());
+    }
 
     #[test]
     fn the_stick_figure_keeps_the_kinematics() {

@@ -360,14 +360,19 @@ struct LiveTap {
 }
 
 impl LiveTap {
-    /// Advertises every channel, each at its `[view]` rate (`/robot_description` latched).
+    /// Advertises every channel, each at its `[view]` rate (`/robot_description` latched, the bead
+    /// and the executed path replayed whole to a client that subscribes late).
     fn new(mut view: strand_view::LiveView, cfg: &ViewConfig) -> Result<LiveTap, LogError> {
         let mut channels = Vec::with_capacity(CHANNELS);
         for (topic, name, text) in channel_list() {
-            let latched = topic == SceneTopic::RobotDescription.topic();
-            let rate = if latched { 0.0 } else { cfg.rate_for(topic) };
+            let replay = match topic {
+                t if t == SceneTopic::RobotDescription.topic() => strand_view::Replay::Last,
+                t if t == SceneTopic::Bead.topic() || t == SceneTopic::PathExecuted.topic() => strand_view::Replay::History,
+                _ => strand_view::Replay::None,
+            };
+            let rate = if replay == strand_view::Replay::Last { 0.0 } else { cfg.rate_for(topic) };
             let index = view
-                .add_channel(topic, &name, &text, rate, latched)
+                .add_channel(topic, &name, &text, rate, replay)
                 .map_err(|e| LogError::Io { path: view.address().to_string(), message: e.to_string() })?;
             channels.push(index);
         }
@@ -665,7 +670,17 @@ impl WriterThread {
         put(Channel::Extruder, log_time, cdr.bytes())?;
         encode(cdr, &o.status);
         put(Channel::Status, log_time, cdr.bytes())?;
-        self.scene.tick(t, log_time, self.last_measured.as_ref(), &mut |topic, bytes| put(Channel::Scene(topic), log_time, bytes))
+        self.scene.tick(t, log_time, self.last_measured.as_ref(), &mut |topic, bytes| put(Channel::Scene(topic), log_time, bytes))?;
+        // A viewer that subscribed to a trail since the last tick gets the whole of it.
+        if let Some(l) = self.live.as_mut() {
+            for topic in [SceneTopic::Bead, SceneTopic::PathExecuted] {
+                let c = l.channels[Channel::Scene(topic).index()];
+                if l.view.history_wanted(c) {
+                    l.view.send_history(c, log_time, self.scene.history(topic, log_time).unwrap_or_default());
+                }
+            }
+        }
+        Ok(())
     }
 }
 

@@ -11,7 +11,9 @@ client decoded the WebSocket's CDR with mcap_ros2 too), never strand's own Rust 
 - ``/robot_description`` arrived whole and equals the log's (and the log's URDF attachment);
 - ``/tf`` names every link of that URDF (and ``tcp``) as a child frame, with finite transforms;
 - every sampled live message equals, field for field, a message of the log on the same topic at
-  the same log time (the live stream is the log's own bytes, decimated);
+  the same log time (the live stream is the log's own bytes, decimated); on the trails (/bead,
+  /path/executed) a message sent to a late subscriber holds the trail so far, and each of its
+  chunks must be the log's chunk of the same id, or the start of it;
 - the stream carried what it should: status, joints, TCP, extruder and the scene (path, bead).
 
 Prints a summary (bytes per second per topic); exit 0 when everything holds, 1 otherwise.
@@ -32,6 +34,9 @@ from mcap_ros2.decoder import DecoderFactory
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from foxglove_client import to_plain  # noqa: E402  (the same plain-JSON conversion as the client)
+
+
+TRAILS = ("/bead", "/path/executed")
 
 
 def close(a, b) -> bool:
@@ -123,12 +128,32 @@ def main() -> int:
         if not all(isinstance(x, float) and math.isfinite(x) for x in v):
             failures.append(f"/tf: {t['child_frame_id']} not finite")
 
+    # The trails' chunks as the log has them, each at its longest (last) version: a viewer that
+    # subscribes late gets the whole trail in one message, which the log never holds as such; each
+    # of its chunks must be the log's chunk or the start of it.
+    chunks: dict[tuple[str, int], list] = {}
+    for (topic, _), messages in by_time.items():
+        if topic in TRAILS:
+            for m in messages:
+                for marker in m["markers"]:
+                    key = (topic, marker["id"])
+                    if len(marker["points"]) >= len(chunks.get(key, [])):
+                        chunks[key] = marker["points"]
+
+    def part_of_the_logged_trail(topic: str, message: dict) -> bool:
+        return all(close(m["points"], chunks.get((topic, m["id"]), [])[:len(m["points"])]) for m in message["markers"])
+
     compared = 0
     for topic, stats in topics.items():
-        for sample in stats.get("samples", []):
-            if topic == "/robot_description":
+        for sample in stats.get("samples", []) + [{"log_time": stats.get("first_log_time"), "message": stats.get("first")}]:
+            if topic == "/robot_description" or sample["message"] is None:
                 continue
             candidates = by_time.get((topic, sample["log_time"]), [])
+            if topic in TRAILS and not any(close(sample["message"], c) for c in candidates):
+                if not part_of_the_logged_trail(topic, sample["message"]):
+                    failures.append(f"{topic}: live message at {sample['log_time']} is not part of the logged trail")
+                compared += 1
+                continue
             if not candidates:
                 failures.append(f"{topic}: live message at {sample['log_time']} is not in the log")
                 continue

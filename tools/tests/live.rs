@@ -4,7 +4,8 @@
 //!   `tools/python/foxglove_client.py`) watches a job; every channel of the MCAP is advertised with
 //!   its schema, the robot description arrives (latched), `/tf` names every link, and the sampled
 //!   live messages equal the log's, decoded independently (`tools/python/check_live.py`); the view
-//!   is read-only unless the config allows control, and then a client's pause request pauses;
+//!   is read-only unless the config allows control, and then a client's pause request pauses; a
+//!   client that connects mid-print gets the bead and the trail from the start;
 //! - `strand ctl`: every verb against a running job, acknowledged or refused with the reason, and
 //!   no service → exit 1;
 //! - strand-feed's keys: pause, feed override, resume and stop from its stdin;
@@ -186,14 +187,27 @@ fn a_viewer_may_pause_only_when_the_config_allows_control() {
         service(&prefix, &["--view", "--no-log", "--set", "view.address=\"127.0.0.1:0\"", "--set", "view.allow_control=true"]);
     let mut fed = feed(&prefix, &program, &[]).stdout(Stdio::null()).stderr(Stdio::null()).spawn().unwrap();
     wait_state(&prefix, 60, &["Running"]);
+    // Four seconds into the print (80 mm at 20 mm/s: a chunk of the trail and part of the next),
+    // a viewer connects: it gets the trail and the bead from the start, then takes control.
+    std::thread::sleep(Duration::from_secs(4));
     let url = addr.unwrap();
+    let topics = "/status,/bead,/path/executed";
     let out = python(
         "foxglove_client.py",
-        &[&url, "--seconds", "2", "--json", "--topics", "/status", "--publish", "/strand/control", r#"{"command": "pause"}"#],
+        &[&url, "--seconds", "2", "--json", "--topics", topics, "--publish", "/strand/control", r#"{"command": "pause"}"#],
     )
     .output()
     .unwrap();
     let live: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap_or_else(|e| panic!("{e}: {out:?}"));
+    for topic in ["/path/executed", "/bead"] {
+        let markers = live["topics"][topic]["first"]["markers"].as_array().unwrap_or_else(|| panic!("{topic}: {}", live["topics"]));
+        assert!(markers.len() >= 2, "{topic}: the first message holds {} chunks", markers.len());
+        if topic == "/path/executed" {
+            assert_eq!(markers[0]["id"], 0, "{topic}: the history starts at the first chunk");
+        }
+        let points: usize = markers.iter().map(|m| m["points"].as_array().unwrap().len()).sum();
+        assert!(points > 120, "{topic}: {points} points");
+    }
     assert_eq!(live["publish"], "sent", "{live}");
     assert!(live["server_info"]["capabilities"].as_array().unwrap().iter().any(|c| c == "clientPublish"), "{live}");
     wait_state(&prefix, 10, &["Paused"]);

@@ -7,8 +7,11 @@
 //! network gets a decimated stream; the file gets everything), and otherwise hands it to the
 //! server's own threads. With no client subscribed a publish costs one atomic load.
 //!
-//! Latched channels (`/robot_description`) keep their last message and send it to each client that
-//! subscribes, as a ROS latched topic does, so a viewer opened mid-print still draws the robot.
+//! A viewer opened mid-print must see what came before: a [`Replay::Last`] channel
+//! (`/robot_description`) keeps its last message and sends it to each client that subscribes, as a
+//! ROS latched topic does; on a [`Replay::History`] channel (`/bead`) the feeder is told a client
+//! has subscribed ([`LiveView::history_wanted`]) and sends that client the whole history in one
+//! message ([`LiveView::send_history`]), built only when someone asks for it.
 //!
 //! Control: read-only unless [`ViewOptions::control`] names the service. Then the server advertises
 //! `clientPublish`, and a client may publish JSON [`ControlRequest`]s on [`CONTROL_TOPIC`]; each
@@ -22,7 +25,7 @@ use std::sync::mpsc::{Sender, channel};
 use std::sync::{Arc, Mutex};
 
 use foxglove::websocket::{Capability, ChannelView, Client, ClientChannel, ServerListener};
-use foxglove::{ChannelBuilder, Context, PartialMetadata, RawChannel, Schema, WebSocketServer, WebSocketServerHandle};
+use foxglove::{ChannelBuilder, Context, PartialMetadata, RawChannel, Schema, SinkId, WebSocketServer, WebSocketServerHandle};
 use serde::Deserialize;
 use strand_ipc as ipc;
 
@@ -102,6 +105,17 @@ impl ControlRequest {
     }
 }
 
+/// What a client that subscribes late gets of a channel's past.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Replay {
+    /// Nothing: messages from then on.
+    None,
+    /// The last message (a latched topic).
+    Last,
+    /// The history, which the feeder builds on request ([`LiveView::history_wanted`]).
+    History,
+}
+
 /// A channel of the live view (an index into the server's list).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct ChannelIndex(usize);
@@ -111,7 +125,7 @@ struct LiveChannel {
     /// Shortest spacing between two messages sent (ns of log time); 0: every message.
     min_spacing_ns: u64,
     last_sent_ns: Option<u64>,
-    latched: bool,
+    replay: Replay,
 }
 
 /// The last message of a latched channel.
@@ -136,6 +150,8 @@ pub struct LiveView {
     context: Arc<Context>,
     channels: Vec<LiveChannel>,
     latched: Arc<Mutex<HashMap<String, Latched>>>,
+    /// Clients waiting for a history channel's past, by topic.
+    history_requests: Arc<Mutex<HashMap<String, Vec<SinkId>>>>,
     counters: Arc<Counters>,
     address: SocketAddr,
 }
@@ -164,8 +180,9 @@ impl LiveView {
             .map_err(|e| start_error(e.to_string()))?;
         let context = Context::new();
         let latched: Arc<Mutex<HashMap<String, Latched>>> = Arc::default();
+        let history_requests: Arc<Mutex<HashMap<String, Vec<SinkId>>>> = Arc::default();
         let control = options.control.clone().map(ControlSender::start);
-        let listener = Arc::new(Listener { latched: latched.clone(), control });
+        let listener = Arc::new(Listener { latched: latched.clone(), history_requests: history_requests.clone(), control });
         let mut server = WebSocketServer::new()
             .name(options.name.clone())
             .bind(options.address.ip().to_string(), options.address.port())
@@ -183,6 +200,7 @@ impl LiveView {
             context,
             channels: Vec::new(),
             latched,
+            history_requests,
             counters: Arc::default(),
             address,
         })
@@ -194,15 +212,15 @@ impl LiveView {
     }
 
     /// Adds a channel: CDR messages of the `ros2msg` schema `schema_name` (text `schema`), sent at
-    /// most `rate_hz` times a second (0: every message). A latched channel keeps its last message
-    /// for clients that subscribe later.
+    /// most `rate_hz` times a second (0: every message); `replay` says what a client that
+    /// subscribes later gets of its past.
     pub fn add_channel(
         &mut self,
         topic: &str,
         schema_name: &str,
         schema: &str,
         rate_hz: f64,
-        latched: bool,
+        replay: Replay,
     ) -> Result<ChannelIndex, ViewError> {
         let raw = ChannelBuilder::new(topic)
             .message_encoding("cdr")
@@ -210,20 +228,26 @@ impl LiveView {
             .context(&self.context)
             .build_raw()
             .map_err(|e| ViewError::Channel { topic: topic.to_string(), message: e.to_string() })?;
-        if latched {
-            let slot = Latched { raw: raw.clone(), message: Vec::new(), log_time_ns: 0 };
-            self.latched.lock().expect("not poisoned").insert(topic.to_string(), slot);
+        match replay {
+            Replay::Last => {
+                let slot = Latched { raw: raw.clone(), message: Vec::new(), log_time_ns: 0 };
+                self.latched.lock().expect("not poisoned").insert(topic.to_string(), slot);
+            }
+            Replay::History => {
+                self.history_requests.lock().expect("not poisoned").insert(topic.to_string(), Vec::new());
+            }
+            Replay::None => {}
         }
         let min_spacing_ns = if rate_hz > 0.0 { (1e9 / rate_hz) as u64 } else { 0 };
-        self.channels.push(LiveChannel { raw, min_spacing_ns, last_sent_ns: None, latched });
+        self.channels.push(LiveChannel { raw, min_spacing_ns, last_sent_ns: None, replay });
         Ok(ChannelIndex(self.channels.len() - 1))
     }
 
     /// Offers one encoded message (log time in Unix ns). Sent when its channel is due and a client
-    /// subscribes to it; dropped otherwise (a latched channel always keeps it).
+    /// subscribes to it; dropped otherwise (a [`Replay::Last`] channel always keeps it).
     pub fn publish(&mut self, channel: ChannelIndex, log_time_ns: u64, message: &[u8]) {
         let Some(ch) = self.channels.get_mut(channel.0) else { return };
-        if ch.latched
+        if ch.replay == Replay::Last
             && let Ok(mut latched) = self.latched.lock()
             && let Some(slot) = latched.get_mut(ch.raw.topic())
         {
@@ -244,6 +268,26 @@ impl LiveView {
         ch.raw.log_with_meta(message, PartialMetadata { log_time: Some(log_time_ns) });
         self.counters.messages.fetch_add(1, Ordering::Relaxed);
         self.counters.bytes.fetch_add(message.len() as u64, Ordering::Relaxed);
+    }
+
+    /// True when a client has subscribed to this [`Replay::History`] channel since its history was
+    /// last sent: build the history and [`send_history`](LiveView::send_history) it. One lock,
+    /// no allocation.
+    pub fn history_wanted(&self, channel: ChannelIndex) -> bool {
+        let Some(ch) = self.channels.get(channel.0).filter(|c| c.replay == Replay::History) else { return false };
+        self.history_requests.lock().is_ok_and(|r| r.get(ch.raw.topic()).is_some_and(|v| !v.is_empty()))
+    }
+
+    /// Sends `message` (the channel's history) to every client waiting for it, and to no other;
+    /// an empty `message` (no history yet) only clears the requests.
+    pub fn send_history(&mut self, channel: ChannelIndex, log_time_ns: u64, message: &[u8]) {
+        let Some(ch) = self.channels.get(channel.0) else { return };
+        let waiting = self.history_requests.lock().ok().and_then(|mut r| r.get_mut(ch.raw.topic()).map(std::mem::take)).unwrap_or_default();
+        for sink in waiting.into_iter().filter(|_| !message.is_empty()) {
+            ch.raw.log_with_meta_to_sink(message, PartialMetadata { log_time: Some(log_time_ns) }, Some(sink));
+            self.counters.messages.fetch_add(1, Ordering::Relaxed);
+            self.counters.bytes.fetch_add(message.len() as u64, Ordering::Relaxed);
+        }
     }
 
     /// Messages and payload bytes handed to the server so far (for every subscribed client).
@@ -276,14 +320,21 @@ impl Drop for LiveView {
     }
 }
 
-/// The server's callbacks: latched messages to new subscribers, control requests to the service.
+/// The server's callbacks: latched messages and history requests for new subscribers, control
+/// requests to the service.
 struct Listener {
     latched: Arc<Mutex<HashMap<String, Latched>>>,
+    history_requests: Arc<Mutex<HashMap<String, Vec<SinkId>>>>,
     control: Option<ControlSender>,
 }
 
 impl ServerListener for Listener {
     fn on_subscribe(&self, client: Client, channel: ChannelView) {
+        if let (Ok(mut requests), Some(sink)) = (self.history_requests.lock(), client.sink_id())
+            && let Some(waiting) = requests.get_mut(channel.topic())
+        {
+            waiting.push(sink);
+        }
         let Ok(latched) = self.latched.lock() else { return };
         if let Some(slot) = latched.get(channel.topic())
             && !slot.message.is_empty()
