@@ -118,6 +118,14 @@ impl ViewConfig {
 mod tests {
     use super::*;
 
+    /// default.toml documents every key with its default value.
+    #[test]
+    fn default_toml_documents_the_defaults() {
+        let table: toml::Table = toml::from_str(include_str!("../../config/default.toml")).unwrap();
+        let documented: ViewConfig = table["view"].clone().try_into().unwrap();
+        assert_eq!(documented, ViewConfig::default());
+    }
+
     #[test]
     fn loopback_by_default_and_bad_values_named() {
         let v = ViewConfig::default();
