@@ -104,9 +104,8 @@ impl CtlVerb {
             CtlVerb::Pause => matches!(state, Some(RunState::Pausing | RunState::Paused)),
             CtlVerb::Resume => state == Some(RunState::Running),
             CtlVerb::Stop => matches!(state, Some(RunState::Stopping | RunState::Idle)),
-            CtlVerb::EmergencyStop => {
-                matches!(state, Some(RunState::EmergencyStopping | RunState::Fault)) && s.fault == FaultCode::EmergencyStop as u32
-            }
+            // Stopped in a fault: EmergencyStop, or the fault that was already latched.
+            CtlVerb::EmergencyStop => matches!(state, Some(RunState::EmergencyStopping | RunState::Fault)),
             CtlVerb::ClearFault => s.fault == FaultCode::None as u32 && state != Some(RunState::Fault),
             CtlVerb::Feed(p) => (s.feed_override - p / 100.0).abs() < 1e-9,
             CtlVerb::Flow(p) => (s.flow_override - p / 100.0).abs() < 1e-9,

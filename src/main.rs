@@ -222,10 +222,13 @@ fn main() -> ExitCode {
 
 fn ctl(prefix: &str, timeout: f64, verb: strand::ctl::CtlVerb) -> ExitCode {
     use strand::ctl::{CtlError, CtlVerb};
-    // SAFETY: as for check-config; the handler only stores to an atomic.
+    // SAFETY: as for check-config; the handler only stores to an atomic. Only `status --watch`
+    // catches Ctrl-C (to end its line); a command waiting for its acknowledgement ends at once.
     unsafe {
         libc::signal(libc::SIGPIPE, libc::SIG_DFL);
-        libc::signal(libc::SIGINT, on_signal as *const () as libc::sighandler_t);
+        if matches!(verb, CtlVerb::Status { watch: true, .. }) {
+            libc::signal(libc::SIGINT, on_signal as *const () as libc::sighandler_t);
+        }
     }
     let timeout = std::time::Duration::from_secs_f64(if timeout.is_finite() { timeout.clamp(0.05, 3600.0) } else { 3.0 });
     let result = match verb {

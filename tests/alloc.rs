@@ -239,7 +239,12 @@ fn counted_cell_ticks(file: Option<&std::path::Path>, view: Option<strand_view::
     ] {
         assert!(states.contains(&(s as u32)), "never in {s:?}: {states:?}");
     }
+    let recorded = file.is_some();
     let report = logger.finish();
-    assert_eq!(report.ticks_written + report.drops, 30_000);
+    if recorded {
+        assert_eq!(report.ticks_written + report.drops, 30_000);
+    } else {
+        assert_eq!((report.ticks_written, report.drops), (0, 0), "a view-only writer writes no file and loses nothing");
+    }
     total
 }

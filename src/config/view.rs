@@ -23,7 +23,8 @@ pub struct ViewConfig {
     /// Messages per second sent to a client on each channel unless `rates` names it (Hz, > 0).
     pub default_rate_hz: f64,
     /// Per topic: messages per second sent to a client (Hz; 0: every message). Topics not listed
-    /// use `default_rate_hz`; `/robot_description` is always sent whole, once per subscription.
+    /// use `default_rate_hz`. Not for `/robot_description` (sent whole, once per subscription) nor
+    /// the trails `/bead` and `/path/executed` (each message holds only what is new: never thinned).
     pub rates: BTreeMap<String, f64>,
     /// `/tf` and `/joints/normalized` in the MCAP log and the live view (Hz, 1 to 1000).
     pub tf_rate_hz: f64,

@@ -37,6 +37,11 @@ impl CdrWriter {
         &self.buf
     }
 
+    /// The message, owned (the encoder is used up).
+    pub fn into_bytes(self) -> Vec<u8> {
+        self.buf
+    }
+
     fn align(&mut self, n: usize) {
         let pos = self.buf.len() - CDR_LE_HEADER.len();
         let pad = (n - pos % n) % n;

@@ -430,7 +430,7 @@ impl Scene {
     /// The whole trail of `topic` (`/path/executed` or `/bead`) as one MarkerArray — every kept
     /// chunk with its own id, then the current one — for a viewer that subscribed late; `None`
     /// while there is none.
-    pub fn history(&mut self, topic: SceneTopic, stamp_ns: u64) -> Option<&[u8]> {
+    pub fn history(&self, topic: SceneTopic, stamp_ns: u64) -> Option<Vec<u8>> {
         let (trail, ns, width) = match topic {
             SceneTopic::Bead => (&self.bead, "bead", BEAD_WIDTH),
             _ => (&self.executed, "executed", PATH_WIDTH),
@@ -440,8 +440,10 @@ impl Scene {
             return None;
         }
         let chunks = trail.history.iter().map(|(i, p, c)| (*i, p, c)).chain(current);
-        encode_strips(&mut self.cdr, stamp_ns, ns, width, chunks);
-        Some(self.cdr.bytes())
+        // Its own buffer (up to tens of MB), freed when sent, not kept by the per-tick encoder.
+        let mut w = CdrWriter::new();
+        encode_strips(&mut w, stamp_ns, ns, width, chunks);
+        Some(w.into_bytes())
     }
 
     fn encode_tf(&mut self, stamp_ns: u64, q: &JointVector, base: &crate::core::BaseState) {

@@ -158,7 +158,7 @@ impl Logger {
         }
         let full = Arc::new(ArrayQueue::new(cfg.queue_ticks));
         let shared = Arc::new(Shared::default());
-        shared.state.store(LogState::Recording as u32, Ordering::Relaxed);
+        shared.state.store(if record { LogState::Recording } else { LogState::Off } as u32, Ordering::Relaxed);
         let mut writer = WriterThread::new(cfg.clone(), ctx, path.to_path_buf(), shared.clone());
         if let Some(view) = live {
             writer.live = Some(LiveTap::new(view, &writer.ctx.view)?);
@@ -370,7 +370,8 @@ impl LiveTap {
                 t if t == SceneTopic::Bead.topic() || t == SceneTopic::PathExecuted.topic() => strand_view::Replay::History,
                 _ => strand_view::Replay::None,
             };
-            let rate = if replay == strand_view::Replay::Last { 0.0 } else { cfg.rate_for(topic) };
+            // The trails send only what is new: never thinned, whatever `rates` says.
+            let rate = if replay == strand_view::Replay::None { cfg.rate_for(topic) } else { 0.0 };
             let index = view
                 .add_channel(topic, &name, &text, rate, replay)
                 .map_err(|e| LogError::Io { path: view.address().to_string(), message: e.to_string() })?;
@@ -405,6 +406,8 @@ struct WriterThread {
     bytes_closed: u64,
     scene: Scene,
     live: Option<LiveTap>,
+    /// The next log time (Unix ns) at which a trail's history may be built for late viewers.
+    next_history_ns: u64,
 }
 
 impl WriterThread {
@@ -425,6 +428,7 @@ impl WriterThread {
             bytes_closed: 0,
             scene: Scene::new(&ctx.urdf_text, &ctx.model, &ctx.view),
             live: None,
+            next_history_ns: 0,
             ctx,
         }
     }
@@ -522,12 +526,18 @@ impl WriterThread {
             let mut any = false;
             while let Some(tick) = full.pop() {
                 any = true;
-                if self.file.is_some() || (self.live.is_some() && self.report.error.is_none()) {
+                if self.file.is_some() || self.live.is_some() {
+                    // The live view goes on after a write error: the operator needs it most then.
+                    let recording = self.file.is_some();
                     match self.write_tick(&tick) {
-                        Ok(()) => {
+                        Ok(()) if recording => {
                             dirty = true;
                             self.report.ticks_written += 1;
                         }
+                        Ok(()) if self.report.error.is_some() => {
+                            self.shared.drops.fetch_add(1, Ordering::Relaxed);
+                        }
+                        Ok(()) => {}
                         Err(e) => self.fail(e),
                     }
                 } else {
@@ -671,12 +681,16 @@ impl WriterThread {
         encode(cdr, &o.status);
         put(Channel::Status, log_time, cdr.bytes())?;
         self.scene.tick(t, log_time, self.last_measured.as_ref(), &mut |topic, bytes| put(Channel::Scene(topic), log_time, bytes))?;
-        // A viewer that subscribed to a trail since the last tick gets the whole of it.
-        if let Some(l) = self.live.as_mut() {
+        // Viewers that subscribed to a trail since the last time get the whole of it, built at most
+        // once a second (requests in between are served together), in a buffer freed after.
+        if let Some(l) = self.live.as_mut()
+            && log_time >= self.next_history_ns
+        {
             for topic in [SceneTopic::Bead, SceneTopic::PathExecuted] {
                 let c = l.channels[Channel::Scene(topic).index()];
                 if l.view.history_wanted(c) {
-                    l.view.send_history(c, log_time, self.scene.history(topic, log_time).unwrap_or_default());
+                    self.next_history_ns = log_time + 1_000_000_000;
+                    l.view.send_history(c, log_time, &self.scene.history(topic, log_time).unwrap_or_default());
                 }
             }
         }

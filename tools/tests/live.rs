@@ -373,3 +373,25 @@ fn the_demo_serves_the_live_view_and_still_finishes() {
     }
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+#[test]
+fn a_stop_key_at_once_ends_the_feeder_stopped() {
+    let dir = temp_dir("live", "stopkey");
+    let program = square_program(&dir, 1, 40, 1200.0);
+    let prefix = format!("strand/livetest-{}-stopkey", std::process::id());
+    let (_svc, _) = service(&prefix, &["--no-log"]);
+    // `s` is waiting on stdin before the first batch goes out: the feeder stops (exit 6) and does
+    // not wait for a job that may never start.
+    let mut fed = feed(&prefix, &program, &["--keys"]).stdin(Stdio::piped()).stdout(Stdio::null()).stderr(Stdio::piped()).spawn().unwrap();
+    let mut keys = fed.stdin.take().unwrap();
+    press(&mut keys, "s");
+    let t0 = Instant::now();
+    while fed.try_wait().unwrap().is_none() {
+        assert!(t0.elapsed() < Duration::from_secs(60), "strand-feed did not end after s");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    let out = fed.wait_with_output().unwrap();
+    assert_eq!(out.status.code(), Some(6), "{}", String::from_utf8_lossy(&out.stderr));
+    assert_eq!(status(&prefix)["fault"], "None", "a stop, not an emergency stop");
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -40,9 +40,12 @@ impl Keys {
     /// Starts reading stdin (a terminal, or with `force` any stdin); `None` when stdin is not a
     /// terminal and `force` is off.
     pub fn start(force: bool) -> Option<Keys> {
-        // SAFETY: isatty on fd 0 only reads.
+        // SAFETY: isatty, tcgetpgrp and getpgrp only read.
         let tty = unsafe { libc::isatty(0) } == 1;
-        if !tty && !force {
+        // A terminal we are in the background of (`strand-feed job.gcode &`) is not ours: setting
+        // its mode would stop us with SIGTTOU, reading it with SIGTTIN.
+        let foreground = tty && unsafe { libc::tcgetpgrp(0) == libc::getpgrp() };
+        if (tty && !foreground) || (!tty && !force) {
             return None;
         }
         let saved = if tty { raw_mode() } else { None };
@@ -56,7 +59,7 @@ impl Keys {
                     if n < 0 && std::io::Error::last_os_error().kind() == std::io::ErrorKind::Interrupted {
                         continue;
                     }
-                    return; // end of input
+                    return; // end of input, or EIO (the terminal went away)
                 }
                 if let Some(k) = Key::from_byte(byte[0])
                     && tx.send(k).is_err()

@@ -110,6 +110,11 @@ pub fn stream(job: &Job, opts: &StreamOptions, interrupts: &AtomicU32, keys: Opt
             bar.suspend(|| eprintln!("strand-feed: {command:?} sent"));
             send_control(&mut control_seq, command)?;
         }
+        // Stopped before anything was sent: nothing started, nothing to wait for.
+        if interrupts_handled > 0 && !started {
+            bar.abandon();
+            return Ok(Ending::Stopped);
+        }
         // Keys: pause/resume, feed override, stop.
         while let Some(key) = keys.and_then(Keys::next) {
             let state = RunState::from_u32(status.run_state);
@@ -119,8 +124,9 @@ pub fn stream(job: &Job, opts: &StreamOptions, interrupts: &AtomicU32, keys: Opt
                 Key::Faster => (Command::FeedOverride, ((status.feed_override * 10.0).round() + 1.0).min(20.0) / 10.0),
                 Key::Slower => (Command::FeedOverride, ((status.feed_override * 10.0).round() - 1.0).max(1.0) / 10.0),
                 Key::Stop => {
-                    interrupts_handled = interrupts_handled.max(1);
-                    (Command::Stop, 0.0)
+                    // As a first Ctrl-C (sent at the top of the loop); a Ctrl-C after it escalates.
+                    interrupts.fetch_max(1, Ordering::Relaxed);
+                    continue;
                 }
             };
             bar.suspend(|| {
@@ -176,7 +182,8 @@ pub fn stream(job: &Job, opts: &StreamOptions, interrupts: &AtomicU32, keys: Opt
             progress.fraction = fraction;
             progress.elapsed_s = started_at.elapsed().as_secs_f64();
             progress.eta_s = eta_s(started_at.elapsed(), fraction).unwrap_or(-1.0);
-            ports.send_job_progress(&progress)?;
+            // For consoles only: a failed publish must not end the print.
+            let _ = ports.send_job_progress(&progress);
         }
         if opts.quiet && (fraction * 10.0) as u32 > last_quiet_decile {
             last_quiet_decile = (fraction * 10.0) as u32;

@@ -71,7 +71,8 @@ pub struct ViewOptions {
 /// `{"command": "pause"}`, `{"command": "feed", "percent": 80}`.
 #[derive(Clone, Debug, PartialEq, Deserialize)]
 pub struct ControlRequest {
-    /// `pause`, `resume`, `stop`, `estop`, `clear-fault`, `feed` or `flow`.
+    /// `pause`, `resume`, `stop`, `estop`, `clear-fault`, `feed` or `flow` (not `start`: a job
+    /// starts from its feeder, which streams it).
     pub command: String,
     /// The override in percent (`feed`, `flow`).
     #[serde(default)]
@@ -88,7 +89,6 @@ impl ControlRequest {
                 .ok_or_else(|| ViewError::Control(format!("{:?} needs \"percent\": a number", self.command)))
         };
         Ok(match self.command.as_str() {
-            "start" => (ipc::Command::Start, 0.0),
             "pause" => (ipc::Command::Pause, 0.0),
             "resume" => (ipc::Command::Resume, 0.0),
             "stop" => (ipc::Command::Stop, 0.0),
@@ -98,7 +98,7 @@ impl ControlRequest {
             "flow" => (ipc::Command::FlowOverride, need_percent()?),
             other => {
                 return Err(ViewError::Control(format!(
-                    "unknown command {other:?}: start, pause, resume, stop, estop, clear-fault, feed or flow"
+                    "unknown command {other:?}: pause, resume, stop, estop, clear-fault, feed or flow (a job starts from its feeder)"
                 )));
             }
         })
@@ -352,7 +352,12 @@ impl ServerListener for Listener {
             .map_err(|e| ViewError::Control(format!("not a control request ({e}): expected {{\"command\": \"pause\"}}")))
             .and_then(|r| r.to_wire());
         match request {
-            Ok((command, value)) => control.send(command, value),
+            Ok((command, value)) => {
+                if !control.send(command, value) {
+                    let e = "control requests cannot reach the service (its control ports could not be opened; see the service's log)";
+                    client.send_status(foxglove::websocket::Status::error(e));
+                }
+            }
             Err(e) => {
                 tracing::warn!("live view client {:?}: {e}", client.id());
                 client.send_status(foxglove::websocket::Status::warning(e.to_string()));
@@ -395,10 +400,10 @@ impl ControlSender {
         ControlSender { requests: Mutex::new(tx) }
     }
 
-    fn send(&self, command: ipc::Command, value: f64) {
-        if let Ok(tx) = self.requests.lock() {
-            let _ = tx.send((command, value));
-        }
+    /// Queues a request for the control thread; false when that thread is gone (its ports could
+    /// not be opened).
+    fn send(&self, command: ipc::Command, value: f64) -> bool {
+        self.requests.lock().is_ok_and(|tx| tx.send((command, value)).is_ok())
     }
 }
 
