@@ -91,6 +91,7 @@ pub fn stream(job: &Job, opts: &StreamOptions, interrupts: &AtomicU32, keys: Opt
     };
     progress.set_name(&opts.name);
     let mut progress_sent: Option<Instant> = None;
+    let mut stop_sent_at: Option<Instant> = None;
     let send_control_value = |seq: &mut u64, command: Command, value: f64| {
         *seq += 1;
         let c = ipc::Control { seq: *seq, stamp_ns: strand::io::clock::monotonic_ns(), command: command as u32, value, _reserved: 0 };
@@ -109,6 +110,7 @@ pub fn stream(job: &Job, opts: &StreamOptions, interrupts: &AtomicU32, keys: Opt
             let command = if interrupts_handled == 1 { Command::Stop } else { Command::EmergencyStop };
             bar.suspend(|| eprintln!("strand-feed: {command:?} sent"));
             send_control(&mut control_seq, command)?;
+            stop_sent_at.get_or_insert_with(Instant::now);
         }
         // Stopped before anything was sent: nothing started, nothing to wait for.
         if interrupts_handled > 0 && !started {
@@ -189,7 +191,19 @@ pub fn stream(job: &Job, opts: &StreamOptions, interrupts: &AtomicU32, keys: Opt
             last_quiet_decile = (fraction * 10.0) as u32;
             eprintln!("strand-feed: {} % (segment {}, layer {layer})", last_quiet_decile * 10, status.executing_seq);
         }
-        // The end.
+        // The end. After a stop of ours the job may have started and ended between two of our
+        // looks at Status (a stop right after the start): once the service has stood idle (or in
+        // fault) for half a second after our stop went out, the job is over — controls are taken
+        // in order, so our start came before it.
+        let settled_after_stop = stop_sent_at.is_some_and(|t| t.elapsed() > Duration::from_millis(500));
+        if settled_after_stop && !job_seen && matches!(RunState::from_u32(status.run_state), Some(RunState::Idle | RunState::Fault)) {
+            bar.abandon();
+            return Ok(if status.fault != 0 {
+                Ending::Faulted { code: status.fault, seq: status.executing_seq, line: status.executing_line }
+            } else {
+                Ending::Stopped
+            });
+        }
         if job_seen {
             let outcome = JobOutcome::from_u32(status.job_outcome);
             let state = RunState::from_u32(status.run_state);
