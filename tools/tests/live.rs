@@ -388,7 +388,11 @@ fn a_stop_key_at_once_ends_the_feeder_stopped() {
     press(&mut keys, "s");
     let t0 = Instant::now();
     while fed.try_wait().unwrap().is_none() {
-        assert!(t0.elapsed() < Duration::from_secs(60), "strand-feed did not end after s");
+        if t0.elapsed() > Duration::from_secs(60) {
+            let _ = fed.kill();
+            let out = fed.wait_with_output().unwrap();
+            panic!("strand-feed did not end after s; its stderr:\n{}\nstatus {}", String::from_utf8_lossy(&out.stderr), status(&prefix));
+        }
         std::thread::sleep(Duration::from_millis(50));
     }
     let out = fed.wait_with_output().unwrap();
