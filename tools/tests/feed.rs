@@ -6,9 +6,9 @@
 
 mod common;
 
-use common::{root, square_program, temp_dir};
-use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Stdio};
+use common::{KillOnDrop, root, square_program, strand_bin, temp_dir};
+use std::path::Path;
+use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
 use strand::config::Config;
@@ -17,22 +17,7 @@ use strand::log::replay::{Verdict, verify};
 use strand_ipc as ipc;
 use strand_tools::feed::load_gcode;
 
-fn strand_bin() -> PathBuf {
-    let p = Path::new(env!("CARGO_BIN_EXE_strand-feed")).with_file_name("strand");
-    assert!(p.exists(), "{} missing: build the workspace (cargo test --workspace builds it)", p.display());
-    p
-}
-
-struct Service(Child);
-
-impl Drop for Service {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
-}
-
-fn service(prefix: &str, clock: &str, log: &Path) -> Service {
+fn service(prefix: &str, clock: &str, log: &Path) -> KillOnDrop {
     let child = Command::new(strand_bin())
         .args(["run", "--config", "config/default.toml", "--echo", "--exit-when-done", "--prefix", prefix, "--clock", clock, "--log"])
         .arg(log)
@@ -42,7 +27,7 @@ fn service(prefix: &str, clock: &str, log: &Path) -> Service {
         .stderr(Stdio::null())
         .spawn()
         .unwrap();
-    Service(child)
+    KillOnDrop(child)
 }
 
 fn feed(prefix: &str, program: &Path, extra: &[&str]) -> Command {

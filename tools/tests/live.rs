@@ -15,35 +15,20 @@
 
 mod common;
 
-use common::{root, square_program, temp_dir};
+use common::{KillOnDrop, root, square_program, strand_bin, temp_dir};
 use std::io::{BufRead, BufReader, Write};
-use std::path::{Path, PathBuf};
-use std::process::{Child, ChildStdin, Command, Output, Stdio};
+use std::path::Path;
+use std::process::{ChildStdin, Command, Output, Stdio};
 use std::sync::mpsc;
 use std::time::{Duration, Instant};
 
 /// The approach at full joint speed: seconds saved in every test (debug builds are slow).
 const FAST_APPROACH: &str = "controller.approach_speed_fraction=1.0";
 
-fn strand_bin() -> PathBuf {
-    let p = Path::new(env!("CARGO_BIN_EXE_strand-feed")).with_file_name("strand");
-    assert!(p.exists(), "{} missing: build the workspace (cargo test --workspace builds it)", p.display());
-    p
-}
-
-struct Running(Child);
-
-impl Drop for Running {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
-}
-
 /// `strand run` on the timer clock, echoing its commands as joint state, with `extra` arguments
 /// (`--exit-when-done` to end with the job);
 /// returns the process and, with the live view on, the address it serves (read from its log).
-fn service(prefix: &str, extra: &[&str]) -> (Running, Option<String>) {
+fn service(prefix: &str, extra: &[&str]) -> (KillOnDrop, Option<String>) {
     let mut child = Command::new(strand_bin())
         .args(["run", "--config", "config/default.toml", "--echo", "--prefix", prefix, "--set", FAST_APPROACH])
         .args(extra)
@@ -66,7 +51,7 @@ fn service(prefix: &str, extra: &[&str]) -> (Running, Option<String>) {
     });
     let view = extra.contains(&"--view");
     let addr = view.then(|| rx.recv_timeout(Duration::from_secs(30)).expect("the live view never started"));
-    (Running(child), addr)
+    (KillOnDrop(child), addr)
 }
 
 fn ctl(prefix: &str, args: &[&str]) -> Output {

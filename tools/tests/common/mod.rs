@@ -2,10 +2,28 @@
 #![allow(dead_code)]
 
 use std::path::{Path, PathBuf};
+use std::process::Child;
 
 /// The repository root (configs and data are relative to it).
 pub fn root() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("..")
+}
+
+/// The `strand` service binary, built beside the tools.
+pub fn strand_bin() -> PathBuf {
+    let p = Path::new(env!("CARGO_BIN_EXE_strand-feed")).with_file_name("strand");
+    assert!(p.exists(), "{} missing: build the workspace (cargo test --workspace builds it)", p.display());
+    p
+}
+
+/// A child process killed (and reaped) when the test lets go of it, pass or panic.
+pub struct KillOnDrop(pub Child);
+
+impl Drop for KillOnDrop {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
 }
 
 /// An empty scratch folder for one test of one suite.
