@@ -141,6 +141,42 @@ fn stop_ends_on_the_path_and_discards_the_rest() {
     assert_eq!(cell.last.unwrap().status.job_outcome, JobOutcome::Finished as u32);
 }
 
+/// The feeder liveness bug: a job of more segments than a tick takes, its Start and a Stop all
+/// arrive at once (a stop key pressed right after the start). The Stop ends the job; the rest of
+/// its segments, taken over the next ticks, must not open a job in Idle that nobody starts (the
+/// feeder waited for it forever). They are refused as `Stale`; a job sent later runs.
+#[test]
+fn a_stop_right_after_the_start_ends_the_job_and_the_rest_in_flight_is_refused() {
+    let mut cell = Cell::iiwa();
+    cell.step();
+    let stamp = cell.now_ns();
+    let job: Vec<_> = square_job(1, ORIGIN, 0.04, 40, 0.03).into_iter().map(|s| strand_ipc::Segment { stamp_ns: stamp, ..s }).collect();
+    assert!(job.len() > 2 * strand::core::MAX_SEGMENTS_PER_TICK, "more than two ticks' worth: {}", job.len());
+    cell.send(&job);
+    cell.control(Command::Start, 0.0);
+    cell.control(Command::Stop, 0.0);
+    let r = run(&mut cell, 5_000, |c| c.segments.is_empty() && c.state() == RunState::Idle);
+    // Nothing moved; the job is over and stays over while the rest arrives.
+    assert!(r.visited.iter().all(|s| matches!(s, RunState::Approaching | RunState::Stopping | RunState::Idle)), "{:?}", r.visited);
+    for _ in 0..2_000 {
+        cell.step();
+    }
+    let status = cell.last.unwrap().status;
+    assert_eq!(status.run_state, RunState::Idle as u32);
+    assert_eq!(status.job_outcome, JobOutcome::Stopped as u32, "a stopped job, not a new one in progress");
+    assert_eq!(status.queue_free, status.queue_capacity, "nothing left queued");
+    assert_eq!(status.last_reject_reason, RejectReason::Stale as u32);
+    assert_eq!(status.last_rejected_seq, job.last().unwrap().seq, "the whole rest of the job was refused");
+    // A job sent after the stop (a later stamp, the same numbering) is taken and runs to its end.
+    let stamp = cell.now_ns();
+    let next: Vec<_> = square_job(1, ORIGIN, 0.02, 1, 0.03).into_iter().map(|s| strand_ipc::Segment { stamp_ns: stamp, ..s }).collect();
+    cell.send(&next);
+    cell.control(Command::Start, 0.0);
+    run(&mut cell, 60_000, |c| c.state() == RunState::Running);
+    run(&mut cell, 60_000, |c| c.state() == RunState::Idle);
+    assert_eq!(cell.last.unwrap().status.job_outcome, JobOutcome::Finished as u32);
+}
+
 #[test]
 fn emergency_stop_brakes_at_the_limits_cuts_extrusion_and_faults() {
     let mut cell = Cell::iiwa();

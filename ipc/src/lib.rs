@@ -451,6 +451,10 @@ wire_enum! {
         BadValue = 10,
         /// A joint state with the wrong number of joints.
         WrongDof = 11,
+        /// A segment sent before a Stop or an emergency stop the controller took (its `stamp_ns`
+        /// is not after the stop's): the rest of the job that stop ended, still in flight. Refused
+        /// so that it cannot open a job nobody started. A `stamp_ns` of 0 is never stale.
+        Stale = 12,
     }
 }
 

@@ -145,6 +145,7 @@ class RejectReason(enum.IntEnum):
     NOT_ALLOWED = 9
     BAD_VALUE = 10
     WRONG_DOF = 11
+    STALE = 12
 
 
 class JobOutcome(enum.IntEnum):

@@ -1,6 +1,7 @@
-//! Intake: what the controller takes in and what it refuses. Segments must come in sequence and
-//! pass their own check ([`Segment::try_from`]) and the workspace bounds; every refusal (of a
-//! segment, a control or a joint state) is counted, and the last one is named in `Status`.
+//! Intake: what the controller takes in and what it refuses. Segments must come in sequence, pass
+//! their own check ([`Segment::try_from`]) and the workspace bounds, and not be stale (sent before
+//! a stop that ended their job); every refusal (of a segment, a control or a joint state) is
+//! counted, and the last one is named in `Status`.
 
 use strand_ipc as ipc;
 use strand_ipc::RejectReason;
@@ -11,6 +12,12 @@ use crate::path::{Segment, SegmentKind};
 pub(super) struct Intake {
     /// The sequence number the next segment must carry (None: any, a new job starts).
     expected_seq: Option<u64>,
+    /// The stamp of the last Stop or emergency stop taken (ns, the feeders' monotonic clock; 0:
+    /// none). A segment stamped at or before it was sent for the job that stop ended: without
+    /// this, the part of it still in flight (a batch the service had not taken when a stop came
+    /// right after the start) would open a new job in Idle that nobody starts, and its feeder
+    /// would wait for an end that never comes.
+    stop_stamp_ns: u64,
     /// The last accepted segment's sequence number.
     pub(super) last_received_seq: u64,
     /// The last refused segment's sequence number.
@@ -31,6 +38,7 @@ impl Intake {
     pub(super) fn new(bounds_min: [f64; 3], bounds_max: [f64; 3]) -> Self {
         Intake {
             expected_seq: None,
+            stop_stamp_ns: 0,
             last_received_seq: 0,
             last_rejected_seq: 0,
             last_reject_reason: RejectReason::None,
@@ -53,6 +61,9 @@ impl Intake {
     /// The segment, if it is the next in sequence, passes its own check and ends inside the
     /// workspace; otherwise the reason and the field.
     pub(super) fn admit(&self, w: &ipc::Segment) -> Result<Segment, (RejectReason, &'static str)> {
+        if w.stamp_ns != 0 && w.stamp_ns <= self.stop_stamp_ns {
+            return Err((RejectReason::Stale, "stamp_ns"));
+        }
         if let Some(expected) = self.expected_seq
             && w.seq != expected
         {
@@ -71,6 +82,11 @@ impl Intake {
         self.accepted += 1;
         self.expected_seq = Some(seq.wrapping_add(1));
         self.last_received_seq = seq;
+    }
+
+    /// A Stop or an emergency stop stamped `stamp_ns` was taken: segments sent before it are stale.
+    pub(super) fn stopped_at(&mut self, stamp_ns: u64) {
+        self.stop_stamp_ns = self.stop_stamp_ns.max(stamp_ns);
     }
 
     /// A job ended or a fault was cleared: the next segment may carry any sequence number.

@@ -304,6 +304,11 @@ impl Controller {
             Some(command) => self.apply_control(command, c.value, now_ns, out),
             None => Err(RejectReason::UnknownKind),
         };
+        if matches!(Command::from_u32(c.command), Some(Command::Stop | Command::EmergencyStop)) {
+            // What was sent before a stop belongs to the job it ends (or to none: in Idle, in
+            // fault), never to a new one.
+            self.intake.stopped_at(c.stamp_ns);
+        }
         if let Err(reason) = result {
             self.reject(None, reason);
             out.push(Event::ControlRejected { command: c.command, reason });

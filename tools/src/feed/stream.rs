@@ -136,8 +136,14 @@ pub fn stream(job: &Job, opts: &StreamOptions, interrupts: &AtomicU32, keys: Opt
             });
             send_control_value(&mut control_seq, command, value)?;
         }
-        // A rejection of one of ours ends the job: stop the rest.
-        if started && status.last_rejected_seq >= first_seq && status.last_rejected_seq <= last_seq && status.rejected > 0 {
+        // A rejection of one of ours ends the job: stop the rest. After a stop of ours, refusals
+        // of what was still in flight are expected (`Stale`, `NotReady`): the stop decides.
+        if started
+            && stop_sent_at.is_none()
+            && status.last_rejected_seq >= first_seq
+            && status.last_rejected_seq <= last_seq
+            && status.rejected > 0
+        {
             if job_seen && status.job_outcome == JobOutcome::InProgress as u32 {
                 let _ = send_control(&mut control_seq, Command::Stop);
             }
@@ -192,14 +198,22 @@ pub fn stream(job: &Job, opts: &StreamOptions, interrupts: &AtomicU32, keys: Opt
             eprintln!("strand-feed: {} % (segment {}, layer {layer})", last_quiet_decile * 10, status.executing_seq);
         }
         // The end. After a stop of ours the job may have started and ended between two of our
-        // looks at Status (a stop right after the start): once the service has stood idle (or in
-        // fault) for half a second after our stop went out, the job is over — controls are taken
-        // in order, so our start came before it.
+        // looks at Status (a stop right after the start): once the service stands idle (or in
+        // fault) half a second after our stop went out, the job is over — controls are taken in
+        // order, so our start came before it. Whatever Status says of the job then: the
+        // controller refuses what we sent before the stop (`Stale`), so a job in progress in Idle
+        // is not ours to wait for; should one show, our stop drops its queue.
         let settled_after_stop = stop_sent_at.is_some_and(|t| t.elapsed() > Duration::from_millis(500));
-        if settled_after_stop && !job_seen && matches!(RunState::from_u32(status.run_state), Some(RunState::Idle | RunState::Fault)) {
+        if settled_after_stop && matches!(RunState::from_u32(status.run_state), Some(RunState::Idle | RunState::Fault)) {
+            let outcome = JobOutcome::from_u32(status.job_outcome);
+            if outcome == Some(JobOutcome::InProgress) && status.fault == 0 {
+                let _ = send_control(&mut control_seq, Command::Stop);
+            }
             bar.abandon();
             return Ok(if status.fault != 0 {
                 Ending::Faulted { code: status.fault, seq: status.executing_seq, line: status.executing_line }
+            } else if job_seen && outcome == Some(JobOutcome::Finished) {
+                Ending::Finished
             } else {
                 Ending::Stopped
             });
