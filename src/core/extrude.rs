@@ -3,6 +3,21 @@
 //! ω = Ė/r_w (002 Eq. 19), pressure advance adds K·Ë, and the filament is retracted when the motion
 //! stops unplanned (an underrun) and primed again when it resumes.
 //!
+//! What the bead needs on a real plant (the sim's truth measures it, `strand_tools::bead`):
+//! - **The arm's delay.** The nozzle moves `motion_delay` after its joint command (the robot's dead
+//!   time and servo lag); the extruder would not wait, so its command is delayed by as much: bead
+//!   and motion meet.
+//! - **The hot end's lag.** Melt flows out a time constant after the filament goes in (back
+//!   pressure). Pressure advance K·Ë with K the lag cancels it: Ė is taken as a whole — the speed's
+//!   changes and the program's flow steps alike, so a bead's start after a travel is primed before
+//!   it (the melt its pressure needs, K·Ė, pushed at once) and its end retracted before it.
+//! - **Smoothing.** Ë of a step is an impulse: the advance term is averaged over a window of
+//!   `pressure_advance_smooth_time` centred on the delayed time (Klipper's symmetric window), which
+//!   the delay lets us see without waiting. A window wider than twice the delay cannot be centred;
+//!   it ends at the newest sample.
+//!
+//! The delay line is a ring of past path rates allocated with the extruder: `step` allocates nothing.
+//!
 //! ṡ is the path speed in W, the substrate frame (the engine plans in W), so on a moving base the
 //! flow follows the nozzle's motion over the part, not the arm's motion relative to its base.
 
@@ -19,8 +34,20 @@ pub struct ExtruderConfig {
     pub drive_wheel_radius: f64,
     /// Filament diameter (m), for the volumetric rate.
     pub filament_diameter: f64,
-    /// Pressure-advance constant K (s): Ė_cmd = Ė + K·Ë. 0 disables it.
+    /// Pressure-advance constant K (s): Ė_cmd = Ė + K·Ë. 0 disables it. The hot end's melt lag plus
+    /// the extruder motor's lag (`strand-replay calibrate` measures them).
     pub pressure_advance: f64,
+    /// Width of the window the advance term is averaged over (s): a flow step becomes a push spread
+    /// over this time instead of a one-tick spike. 0: no smoothing.
+    pub pressure_advance_smooth_time: f64,
+    /// Time constant of the extruder drive (s): its speed follows the command through this lag.
+    /// With the melt lag that pressure advance cancels, a second lag: the command gets the second
+    /// derivative term `(K − motor_lag)·motor_lag·E⃛` as well, which the first-order advance leaves
+    /// as a delay of about `motor_lag` on every change of flow. 0: none.
+    pub motor_lag: f64,
+    /// The arm's command-to-motion delay (s): the robot's dead time and servo lag. The extruder
+    /// command is delayed by it (rounded to ticks) so that the bead meets the motion. 0: none.
+    pub motion_delay: f64,
     /// The most pressure advance a program may set (s): `SET_PRESSURE_ADVANCE ADVANCE`, `M900 K` and
     /// `M572 S` replace `pressure_advance` from their segment on, clamped to [0, this]. 0 ignores
     /// the program's setting.
@@ -37,6 +64,9 @@ impl Default for ExtruderConfig {
             drive_wheel_radius: 5.5e-3,
             filament_diameter: 1.75e-3,
             pressure_advance: 0.0,
+            pressure_advance_smooth_time: 0.0,
+            motor_lag: 0.0,
+            motion_delay: 0.0,
             max_pressure_advance: 0.2,
             retract_length: 1.0e-3,
             retract_speed: 0.035,
@@ -56,6 +86,15 @@ impl ExtruderConfig {
         if !(self.pressure_advance.is_finite() && (0.0..1.0).contains(&self.pressure_advance)) {
             return Err(InvalidSetting::new("extruder", "[extruder] pressure_advance: must be in [0, 1) s".to_string()));
         }
+        if !(self.pressure_advance_smooth_time.is_finite() && (0.0..=0.2).contains(&self.pressure_advance_smooth_time)) {
+            return Err(InvalidSetting::new("extruder", "[extruder] pressure_advance_smooth_time: must be in [0, 0.2] s".to_string()));
+        }
+        if !(self.motor_lag.is_finite() && (0.0..=0.1).contains(&self.motor_lag)) {
+            return Err(InvalidSetting::new("extruder", "[extruder] motor_lag: must be in [0, 0.1] s".to_string()));
+        }
+        if !(self.motion_delay.is_finite() && (0.0..=0.5).contains(&self.motion_delay)) {
+            return Err(InvalidSetting::new("extruder", "[extruder] motion_delay: must be in [0, 0.5] s".to_string()));
+        }
         if !(self.max_pressure_advance.is_finite() && (0.0..1.0).contains(&self.max_pressure_advance)) {
             return Err(InvalidSetting::new("extruder", "[extruder] max_pressure_advance: must be in [0, 1) s".to_string()));
         }
@@ -72,7 +111,8 @@ impl ExtruderConfig {
 /// The extruder command for one tick.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct ExtruderCommand {
-    /// Filament rate Ė that the path asks for (m/s of filament), 002 Eq. 18.
+    /// Filament rate Ė that the path asks for this tick (m/s of filament), 002 Eq. 18; the
+    /// command carries it `motion_delay` later.
     pub path_rate: f64,
     /// Commanded filament rate (m/s): path rate plus pressure advance, or a retraction/prime.
     pub filament_rate: f64,
@@ -86,7 +126,15 @@ pub struct ExtruderCommand {
     pub retracted: bool,
 }
 
-/// Extruder state: retraction and the integrated filament position.
+/// One tick of the delay line.
+#[derive(Clone, Copy, Debug, Default)]
+struct Past {
+    motion_rate: f64,
+    standstill_rate: f64,
+    advance: f64,
+}
+
+/// Extruder state: the delay line of path rates, retraction and the integrated filament position.
 #[derive(Clone, Debug)]
 pub struct Extruder {
     config: ExtruderConfig,
@@ -96,6 +144,17 @@ pub struct Extruder {
     pending: f64,
     retracted: bool,
     position: f64,
+    /// The last `history.len()` ticks' filament rates (m/s): of the motion (`flow · ṡ`, what pressure
+    /// advance acts on) and of standstills (a slicer's or firmware retraction and its prime, which
+    /// act on the hot end's pressure as they are), and the advance K (s) in effect; `head` is the
+    /// newest.
+    history: Vec<Past>,
+    head: usize,
+    /// The delay (ticks).
+    delay: usize,
+    /// The advance term's window: from `newer` to `older` ticks ago.
+    newer: usize,
+    older: usize,
 }
 
 impl Extruder {
@@ -103,7 +162,25 @@ impl Extruder {
     pub fn new(config: &ExtruderConfig, dt: f64) -> Result<Self, InvalidSetting> {
         config.validate()?;
         let r = 0.5 * config.filament_diameter;
-        Ok(Extruder { config: config.clone(), dt, area: std::f64::consts::PI * r * r, pending: 0.0, retracted: false, position: 0.0 })
+        let delay = (config.motion_delay / dt).round() as usize;
+        let half = (0.5 * config.pressure_advance_smooth_time / dt).round() as usize;
+        // Centred on the delayed time when the delay lets us see that far ahead; else the newest
+        // window of the same width. Without smoothing, the one-tick difference behind the delayed time.
+        let half = half.max(1);
+        let (newer, older) = if half <= delay { (delay - half, delay + half) } else { (0, 2 * half) };
+        Ok(Extruder {
+            config: config.clone(),
+            dt,
+            area: std::f64::consts::PI * r * r,
+            pending: 0.0,
+            retracted: false,
+            position: 0.0,
+            history: vec![Past::default(); older + 1],
+            head: 0,
+            delay,
+            newer,
+            older,
+        })
     }
 
     /// Filament pushed since the start (m; retractions subtract).
@@ -111,11 +188,37 @@ impl Extruder {
         self.position
     }
 
+    /// The extruder stopped dead (an emergency stop, a fault): what was on its way is forgotten.
+    pub fn halt(&mut self) {
+        self.history.fill(Past::default());
+        self.pending = 0.0;
+    }
+
+    /// The tick `ago` ticks back.
+    fn past(&self, ago: usize) -> Past {
+        let n = self.history.len();
+        self.history[(self.head + n - ago % n) % n]
+    }
+
     /// The command for the path sample of this tick.
     pub fn step(&mut self, sample: &PathSample) -> ExtruderCommand {
-        let path_rate = sample.flow * sample.speed + sample.dwell_filament_rate;
         let advance = sample.pressure_advance.map_or(self.config.pressure_advance, |k| k.clamp(0.0, self.config.max_pressure_advance));
-        let mut rate = path_rate + advance * sample.flow * sample.path_acceleration;
+        let finite = |x: f64| if x.is_finite() { x } else { 0.0 };
+        self.head = (self.head + 1) % self.history.len();
+        self.history[self.head] =
+            Past { motion_rate: finite(sample.flow * sample.speed), standstill_rate: finite(sample.dwell_filament_rate), advance };
+        let now = self.past(self.delay);
+        let delayed_rate = now.motion_rate + now.standstill_rate;
+        // K·Ë over the window: the difference of the motion's Ė across it, over its width. Not on
+        // a retraction or its prime: they are meant to move the pressure, and an advance on them
+        // would turn the prime into melt laid where the nozzle stands.
+        let (newer, older) = (self.past(self.newer).motion_rate, self.past(self.older).motion_rate);
+        let middle = self.past((self.newer + self.older) / 2).motion_rate;
+        let h = (self.older - self.newer) as f64 * 0.5 * self.dt;
+        let slope = (newer - older) / (2.0 * h);
+        let curvature = (newer - 2.0 * middle + older) / (h * h);
+        let motor_lag = self.config.motor_lag.min(now.advance);
+        let mut rate = delayed_rate + now.advance * slope + (now.advance - motor_lag) * motor_lag * curvature;
         let stopped_unplanned = matches!(sample.motion, Motion::Starved | Motion::Held);
         if stopped_unplanned && !self.retracted && self.config.retract_length > 0.0 {
             self.retracted = true;
@@ -140,7 +243,7 @@ impl Extruder {
         }
         self.position += rate * self.dt;
         ExtruderCommand {
-            path_rate,
+            path_rate: finite(sample.flow * sample.speed + sample.dwell_filament_rate),
             filament_rate: rate,
             motor_speed: rate / self.config.drive_wheel_radius,
             volumetric_rate: rate * self.area,

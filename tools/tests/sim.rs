@@ -67,7 +67,13 @@ fn the_demo_prints_a_short_job_within_bounds_and_its_log_replays_identically() {
     assert!(json_f64(&r, &["tcp_error_m", "max"]) < 0.5e-3, "{r}");
     // Extrusion reached the nozzle: deposited within 5 % of commanded (the melt lag's tail is cut).
     let v = json_f64(&r, &["volume_ratio"]);
-    assert!((0.95..=1.0).contains(&v), "volume ratio {v}");
+    assert!((0.95..=1.001).contains(&v), "volume ratio {v}");
+    // The bead is measured and reported (its figures are judged in the closed-loop test,
+    // `bead::bead_tests`: here, in a debug build on a loaded machine, a late extruder command
+    // makes the sim run a cycle on the one before, and a pressure-advance push goes missing).
+    assert!(json_f64(&r, &["bead", "all", "bins"]) > 200.0, "{}", r["bead"]);
+    assert!(json_f64(&r, &["bead", "all", "p50"]) < 0.02, "{}", r["bead"]);
+    assert!(json_f64(&r, &["bead", "blob_m3"]) < 0.002 * json_f64(&r, &["bead", "melt_m3"]), "{}", r["bead"]);
     assert!(Path::new(r["log"].as_str().unwrap()).is_file());
 }
 

@@ -724,7 +724,8 @@ impl Controller {
                 self.extruder.step(&s)
             }
             RunState::EmergencyStopping | RunState::Fault => {
-                // Extrusion off at once: no retraction, nothing pushed.
+                // Extrusion off at once: no retraction, nothing pushed, nothing left on its way.
+                self.extruder.halt();
                 super::extrude::ExtruderCommand { position: self.extruder.position(), ..Default::default() }
             }
             _ => self.extruder.step(&rest_sample()),

@@ -206,7 +206,8 @@ pub fn time_program(
             if s.flags.contains(SegmentFlags::EXTRUDE) && sample.motion == Motion::Moving && sample.speed > 1e-6 && programmed.length > 0.0
             {
                 let expected = s.filament / programmed.length * sample.speed;
-                let error = ((command.path_rate - expected) / expected).abs();
+                // The motion's share: a dwell ending inside this tick adds its own.
+                let error = ((command.path_rate - sample.dwell_filament_rate - expected) / expected).abs();
                 report.max_flow_error = report.max_flow_error.max(error);
             }
         }

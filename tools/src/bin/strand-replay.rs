@@ -7,6 +7,7 @@ use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
 use strand::log::replay::{Verdict, verify};
+use strand_tools::bead;
 use strand_tools::error::ToolError;
 use strand_tools::replay::{self, open_all, plot as replay_plot};
 
@@ -41,7 +42,8 @@ enum Command {
         #[arg(long)]
         csv: PathBuf,
     },
-    /// PNG plots: TCP path (top view), TCP error, speed and flow, joints against limits, lateness.
+    /// PNG plots: TCP path (top view), TCP error, speed and flow, joints against limits, lateness;
+    /// with `--truth`, the bead along the path (colour = error per 1 mm bin) and its histogram.
     Plot {
         /// The log, or its rotated parts in order.
         #[arg(required = true)]
@@ -49,6 +51,25 @@ enum Command {
         /// Output folder.
         #[arg(long)]
         out: PathBuf,
+        /// The run's truth (`strand-sim --truth`, or a measurement with the same columns): adds the
+        /// bead plots and prints the bead figures.
+        #[arg(long)]
+        truth: Option<PathBuf>,
+        /// The G-code the run printed, for the bead per feature (`;TYPE:` tags).
+        #[arg(long, requires = "truth")]
+        gcode: Option<PathBuf>,
+    },
+    /// The hot end's lag and the arm's delay from a run and its truth (or a measurement of the melt
+    /// flow and the nozzle): prints the `[extruder]` values to set.
+    Calibrate {
+        /// The log.
+        file: PathBuf,
+        /// The run's truth (`strand-sim --truth`), or a measurement with the same columns.
+        #[arg(long)]
+        truth: PathBuf,
+        /// One JSON object instead of the TOML lines.
+        #[arg(long)]
+        json: bool,
     },
     /// Rewrite a log cut short by a crash into a valid, indexed file (everything in closed chunks).
     Recover {
@@ -104,12 +125,64 @@ fn main() -> ExitCode {
             }
             Err(e) => fail(e),
         },
-        Command::Plot { files, out } => {
-            match open_all(&files).and_then(|l| replay::analyse(&l)).and_then(|(s, _, m)| replay_plot::plot_all(&s, &m, &out)) {
-                Ok(written) => {
+        Command::Plot { files, out, truth, gcode } => {
+            let bead = |logs: &[strand::log::reader::LogFile]| -> Result<Option<(bead::Bead, Vec<PathBuf>)>, ToolError> {
+                let Some(truth) = &truth else { return Ok(None) };
+                let rows = strand_tools::demo::read_truth(truth)?;
+                let features = gcode.as_deref().map(bead::Features::of_gcode).transpose()?;
+                let b = bead::measure(&logs[0], &rows, features.as_ref())?;
+                let files = bead::plot::plot(&b, &out)?;
+                Ok(Some((b, files)))
+            };
+            let run = open_all(&files).and_then(|l| {
+                let (s, _, m) = replay::analyse(&l)?;
+                let mut written = replay_plot::plot_all(&s, &m, &out)?;
+                let b = bead(&l)?;
+                if let Some((_, files)) = &b {
+                    written.extend(files.iter().cloned());
+                }
+                Ok((written, b.map(|(b, _)| b)))
+            });
+            match run {
+                Ok((written, b)) => {
                     for p in written {
                         println!("{}", p.display());
                     }
+                    if let Some(b) = b {
+                        println!(
+                            "bead: {} bins, error p50 {:.1} %, p95 {:.1} %, p99 {:.1} %, {:.2} % beyond ±10 %; blobs {:.3} %, strings {:.3} % of the melt",
+                            b.all.bins,
+                            b.all.p50 * 100.0,
+                            b.all.p95 * 100.0,
+                            b.all.p99 * 100.0,
+                            b.all.beyond_10pct * 100.0,
+                            b.blob_share() * 100.0,
+                            b.string_share() * 100.0
+                        );
+                    }
+                    ExitCode::SUCCESS
+                }
+                Err(e) => fail(e),
+            }
+        }
+        Command::Calibrate { file, truth, json } => {
+            let run = strand::log::reader::LogFile::open(&file)
+                .map_err(ToolError::from)
+                .and_then(|log| bead::calibrate::calibrate_log(&log, &strand_tools::demo::read_truth(&truth)?));
+            match run {
+                Ok(c) if json => {
+                    println!("{}", serde_json::to_string(&c).expect("a calibration serialises"));
+                    ExitCode::SUCCESS
+                }
+                Ok(c) => {
+                    println!(
+                        "hot end: melt lag {:.1} ms, motor lag {:.1} ms (model misfit {:.2} % of the mean flow); arm {:.1} ms behind its target",
+                        c.hot_end.melt_lag_s * 1e3,
+                        c.hot_end.motor_lag_s * 1e3,
+                        c.hot_end.rms_relative * 100.0,
+                        c.arm_delay_s * 1e3
+                    );
+                    print!("{}", c.toml());
                     ExitCode::SUCCESS
                 }
                 Err(e) => fail(e),

@@ -241,7 +241,9 @@ pub fn run(opts: &DemoOptions) -> Result<bool> {
         }
     }
     let truth_rows = read_truth(&truth)?;
-    let rep = report(&log, &truth_rows, tracked)?;
+    let features = crate::bead::Features::of_gcode(&gcode)?;
+    let rep = report(&log, &truth_rows, tracked, Some(&features))?;
+    rep.bead.write_bins_csv(&out.join("bead.csv"))?;
     let round_trip = std::fs::read_to_string(&stats).ok().and_then(|t| serde_json::from_str::<serde_json::Value>(&t).ok());
     let log_bytes = std::fs::metadata(&log).map(|m| m.len()).unwrap_or(0);
     let ok = rep.job_outcome == "Finished" && rep.identical;

@@ -13,6 +13,7 @@ use strand::log::reader::LogFile;
 use strand::log::replay::{Verdict, verify};
 use strand_ipc::RunState;
 
+use crate::bead::{Bead, Features};
 use crate::error::{Result, ToolError};
 use crate::replay::{PathTicks, tcp_world};
 use crate::sim::Truth;
@@ -84,11 +85,14 @@ pub struct Report {
     pub tcp_error_fault_m: f64,
     /// `[controller] tcp_error_limit` of the run (m).
     pub tcp_error_limit_m: f64,
+    /// The bead: melt laid per millimetre of actual nozzle path against the program's, blobs and
+    /// strings ([`crate::bead`]).
+    pub bead: Bead,
     /// Melt flow error |actual − commanded| while extruding (m³/s).
     pub flow_error_m3s: Spread,
     /// Mean commanded melt flow while extruding (m³/s).
     pub flow_mean_m3s: f64,
-    /// Melt deposited over melt commanded, whole job.
+    /// Melt deposited over the net melt commanded (retractions subtracted), whole job.
     pub volume_ratio: f64,
     /// Robot base against its plan (m), if the base moves.
     pub base_error_m: Option<Spread>,
@@ -146,8 +150,9 @@ pub fn read_truth(path: &Path) -> Result<Vec<Truth>> {
     Ok(rows)
 }
 
-/// Joins the log with the truth and replays the log. `flyer`: report the base's error.
-pub fn report(log: &Path, truth: &[Truth], flyer: bool) -> Result<Report> {
+/// Joins the log with the truth and replays the log. `flyer`: report the base's error;
+/// `features`: the program's feature tags, for the bead per feature.
+pub fn report(log: &Path, truth: &[Truth], flyer: bool, features: Option<&Features>) -> Result<Report> {
     let file = LogFile::open(log)?;
     let cfg = file.config()?;
     let dt_ns = (1e9 / cfg.controller.rate_hz).round() as u64;
@@ -241,7 +246,8 @@ pub fn report(log: &Path, truth: &[Truth], flyer: bool) -> Result<Report> {
     r.flow_error_m3s = Spread::of(extruding.iter().map(|t| (t.flow_actual - t.flow_commanded).abs()).collect());
     r.flow_mean_m3s =
         if extruding.is_empty() { 0.0 } else { extruding.iter().map(|t| t.flow_commanded).sum::<f64>() / extruding.len() as f64 };
-    let commanded: f64 = truth.iter().map(|t| t.flow_commanded.max(0.0) * dt).sum();
+    // Net of retractions and pressure advance's pull-backs: what the motor pushed in, in all.
+    let commanded: f64 = truth.iter().map(|t| t.flow_commanded * dt).sum();
     let deposited: f64 = truth.iter().map(|t| t.flow_actual * dt).sum();
     r.volume_ratio = if commanded > 0.0 { deposited / commanded } else { 0.0 };
     if flyer {
@@ -249,6 +255,7 @@ pub fn report(log: &Path, truth: &[Truth], flyer: bool) -> Result<Report> {
             truth.iter().map(|t| ((t.base[0] - t.base_planned[0]).powi(2) + (t.base[1] - t.base_planned[1]).powi(2)).sqrt()).collect(),
         ));
     }
+    r.bead = crate::bead::measure(&file, truth, features)?;
     match verify(&[file]) {
         Ok(Verdict::Identical { ticks }) => {
             r.verify = format!("identical ({ticks} ticks)");

@@ -59,6 +59,41 @@ pub(crate) fn print_table(r: &Report, wall: f64, log: &Path, log_bytes: u64, sim
             100.0 * r.volume_ratio
         ),
     ));
+    let b = &r.bead;
+    rows.push((
+        "bead (sim truth, 1 mm bins)".into(),
+        format!(
+            "{} bins: error p50 {:.1} %, p95 {:.1} %, p99 {:.1} %; {:.2} % beyond ±10 %; mean {:+.1} % (nozzle {:.0} ms behind its target)",
+            b.all.bins,
+            100.0 * b.all.p50,
+            100.0 * b.all.p95,
+            100.0 * b.all.p99,
+            100.0 * b.all.beyond_10pct,
+            100.0 * b.all.mean_signed,
+            b.path_delay_s * 1e3
+        ),
+    ));
+    for (name, e) in &b.by_feature {
+        rows.push((
+            format!("  {name}"),
+            format!(
+                "{} bins: p50 {:.1} %, p95 {:.1} %, {:.2} % beyond ±10 %",
+                e.bins,
+                100.0 * e.p50,
+                100.0 * e.p95,
+                100.0 * e.beyond_10pct
+            ),
+        ));
+    }
+    rows.push((
+        "blobs / strings".into(),
+        format!(
+            "{:.3} % / {:.3} % of the melt ({:.1} mm of travel with melt flowing)",
+            100.0 * b.blob_share(),
+            100.0 * b.string_share(),
+            b.string_length_m * 1e3
+        ),
+    ));
     rows.push(("controller step".into(), us(&r.step_s)));
     rows.push(("tick (wake → publish)".into(), us(&r.tick_s)));
     if let Some(rt) = sim.and_then(|s| s.get("round_trip")) {

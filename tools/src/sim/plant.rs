@@ -97,15 +97,26 @@ impl JointPlant {
 
 /// The extruder motor following the commanded filament speed, and the melt flow at the nozzle
 /// lagging the filament pushed in (hot-end back pressure).
+///
+/// The hot end is a compliance: melt pushed in is stored under pressure and flows out at a rate
+/// proportional to what is stored (`flow = stored / melt_lag`), so a steady push gives the
+/// first-order lag 000 describes. A retraction pulls stored melt back: the flow falls faster than
+/// by stopping, and below empty it leaves a void (nothing flows) that the prime must refill before
+/// melt flows again. (Before, a retraction drew nothing back and the prime after it pushed its
+/// whole length out: every unplanned stop left a blob that no compensation could avoid.)
 pub struct ExtruderPlant {
     motor_gain: f64,
     melt_gain: f64,
+    /// The melt time constant (s).
+    melt_lag: f64,
     /// Filament area (m²).
     area: f64,
     /// Filament speed at the drive wheel (m/s).
     pub filament_rate: f64,
     /// Filament pushed in so far (m).
     pub filament_position: f64,
+    /// The stored melt as the flow it drives (m³/s): `stored / melt_lag`; below 0 a void.
+    pressure: f64,
     /// Melt leaving the nozzle (m³/s).
     pub nozzle_flow: f64,
     /// Melt deposited so far (m³).
@@ -119,21 +130,81 @@ impl ExtruderPlant {
         ExtruderPlant {
             motor_gain: gain(cfg.motor_lag),
             melt_gain: gain(cfg.melt_lag),
+            melt_lag: cfg.melt_lag,
             area: std::f64::consts::PI * 0.25 * filament_diameter * filament_diameter,
             filament_rate: 0.0,
             filament_position: 0.0,
+            pressure: 0.0,
             nozzle_flow: 0.0,
             deposited: 0.0,
         }
     }
 
-    /// Advances one cycle towards the commanded filament speed (m/s). Retraction pulls filament
-    /// back but draws no melt out of the nozzle.
+    /// Advances one cycle towards the commanded filament speed (m/s; < 0 retracts).
     pub fn step(&mut self, commanded_filament_rate: f64, dt: f64) {
         self.filament_rate += self.motor_gain * (commanded_filament_rate - self.filament_rate);
         self.filament_position += self.filament_rate * dt;
-        let pushed = self.filament_rate.max(0.0) * self.area;
-        self.nozzle_flow += self.melt_gain * (pushed - self.nozzle_flow);
+        let pushed = self.filament_rate * self.area;
+        if self.pressure > 0.0 || (self.pressure == 0.0 && pushed >= 0.0) || self.melt_lag <= 0.0 {
+            // Melt under pressure: the exact step of the first-order lag towards what is pushed.
+            self.pressure += self.melt_gain * (pushed - self.pressure);
+        } else {
+            // A void: what is pushed fills it, nothing flows out.
+            self.pressure += pushed * dt / self.melt_lag;
+        }
+        self.nozzle_flow = self.pressure.max(0.0);
         self.deposited += self.nozzle_flow * dt;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn plant() -> ExtruderPlant {
+        ExtruderPlant::new(&ExtruderPlantConfig { motor_lag: 0.0, melt_lag: 0.08 }, 1.75e-3, 1e-3)
+    }
+
+    #[test]
+    fn a_steady_push_flows_after_the_melt_lag() {
+        let mut p = plant();
+        for _ in 0..80 {
+            p.step(1e-3, 1e-3);
+        }
+        let full = 1e-3 * p.area;
+        // One time constant: 1 − 1/e of the pushed flow.
+        assert!((p.nozzle_flow / full - (1.0 - (-1.0f64).exp())).abs() < 1e-9, "{}", p.nozzle_flow / full);
+        for _ in 0..2000 {
+            p.step(1e-3, 1e-3);
+        }
+        assert!((p.nozzle_flow / full - 1.0).abs() < 1e-9);
+    }
+
+    #[test]
+    fn a_retraction_leaves_a_void_and_the_prime_only_gives_back_what_it_took() {
+        let mut p = plant();
+        for _ in 0..2000 {
+            p.step(1e-3, 1e-3);
+        }
+        // Stop and retract 1 mm at 35 mm/s at once, stand, prime it back, stand: while retracted
+        // (almost) nothing oozes; in all, the melt laid from the stop on is what was stored
+        // (flow · lag) and no more: the prime gives back what the retraction took, no blob.
+        let stored = p.nozzle_flow * 0.08;
+        let before = p.deposited;
+        let run = |p: &mut ExtruderPlant, rate: f64, ticks: usize| {
+            for _ in 0..ticks {
+                p.step(rate, 1e-3);
+            }
+        };
+        run(&mut p, -0.035, 29);
+        let at_retraction = p.deposited - before;
+        run(&mut p, 0.0, 500);
+        let while_retracted = p.deposited - before - at_retraction;
+        assert!(while_retracted == 0.0 && at_retraction < 0.05 * stored, "{at_retraction:e} then {while_retracted:e} of {stored:e}");
+        run(&mut p, 0.035, 29);
+        run(&mut p, 0.0, 2000);
+        let laid = p.deposited - before;
+        assert!(laid <= stored * 1.0001, "laid {laid:e} m³ of {stored:e} stored");
+        assert!(p.nozzle_flow < 1e-3 * stored, "at rest: {:e}", p.nozzle_flow);
     }
 }

@@ -464,6 +464,7 @@ impl PathEngine {
     /// tick; so every plan — trajectory, trapezoid or dwell — hands over to the next the same way.
     pub(super) fn advance(&mut self) {
         let mut t = self.plan_time + self.dt;
+        self.tick_dwell_filament = 0.0;
         for _ in 0..1024 {
             match self.plan {
                 Plan::Rest => {
@@ -471,6 +472,13 @@ impl PathEngine {
                     return;
                 }
                 Plan::Dwell { duration } => {
+                    // The part of this tick inside the dwell: from where the tick (or the dwell,
+                    // if it began inside the tick) starts to where the tick (or the dwell) ends.
+                    let p = self.pieces.get(self.piece);
+                    if p.hold_time > 0.0 {
+                        let inside = t.min(duration) - (t - self.dt).max(0.0);
+                        self.tick_dwell_filament += p.hold_filament / p.hold_time * inside.max(0.0);
+                    }
                     if t < duration {
                         self.plan_time = t;
                         self.motion = Motion::Dwelling;
@@ -591,7 +599,7 @@ impl PathEngine {
             let u = if p.length > 0.0 { ((state.s - p.start) / p.length).clamp(0.0, 1.0) } else { 0.0 };
             let q = if p.rotation.norm_squared() > 0.0 { geom::quaternion_exp(&(p.rotation * u)) * p.orientation } else { p.orientation };
             let w = if p.length > 0.0 { p.rotation * (state.v / p.length) } else { Vector3::zeros() };
-            let dwell_rate = if self.motion == Motion::Dwelling && p.hold_time > 0.0 { p.hold_filament / p.hold_time } else { 0.0 };
+            let dwell_rate = self.tick_dwell_filament / self.dt;
             pressure_advance = p.pressure_advance;
             if u < p.split {
                 let (seq, line, flags, flow) = p.first;

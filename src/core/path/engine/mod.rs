@@ -324,6 +324,9 @@ pub struct PathEngine {
     piece: u64,
     plan: Plan,
     plan_time: f64,
+    /// Filament the dwells of this tick push (m): a dwell that begins or ends inside a tick pushes
+    /// its share of that tick only, so a retraction and its prime move exactly what they say.
+    tick_dwell_filament: f64,
     /// Path position where the current trapezoid starts (m).
     plan_origin: f64,
     /// Where the tool rests when no piece is left (m, W), and its orientation.
@@ -384,6 +387,7 @@ impl PathEngine {
             piece: 0,
             plan: Plan::Rest,
             plan_time: 0.0,
+            tick_dwell_filament: 0.0,
             plan_origin: 0.0,
             rest_point: start,
             last_piece_orientation: orientation,
