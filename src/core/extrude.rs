@@ -165,7 +165,8 @@ impl Extruder {
         let delay = (config.motion_delay / dt).round() as usize;
         let half = (0.5 * config.pressure_advance_smooth_time / dt).round() as usize;
         // Centred on the delayed time when the delay lets us see that far ahead; else the newest
-        // window of the same width. Without smoothing, the one-tick difference behind the delayed time.
+        // window of the same width. At least a tick each side: the second difference needs three
+        // points (without smoothing the derivatives are those of a tick ago, with no delay).
         let half = half.max(1);
         let (newer, older) = if half <= delay { (delay - half, delay + half) } else { (0, 2 * half) };
         Ok(Extruder {

@@ -300,11 +300,12 @@ impl Controller {
     }
 
     fn take_control(&mut self, c: &ipc::Control, now_ns: u64, out: &mut TickOutput) {
-        let result = match Command::from_u32(c.command) {
+        let command = Command::from_u32(c.command);
+        let result = match command {
             Some(command) => self.apply_control(command, c.value, now_ns, out),
             None => Err(RejectReason::UnknownKind),
         };
-        if matches!(Command::from_u32(c.command), Some(Command::Stop | Command::EmergencyStop)) {
+        if matches!(command, Some(Command::Stop | Command::EmergencyStop)) {
             // What was sent before a stop belongs to the job it ends (or to none: in Idle, in
             // fault), never to a new one.
             self.intake.stopped_at(c.stamp_ns);

@@ -207,16 +207,7 @@ pub fn calibrate_log(log: &strand::log::reader::LogFile, truth: &[Truth]) -> cra
     let (mut commanded, mut flow, mut ticks) = (Vec::new(), Vec::new(), Vec::new());
     for tick in log.ticks() {
         let tick = tick?;
-        let s = &tick.output.status;
-        let busy =
-            !matches!(strand_ipc::RunState::from_u32(s.run_state), Some(strand_ipc::RunState::Idle | strand_ipc::RunState::Fault) | None);
-        ticks.push(Executing {
-            time_ns: tick.input.time_ns,
-            seq: s.executing_seq,
-            line: s.executing_line,
-            busy,
-            target: tick.output.diagnostics.tcp_target_world,
-        });
+        ticks.push(Executing::of(tick.input.time_ns, &tick.output));
         if let Some(f) = flow_at.get(&(tick.input.time_ns + dt_ns)) {
             commanded.push(tick.output.extruder.filament_rate);
             flow.push(*f);

@@ -194,6 +194,20 @@ impl Bead {
     }
 }
 
+impl Executing {
+    /// What the tick at `time_ns` (ns) that gave `out` was doing.
+    pub fn of(time_ns: u64, out: &strand::core::TickOutput) -> Executing {
+        let s = &out.status;
+        Executing {
+            time_ns,
+            seq: s.executing_seq,
+            line: s.executing_line,
+            busy: !matches!(RunState::from_u32(s.run_state), Some(RunState::Idle | RunState::Fault) | None),
+            target: out.diagnostics.tcp_target_world,
+        }
+    }
+}
+
 /// What the program asks for along each segment: melt cross-section (m²) by sequence number, from
 /// the segments in the order they were sent (each starts where the one before it ended).
 pub fn asked_sections(segments: &[strand_ipc::Segment], filament_area: f64) -> HashMap<u64, f64> {
@@ -227,15 +241,7 @@ pub fn measure(log: &LogFile, truth: &[Truth], features: Option<&Features>) -> R
     for tick in log.ticks() {
         let tick = tick?;
         segments.extend(tick.input.segments().iter().copied());
-        let s = &tick.output.status;
-        let busy = !matches!(RunState::from_u32(s.run_state), Some(RunState::Idle | RunState::Fault) | None);
-        ticks.push(Executing {
-            time_ns: tick.input.time_ns,
-            seq: s.executing_seq,
-            line: s.executing_line,
-            busy,
-            target: tick.output.diagnostics.tcp_target_world,
-        });
+        ticks.push(Executing::of(tick.input.time_ns, &tick.output));
     }
     Ok(measure_run(&ticks, &asked_sections(&segments, filament_area), truth, dt_ns, features))
 }
@@ -438,14 +444,7 @@ pub(crate) mod closed_loop {
             out.truth.push(sim.step());
             out.commanded.push(o.extruder.filament_rate);
             let s = &o.status;
-            let busy = !matches!(ipc::RunState::from_u32(s.run_state), Some(ipc::RunState::Idle | ipc::RunState::Fault) | None);
-            out.ticks.push(Executing {
-                time_ns: input.time_ns,
-                seq: s.executing_seq,
-                line: s.executing_line,
-                busy,
-                target: o.diagnostics.tcp_target_world,
-            });
+            out.ticks.push(Executing::of(input.time_ns, &o));
             if tick > 10 && s.job_outcome != JobOutcome::InProgress as u32 {
                 assert_eq!(s.job_outcome, JobOutcome::Finished as u32, "the job finishes");
                 // The melt still on its way.
