@@ -378,6 +378,14 @@ fn extrusion_follows_the_path_speed_and_retracts_on_an_underrun() {
 fn a_programs_pressure_advance_replaces_the_configs_from_its_segment_on_clamped_to_the_maximum() {
     // Three extruding lines: the first with the config's K (0.05 s), the second with the program's
     // 0.1 s, the third asking 0.5 s, above max_pressure_advance (0.2 s).
+    let config = ExtruderConfig { pressure_advance: 0.05, max_pressure_advance: 0.2, retract_length: 0.0, ..ExtruderConfig::default() };
+    advances_seen(&config, [0.05, 0.1, 0.2]);
+    // max_pressure_advance = 0 ignores the program: the config's K throughout (not none at all).
+    advances_seen(&ExtruderConfig { max_pressure_advance: 0.0, ..config }, [0.05; 3]);
+}
+
+/// Runs the three lines of the test above through the extruder and checks the advance each applied.
+fn advances_seen(config: &ExtruderConfig, advances: [f64; 3]) {
     let mut e = engine(PlanningMode::StopAndGo);
     let flow = 0.8e-3 / 0.02;
     for (k, (x, advance)) in [(0.02, None), (0.04, Some(0.1)), (0.06, Some(0.5))].into_iter().enumerate() {
@@ -387,8 +395,7 @@ fn a_programs_pressure_advance_replaces_the_configs_from_its_segment_on_clamped_
         s.pressure_advance = advance;
         e.push(&s).unwrap();
     }
-    let config = ExtruderConfig { pressure_advance: 0.05, max_pressure_advance: 0.2, retract_length: 0.0, ..ExtruderConfig::default() };
-    let mut x = Extruder::new(&config, DT).unwrap();
+    let mut x = Extruder::new(config, DT).unwrap();
     let mut seen = [0usize; 3];
     // Stop-and-go plans trapezoids: the acceleration steps. Judged where it held over the two
     // ticks the difference spans.
@@ -406,7 +413,7 @@ fn a_programs_pressure_advance_replaces_the_configs_from_its_segment_on_clamped_
         if !steady || a.seq != sample.seq || b.motion != Motion::Moving || sample.motion != Motion::Moving || b.path_acceleration == 0.0 {
             continue;
         }
-        let k = [0.05, 0.1, 0.2][sample.seq as usize - 1];
+        let k = advances[sample.seq as usize - 1];
         let expected = flow * sample.speed + k * flow * b.path_acceleration;
         let tolerance = k * flow * PathConfig::default().max_jerk * DT;
         assert!(
@@ -420,12 +427,6 @@ fn a_programs_pressure_advance_replaces_the_configs_from_its_segment_on_clamped_
         seen[sample.seq as usize - 1] += 1;
     }
     assert!(seen.iter().all(|&n| n > 10), "every segment accelerated and braked: {seen:?}");
-    // max_pressure_advance = 0 ignores the program.
-    let ignore = ExtruderConfig { max_pressure_advance: 0.0, ..config };
-    let mut x = Extruder::new(&ignore, DT).unwrap();
-    let sample =
-        PathSample { pressure_advance: Some(0.1), flow, speed: 0.01, path_acceleration: 1.0, motion: Motion::Moving, ..e.step(1.0) };
-    assert_eq!(x.step(&sample).filament_rate, flow * 0.01);
 }
 
 #[test]

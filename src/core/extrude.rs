@@ -203,7 +203,10 @@ impl Extruder {
 
     /// The command for the path sample of this tick.
     pub fn step(&mut self, sample: &PathSample) -> ExtruderCommand {
-        let advance = sample.pressure_advance.map_or(self.config.pressure_advance, |k| k.clamp(0.0, self.config.max_pressure_advance));
+        let advance = match sample.pressure_advance {
+            Some(k) if self.config.max_pressure_advance > 0.0 => k.clamp(0.0, self.config.max_pressure_advance),
+            _ => self.config.pressure_advance,
+        };
         let finite = |x: f64| if x.is_finite() { x } else { 0.0 };
         self.head = (self.head + 1) % self.history.len();
         self.history[self.head] =

@@ -51,7 +51,8 @@ pub fn batch(segments: &[ipc::Segment], batch_seq: u64) -> ipc::SegmentBatch {
 /// travel (numbered `n − 1`) to where segment `n` starts, so a job interrupted at `n` can go on.
 pub fn load_gcode(path: &Path, cfg: &Config, resume_from: Option<u64>) -> Result<Job> {
     let bed = cfg.bed_transform()?;
-    let (mut all, warnings) = load_segments(path, &bed)?;
+    let (mut all, mut warnings) = load_segments(path, &bed)?;
+    warnings.extend(program_pressure_advance(all.iter().map(|(s, _)| s), cfg));
     let mut start = bed.point(&GcodeOptions::default().start);
     let mut skipped = 0;
     if let Some(n) = resume_from {
@@ -90,6 +91,28 @@ pub fn load_gcode(path: &Path, cfg: &Config, resume_from: Option<u64>) -> Result
         skipped,
         warnings,
     })
+}
+
+/// What becomes of the pressure advance a program sets (`M900 K`, `M572 S`, `SET_PRESSURE_ADVANCE`):
+/// a slicer's K was tuned for somebody's desktop hot end, not for this cell's, so a calibrated cell
+/// ships `[extruder] max_pressure_advance = 0` and keeps its own K. Says so once, naming the first line
+/// that set it, so nobody wonders why the program's K did nothing (or was cut to the cell's limit).
+fn program_pressure_advance<'a>(segments: impl Iterator<Item = &'a Segment>, cfg: &Config) -> Option<String> {
+    let (first, k) = segments.filter_map(|s| s.pressure_advance.map(|k| (s.source_line, k))).fold(None, |acc, (line, k)| {
+        let (first, most) = acc.unwrap_or((line, k));
+        Some((first, f64::max(most, k)))
+    })?;
+    let (own, max) = (cfg.extruder.pressure_advance, cfg.extruder.max_pressure_advance);
+    if max == 0.0 {
+        Some(format!(
+            "the program sets pressure advance (up to {k} s, from line {first}); ignored: this cell keeps its calibrated \
+             [extruder] pressure_advance = {own} s (max_pressure_advance = 0)"
+        ))
+    } else if k > max {
+        Some(format!("the program sets pressure advance up to {k} s (from line {first}); cut to [extruder] max_pressure_advance = {max} s"))
+    } else {
+        None
+    }
 }
 
 impl Job {
@@ -331,6 +354,22 @@ mod tests {
         assert!(two.segments.last().unwrap().flags & ipc::segment_flags::LAST != 0);
         assert_eq!(two.lengths.len(), two.segments.len());
         assert_eq!(whole.clone().first_layers(10_000).segments.len(), whole.segments.len());
+    }
+
+    #[test]
+    fn a_programs_pressure_advance_is_ignored_by_a_calibrated_cell_and_said_so() {
+        let mut cfg = Config::load(Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../config/default.toml"))).unwrap();
+        let path = Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../tests/data/gcode/prusaslicer25/mk3s_box20.gcode"));
+        let note = |cfg: &Config| load_gcode(path, cfg, None).unwrap().warnings.into_iter().find(|w| w.contains("pressure advance"));
+        // The shipped configs are calibrated: PrusaSlicer's `M900 K0.05` is named and ignored.
+        assert_eq!(cfg.extruder.max_pressure_advance, 0.0);
+        let ignored = note(&cfg).expect("a note");
+        assert!(ignored.contains("0.05 s") && ignored.contains("ignored") && ignored.contains("from line "), "{ignored}");
+        // A cell that follows the program says nothing, unless it cuts the program's K.
+        cfg.extruder.max_pressure_advance = 0.2;
+        assert_eq!(note(&cfg), None);
+        cfg.extruder.max_pressure_advance = 0.02;
+        assert!(note(&cfg).is_some_and(|w| w.contains("cut to")));
     }
 
     #[test]
