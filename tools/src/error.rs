@@ -41,6 +41,10 @@ pub enum ToolError {
     /// A planner's input it cannot plan (out of reach, no path...): the message says why.
     #[error("{0}")]
     Plan(String),
+    /// A path the pre-flight check (`strand check-job`'s) refused: the report was printed; the message
+    /// names the file and the robot.
+    #[error("{0}")]
+    Refused(String),
     /// No font for a picture's text.
     #[error(transparent)]
     Font(#[from] strand::check::plot::NoFont),

@@ -53,6 +53,17 @@ pub enum AlgorithmChoice {
     All,
 }
 
+/// Where a STEP face's points go in the segment file.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
+pub enum Placement {
+    /// The model's own frame (m): where the CAD put the part relative to its origin.
+    Model,
+    /// The face's bounding box moved to start at the bed origin.
+    Origin,
+    /// The face's bounding box centred on the bed origin in x and y, its lowest point at z = 0.
+    Centre,
+}
+
 /// Which version of Algorithm 1 to run.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
 pub enum SamplingMode {
@@ -341,6 +352,37 @@ pub struct SurfaceArgs {
     /// Print one JSON object instead of the summary.
     #[arg(long)]
     pub json: bool,
+    /// A face of this STEP model (AP203/AP214 B-rep; its unit, mm by default, becomes m) instead of
+    /// --shape.
+    #[arg(long, value_name = "FILE")]
+    pub step: Option<PathBuf>,
+    /// The STEP face by index, from 0 (--list-faces shows them); not needed for a one-face model.
+    #[arg(long, value_name = "N")]
+    pub face: Option<usize>,
+    /// The STEP face by its name (the face entity's label).
+    #[arg(long, value_name = "NAME")]
+    pub face_name: Option<String>,
+    /// List the STEP model's faces (index, entity, type, area, bounding box) and stop; with --json one
+    /// JSON array.
+    #[arg(long)]
+    pub list_faces: bool,
+    /// Print the STEP face from its other side (its normal points out of a solid, or as the file has it
+    /// for a loose face; the nozzle comes from the normal's side).
+    #[arg(long)]
+    pub flip_normal: bool,
+    /// Where the STEP face's points go in the segment file (the header records the offset).
+    #[arg(long, value_enum, default_value = "model")]
+    pub place: Placement,
+    /// Layers, each one layer height further out along the normal, every other one backwards.
+    #[arg(long, default_value_t = 1)]
+    pub layers: usize,
+    /// Check the written path on the robot before it runs (strand check-job: reach, joint limits,
+    /// singular stretches); exit 3 if it is refused. Needs --output.
+    #[arg(long)]
+    pub check: bool,
+    /// Service config for --check: a file or a NAME (`iiwa7`); default default.toml by the search order.
+    #[arg(long)]
+    pub config: Option<PathBuf>,
 }
 
 impl From<Timing> for base::Timing {
@@ -512,6 +554,19 @@ impl From<SurfaceArgs> for surface::SurfaceOptions {
             output: a.output,
             png: a.png,
             json: a.json,
+            step: a.step,
+            face: a.face,
+            face_name: a.face_name,
+            list_faces: a.list_faces,
+            flip_normal: a.flip_normal,
+            place: match a.place {
+                Placement::Model => surface::Placement::Model,
+                Placement::Origin => surface::Placement::Origin,
+                Placement::Centre => surface::Placement::Centre,
+            },
+            layers: a.layers,
+            check: a.check,
+            config: a.config,
         }
     }
 }

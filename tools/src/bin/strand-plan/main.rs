@@ -126,15 +126,29 @@ fn main() -> ExitCode {
         Command::Finish(a) => ("finish", finish::run(&a.into())),
         Command::Tilt(a) => ("tilt", tilt::run(&a.into())),
         Command::Strips(a) => ("strips", strips::run(&a.into())),
-        Command::Surface(a) => ("surface", surface::run(&(*a).into())),
+        Command::Surface(a) => {
+            let run = || -> Result<(), ToolError> {
+                let mut options: surface::SurfaceOptions = (*a).into();
+                if options.check {
+                    options.config = Some(locate::service_config(options.config.as_deref())?);
+                }
+                surface::run(&options)
+            };
+            ("surface", run())
+        }
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
             eprintln!("strand-plan {name}: {e}");
             // 1: the job ran into the path engine's refusal or a file could not be written; 2: a
-            // bad flag, config or program (the message names it).
-            ExitCode::from(if matches!(e, ToolError::Timing(_) | ToolError::File { .. }) { 1 } else { 2 })
+            // bad flag, config or program (the message names it); 3: a path the check refused (as
+            // `strand check-job`).
+            ExitCode::from(match e {
+                ToolError::Timing(_) | ToolError::File { .. } => 1,
+                ToolError::Refused(_) => 3,
+                _ => 2,
+            })
         }
     }
 }

@@ -53,13 +53,15 @@ mod output;
 mod plot;
 mod sampling;
 mod shapes;
+mod step;
 
 pub use intersect::{Contact, ContactKind, self_intersections};
 pub use ordering::{Algorithm, Axis, PlannedPath, Weighting, bounding_diagonal, greedy, path_length, plan, tsp, weighted_greedy};
-pub use output::{Deposition, segments, write_segments};
+pub use output::{Curvature, Deposition, curvature, layered_segments, segments, segments_on, steps_off_face, write_segments};
 pub use plot::{Panel, plot_png};
 pub use sampling::{MAX_SAMPLES, PointCloud, Sample, Sampling, SamplingMode, sample};
 pub use shapes::{Blade, Bump, CurvedRect, Cylinder, Domain, Plane, Surface, eq2_normal};
+pub use step::{Placement, StepSurface, list_faces};
 
 // ---------------------------------------------------------------------------------------------------------
 // Report
@@ -189,6 +191,24 @@ pub struct SurfaceOptions {
     pub png: Option<PathBuf>,
     /// Print one JSON object instead of the summary.
     pub json: bool,
+    /// A face of this STEP model instead of `shape`.
+    pub step: Option<PathBuf>,
+    /// The STEP face by index (as `list_faces` numbers them).
+    pub face: Option<usize>,
+    /// The STEP face by its label.
+    pub face_name: Option<String>,
+    /// List the STEP model's faces and stop.
+    pub list_faces: bool,
+    /// Print the STEP face from its other side (the nozzle along +normal of the file's face).
+    pub flip_normal: bool,
+    /// Where the STEP face's points go in the segment file.
+    pub place: Placement,
+    /// Layers, each offset one layer height further along the normal (1).
+    pub layers: usize,
+    /// Run the written path through `strand check-job` with `config`.
+    pub check: bool,
+    /// Service config for `check` (resolved path).
+    pub config: Option<PathBuf>,
 }
 
 impl Default for SurfaceOptions {
@@ -222,6 +242,15 @@ impl Default for SurfaceOptions {
             output: None,
             png: None,
             json: false,
+            step: None,
+            face: None,
+            face_name: None,
+            list_faces: false,
+            flip_normal: false,
+            place: Placement::Model,
+            layers: 1,
+            check: false,
+            config: None,
         }
     }
 }
@@ -229,6 +258,10 @@ impl Default for SurfaceOptions {
 impl SurfaceOptions {
     /// The surface the flags describe, with its defaults filled in; errors name the flag and value.
     pub fn surface(&self) -> Result<Box<dyn Surface>> {
+        if let Some(file) = &self.step {
+            let model = strand_cad::read_step(file).map_err(step::cad)?;
+            return Ok(Box::new(StepSurface::new(&model, self.face, self.face_name.as_deref(), self.flip_normal, self.place)?));
+        }
         let length = super::positive("length", self.length.unwrap_or(0.1))?;
         let width = super::positive("width", self.width.unwrap_or(0.1))?;
         let radius = super::positive("radius", self.radius.unwrap_or(0.05))?;
@@ -319,10 +352,51 @@ fn shape_name(shape: Shape) -> &'static str {
     }
 }
 
+/// The chosen STEP face, as the report names it.
+struct StepChoice {
+    file: String,
+    index: usize,
+    entity: u64,
+    kind: &'static str,
+    area_m2: f64,
+    offset: nalgebra::Vector3<f64>,
+}
+
 /// `strand-plan surface`: samples, plans, reports (summary or `--json`), and writes the segment file and
-/// the PNG if asked.
+/// the PNG if asked; with `--step`, on a face of the user's model, and with `--check`, checks the written
+/// path on the robot (an error if the check refuses it).
 pub fn run(args: &SurfaceOptions) -> Result<()> {
-    let surface = args.surface()?;
+    if args.list_faces {
+        let Some(file) = &args.step else {
+            return Err(ToolError::Usage("--list-faces lists the faces of a STEP model: give --step FILE".to_string()));
+        };
+        let model = strand_cad::read_step(file).map_err(step::cad)?;
+        println!("{}", list_faces(&model, args.json).trim_end());
+        return Ok(());
+    }
+    if args.check && args.output.is_none() {
+        return Err(ToolError::Usage("--check checks the path it writes: give --output FILE".to_string()));
+    }
+    if args.layers == 0 {
+        return Err(ToolError::Usage("--layers 0: print at least one layer".to_string()));
+    }
+    let (surface, choice): (Box<dyn Surface>, Option<StepChoice>) = match &args.step {
+        Some(file) => {
+            let model = strand_cad::read_step(file).map_err(step::cad)?;
+            let s = StepSurface::new(&model, args.face, args.face_name.as_deref(), args.flip_normal, args.place)?;
+            let f = s.face();
+            let choice = StepChoice {
+                file: file.display().to_string(),
+                index: f.index,
+                entity: f.entity,
+                kind: f.kind.name(),
+                area_m2: f.area_m2,
+                offset: s.offset,
+            };
+            (Box::new(s), Some(choice))
+        }
+        None => (args.surface()?, None),
+    };
     let sampling = args.sampling()?;
     let deposition = args.deposition()?;
     if let Some(w) = args.weight
@@ -355,14 +429,81 @@ pub fn run(args: &SurfaceOptions) -> Result<()> {
         let contacts = self_intersections(&cloud, &path.order);
         results.push((path, contacts));
     }
-    let name = shape_name(args.shape);
+    let name = match &choice {
+        Some(c) => format!("{} face {} ({} #{})", c.file, c.index, c.kind, c.entity),
+        None => shape_name(args.shape).to_string(),
+    };
+    // What the nozzle cannot do here, said before anything runs: on the path that is written (or on
+    // each path when only comparing).
+    let mut warnings = Vec::new();
+    let bend = curvature(&cloud, &results[0].0.order, 2.0 * args.spacing);
+    let offset = deposition.standoff + (args.layers - 1) as f64 * deposition.layer_height;
+    if let Some(r) = bend.min_concave_radius_m {
+        if r <= offset {
+            warnings.push(format!(
+                "too curved for the layers: the face bends towards the nozzle with a radius of {:.2} mm, less than the {:.2} mm the layers stand off it: the offset layers fold over themselves",
+                r * 1e3,
+                offset * 1e3
+            ));
+        } else if r < 10.0 * deposition.line_width {
+            warnings.push(format!(
+                "too curved for the nozzle: the face bends towards it with a radius of {:.2} mm (under 10 line widths, {:.2} mm): the nozzle's tip may touch the surface beside the bead",
+                r * 1e3,
+                10e3 * deposition.line_width
+            ));
+        }
+    }
+    if let Some(r) = bend.min_convex_radius_m
+        && r < 2.0 * deposition.line_width
+    {
+        warnings.push(format!(
+            "too curved for the bead: the face bends away with a radius of {:.2} mm, under two line widths ({:.2} mm)",
+            r * 1e3,
+            2e3 * deposition.line_width
+        ));
+    }
+    for (path, _) in &results {
+        let off = steps_off_face(&cloud, &path.order, &|u, v| surface.contains(u, v));
+        if off > 0 {
+            warnings.push(format!(
+                "{off} steps of the {} path would leave the face (over a hole or a notch of its trim): written as travels lifted {:.1} mm, no bead",
+                path.algorithm.name(),
+                deposition.lift() * 1e3
+            ));
+        }
+    }
+    for (path, contacts) in &results {
+        let crossings = contacts.iter().filter(|c| c.kind == ContactKind::Proper).count();
+        if crossings > 0 {
+            warnings.push(format!(
+                "the {} path crosses itself {crossings} times in (u, v): the bead would be laid over itself (weighted greedy keeps to rows)",
+                path.algorithm.name()
+            ));
+        }
+    }
     if let Some(file) = &args.output {
         let (path, _) = &results[0];
-        let segs = segments(&cloud, &path.order, &deposition);
+        let segs = layered_segments(&cloud, &path.order, &deposition, args.layers, &|u, v| surface.contains(u, v));
+        let source = match &choice {
+            Some(c) => format!(
+                "--step {} --face {} (entity #{}, {}, {:.3} mm²), placement {}: offset [{:.6}, {:.6}, {:.6}] m from the model frame",
+                c.file,
+                c.index,
+                c.entity,
+                c.kind,
+                c.area_m2 * 1e6,
+                args.place.name(),
+                c.offset.x,
+                c.offset.y,
+                c.offset.z
+            ),
+            None => format!("--shape {name}"),
+        };
         let note = format!(
-            "strand-plan surface --shape {name} --spacing {} --algorithm {} ({} samples, {:.4} m)",
+            "strand-plan surface {source} --spacing {} --algorithm {} --layers {} ({} samples, {:.4} m a layer)",
             args.spacing,
             path.algorithm.name(),
+            args.layers,
             path.order.len(),
             path.length
         );
@@ -373,20 +514,37 @@ pub fn run(args: &SurfaceOptions) -> Result<()> {
         let title = format!("strand-plan surface: {name}, {} samples at {} mm", cloud.samples.len(), args.spacing * 1e3);
         plot_png(file, &title, surface.parameter_labels(), &cloud, &panels)?;
     }
+    let check = match (&args.output, args.check) {
+        (Some(file), true) => Some(check_path(file, args.config.as_deref())?),
+        _ => None,
+    };
     if args.json {
         let mut algos = serde_json::Map::new();
         for (path, contacts) in &results {
             let report = AlgorithmReport::new(path, contacts);
             algos.insert(path.algorithm.name().to_string(), serde_json::to_value(report).expect("a report serialises"));
         }
-        let out = serde_json::json!({
+        let mut out = serde_json::json!({
             "shape": name,
             "spacing_m": args.spacing,
             "sampling": match args.sampling { SamplingMode::Paper => "paper", SamplingMode::Robust => "robust" },
             "samples": cloud.samples.len(),
             "sampling_s": sampling_s,
             "algorithms": algos,
+            "layers": args.layers,
+            "min_concave_radius_m": bend.min_concave_radius_m,
+            "min_convex_radius_m": bend.min_convex_radius_m,
+            "warnings": warnings,
         });
+        if let Some(c) = &choice {
+            out["step"] = serde_json::json!({
+                "file": c.file, "face": c.index, "entity": c.entity, "type": c.kind, "area_m2": c.area_m2,
+                "placement": args.place.name(), "offset_m": [c.offset.x, c.offset.y, c.offset.z],
+            });
+        }
+        if let Some(report) = &check {
+            out["check"] = serde_json::to_value(report).expect("a check report serialises");
+        }
         println!("{out}");
     } else {
         println!(
@@ -409,14 +567,39 @@ pub fn run(args: &SurfaceOptions) -> Result<()> {
                 r.compute_s
             );
         }
+        for w in &warnings {
+            println!("  warning: {w}");
+        }
         if let Some(f) = &args.output {
             println!("  wrote {}", f.display());
         }
         if let Some(f) = &args.png {
             println!("  wrote {}", f.display());
         }
+        if let Some(report) = &check {
+            println!("{}", report.summary().trim_end());
+        }
     }
-    Ok(())
+    match check {
+        Some(report) if !report.clean => Err(ToolError::Refused(format!(
+            "{}: the check on {} refused the path ({}; see the report)",
+            args.output.as_ref().expect("checked a written path").display(),
+            report.robot,
+            report.outcome
+        ))),
+        _ => Ok(()),
+    }
+}
+
+/// Runs the written segment file through `strand check-job`'s check: the same controller, the same
+/// loading as strand-feed (the config's bed), reach, limits and singular stretches.
+fn check_path(file: &std::path::Path, config: Option<&std::path::Path>) -> Result<strand::check::CheckReport> {
+    let config = config.ok_or_else(|| ToolError::Usage("--check needs the robot's config: give --config C".to_string()))?;
+    let cfg = strand::config::Config::load(config)?;
+    let job = crate::feed::load_gcode(file, &cfg, None)?;
+    let name = file.display().to_string();
+    let check_job = strand::check::CheckJob { file: &name, segments: &job.segments, layers: &job.layers };
+    Ok(strand::check::check_with_trajectory(&check_job, &cfg, None, None)?)
 }
 
 fn shape_sampling(args: &SurfaceOptions) -> &'static str {

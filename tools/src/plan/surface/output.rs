@@ -6,6 +6,8 @@ use std::path::Path;
 
 use strand::core::{Segment, SegmentFlags, SegmentKind};
 
+use serde::Serialize;
+
 use super::PointCloud;
 use crate::error::{Result, ToolError};
 
@@ -49,6 +51,11 @@ impl Deposition {
         crate::plan::filament_per_metre(self.line_width, self.layer_height, self.filament_diameter)
     }
 
+    /// How far a travel over a gap in the face rises off it (m): five layers, at least 2 mm.
+    pub fn lift(&self) -> f64 {
+        (5.0 * self.layer_height).max(2.0e-3)
+    }
+
     /// Checks the values; the message names the flag.
     pub fn validate(&self) -> Result<()> {
         crate::plan::positive("line-width", self.line_width)?;
@@ -74,25 +81,119 @@ impl Deposition {
 /// (m, bed frame), with the nozzle along −normal (`strand_job::segfile::tool_pointing`: the shortest turn from
 /// nozzle-down, π about x for straight up); sequence numbers from 0.
 pub fn segments(cloud: &PointCloud, order: &[usize], dep: &Deposition) -> Vec<Segment> {
+    segments_on(cloud, order, dep, &|_, _| true)
+}
+
+/// [`segments`] on a trimmed face: a step whose chord leaves the face (`on_face` false somewhere along
+/// it in (u, v): across a hole, or across a notch of the trim) lays no bead; it becomes a travel lifted
+/// [`Deposition::lift`] off the surface (up along the normal, across, down), so the nozzle neither
+/// strings melt over the hole nor drags through the part.
+pub fn segments_on(cloud: &PointCloud, order: &[usize], dep: &Deposition, on_face: &dyn Fn(f64, f64) -> bool) -> Vec<Segment> {
     let per_m = dep.filament_per_metre();
-    let tip = |k: usize| {
+    let tip = |k: usize, off: f64| {
         let s = &cloud.samples[order[k]];
-        (s.point + dep.standoff * s.normal, strand_job::segfile::tool_pointing(&-s.normal))
+        (s.point + (dep.standoff + off) * s.normal, strand_job::segfile::tool_pointing(&-s.normal))
+    };
+    let line = |end, orientation, feed, filament, flags| Segment {
+        kind: SegmentKind::Line,
+        end,
+        orientation,
+        feed,
+        filament,
+        flags,
+        ..Segment::default()
     };
     let mut out = Vec::with_capacity(order.len());
     for k in 0..order.len() {
-        let (end, orientation) = tip(k);
-        let (feed, filament, flags) = if k == 0 {
-            (dep.travel_speed, 0.0, SegmentFlags::TRAVEL.with(SegmentFlags::LAYER_START))
+        let (end, orientation) = tip(k, 0.0);
+        if k == 0 {
+            out.push(line(end, orientation, dep.travel_speed, 0.0, SegmentFlags::TRAVEL.with(SegmentFlags::LAYER_START)));
+        } else if chord_on_face(&cloud.samples[order[k - 1]], &cloud.samples[order[k]], on_face) {
+            out.push(line(end, orientation, dep.speed, per_m * (end - tip(k - 1, 0.0).0).norm(), SegmentFlags::EXTRUDE));
         } else {
-            (dep.speed, per_m * (end - tip(k - 1).0).norm(), SegmentFlags::EXTRUDE)
-        };
-        out.push(Segment { seq: k as u64, kind: SegmentKind::Line, end, orientation, feed, filament, flags, ..Segment::default() });
+            let (up, up_orientation) = tip(k - 1, dep.lift());
+            let (over, _) = tip(k, dep.lift());
+            out.push(line(up, up_orientation, dep.travel_speed, 0.0, SegmentFlags::TRAVEL));
+            out.push(line(over, orientation, dep.travel_speed, 0.0, SegmentFlags::TRAVEL));
+            out.push(line(end, orientation, dep.travel_speed, 0.0, SegmentFlags::TRAVEL));
+        }
+    }
+    for (k, s) in out.iter_mut().enumerate() {
+        s.seq = k as u64;
     }
     if let Some(last) = out.last_mut() {
         last.flags = last.flags.with(SegmentFlags::LAST);
     }
     out
+}
+
+/// Steps of `order` whose chord leaves the face (each becomes a lifted travel in [`segments_on`]).
+pub fn steps_off_face(cloud: &PointCloud, order: &[usize], on_face: &dyn Fn(f64, f64) -> bool) -> usize {
+    order.windows(2).filter(|w| !chord_on_face(&cloud.samples[w[0]], &cloud.samples[w[1]], on_face)).count()
+}
+
+/// The step from `a` to `b` stays on the face: eight points along its (u, v) chord are on it.
+fn chord_on_face(a: &super::Sample, b: &super::Sample, on_face: &dyn Fn(f64, f64) -> bool) -> bool {
+    (1..8).all(|i| {
+        let t = i as f64 / 8.0;
+        on_face(a.u + t * (b.u - a.u), a.v + t * (b.v - a.v))
+    })
+}
+
+/// [`segments`] for `layers` layers: layer k runs the path offset k layer heights further along the
+/// normal, every other layer backwards, so each starts right above where the one before ended (a step
+/// of one layer height along the normal, a travel flagged LAYER_START). Sequence numbers run on.
+pub fn layered_segments(
+    cloud: &PointCloud,
+    order: &[usize],
+    dep: &Deposition,
+    layers: usize,
+    on_face: &dyn Fn(f64, f64) -> bool,
+) -> Vec<Segment> {
+    let mut out: Vec<Segment> = Vec::with_capacity(order.len() * layers);
+    let mut reversed: Vec<usize> = order.to_vec();
+    reversed.reverse();
+    for k in 0..layers {
+        let layer = Deposition { standoff: dep.standoff + k as f64 * dep.layer_height, ..*dep };
+        let mut segs = segments_on(cloud, if k % 2 == 0 { order } else { &reversed }, &layer, on_face);
+        for s in &mut segs {
+            s.seq += out.len() as u64;
+            s.flags = SegmentFlags(s.flags.0 & !SegmentFlags::LAST.0);
+        }
+        out.extend(segs);
+    }
+    if let Some(last) = out.last_mut() {
+        last.flags = last.flags.with(SegmentFlags::LAST);
+    }
+    out
+}
+
+/// How tightly a path's surface bends, from the turn of the normal between successive samples.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
+pub struct Curvature {
+    /// Smallest radius where the surface bends towards the nozzle (concave, m); None if nowhere.
+    pub min_concave_radius_m: Option<f64>,
+    /// Smallest radius where it bends away (convex, m); None if nowhere.
+    pub min_convex_radius_m: Option<f64>,
+}
+
+/// The radii of curvature along `order` (steps no longer than `max_step`, m, so a jump between rows
+/// is not taken for a bend): for a step from p₀ to p₁ with normals n₀, n₁, κ = |n₁ − n₀| / |p₁ − p₀|,
+/// concave where the normals converge ((n₁ − n₀)·(p₁ − p₀) < 0).
+pub fn curvature(cloud: &PointCloud, order: &[usize], max_step: f64) -> Curvature {
+    let mut c = Curvature::default();
+    for w in order.windows(2) {
+        let (a, b) = (&cloud.samples[w[0]], &cloud.samples[w[1]]);
+        let (dp, dn) = (b.point - a.point, b.normal - a.normal);
+        let step = dp.norm();
+        if step == 0.0 || step > max_step || dn.norm() < 1e-9 * step {
+            continue;
+        }
+        let radius = step / dn.norm();
+        let slot = if dn.dot(&dp) < 0.0 { &mut c.min_concave_radius_m } else { &mut c.min_convex_radius_m };
+        *slot = Some(slot.map_or(radius, |r: f64| r.min(radius)));
+    }
+    c
 }
 
 /// Writes the segments as a segment file (`strand_job::segfile`). The one place this module touches that

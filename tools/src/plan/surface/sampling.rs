@@ -252,6 +252,12 @@ pub fn sample<S: Surface + ?Sized>(surface: &S, sampling: &Sampling) -> Result<P
                     step(&mut steps)?;
                     match eval.calibrate_robust(uc, vc, Dir::V, sampling.spacing_v, tol, av, d.v.1 - vc) {
                         Some(a) if vc + a <= d.v.1 + ev => av = a,
+                        // A step that overshoots the edge by no more than the calibration's own tolerance
+                        // ends on the edge: whether the last sample exists must not hang on the rounding
+                        // of d* (a face whose side is a whole number of spacings long).
+                        _ if vc + ev < d.v.1 && eval.chord(uc, vc, Dir::V, d.v.1 - vc) >= sampling.spacing_v * (1.0 - tol) => {
+                            av = d.v.1 - vc
+                        }
                         _ => break,
                     }
                     vc += av;
@@ -267,7 +273,13 @@ pub fn sample<S: Surface + ?Sized>(surface: &S, sampling: &Sampling) -> Result<P
                     }
                 }
                 if !(row.is_finite() && uc + row <= d.u.1 + eu) {
-                    break;
+                    // As in v: the last row on the edge if the rows would be within tolerance there.
+                    let to_edge = d.u.1 - uc;
+                    let closest = probes.iter().map(|&pv| eval.chord(uc, pv, Dir::U, to_edge)).fold(f64::INFINITY, f64::min);
+                    if !(to_edge > eu && closest >= sampling.spacing_u * (1.0 - tol)) {
+                        break;
+                    }
+                    row = to_edge;
                 }
                 au = row;
                 uc += au;
