@@ -297,12 +297,24 @@ impl<T: Debug + Copy + ZeroCopySend + 'static> Outbox<T> {
     /// loan.
     #[inline]
     fn send(&self, value: &T) -> Result<usize, PortError> {
-        let delivered = self
-            .publisher
-            .send_copy(*value)
-            .map_err(|e| PortError::Send { service: self.channel.name.clone(), error: format!("{e:?}") })?;
-        self.notifier.notify().map_err(|e| PortError::Notify { service: self.channel.name.clone(), error: format!("{e:?}") })?;
+        let delivered = self.send_quiet(value)?;
+        self.notify()?;
         Ok(delivered)
+    }
+
+    /// Copies `value` into shared memory and delivers it without waking anybody: a subscriber sees it
+    /// at its next receive, a waiter at the next [`Outbox::notify`].
+    #[inline]
+    fn send_quiet(&self, value: &T) -> Result<usize, PortError> {
+        self.publisher.send_copy(*value).map_err(|e| PortError::Send { service: self.channel.name.clone(), error: format!("{e:?}") })
+    }
+
+    /// Wakes the channel's waiters. Where one is blocked, this is the costly part of a publish: the
+    /// kernel wakes a process (on this CPU, preempting the caller unless it runs SCHED_FIFO; on another,
+    /// an inter-processor interrupt, a VM exit on a virtual machine).
+    #[inline]
+    fn notify(&self) -> Result<(), PortError> {
+        self.notifier.notify().map(|_| ()).map_err(|e| PortError::Notify { service: self.channel.name.clone(), error: format!("{e:?}") })
     }
 }
 
@@ -393,6 +405,18 @@ impl ServicePorts {
     /// safe but for iceoryx2's one allocation per sample (module docs).
     pub fn publish_status(&self, status: &Status) -> Result<usize, PortError> {
         self.status.send(status)
+    }
+
+    /// Publishes the status without waking its waiters (they read it at their next receive, or when
+    /// [`ServicePorts::notify_status`] wakes them); returns the number of subscribers reached.
+    /// Tick-path safe but for iceoryx2's one allocation per sample.
+    pub fn publish_status_quietly(&self, status: &Status) -> Result<usize, PortError> {
+        self.status.send_quiet(status)
+    }
+
+    /// Wakes the waiters on the status event. Tick-path safe.
+    pub fn notify_status(&self) -> Result<(), PortError> {
+        self.status.notify()
     }
 
     /// Blocks until a joint state is announced or `timeout_ns` (ns, rounded up to whole µs) passes,

@@ -46,6 +46,11 @@ pub struct ServiceConfig {
     pub joint_feedback: JointFeedback,
     /// Joint positions (rad or m) the echo starts from; empty: the middle of each range.
     pub initial_joints: Vec<f64>,
+    /// Longest time (s) between two wake-ups of the status event's waiters. Status is published every
+    /// tick, but waking a waiting process is the costly part of a publish (µs: the kernel switches to
+    /// it, or interrupts another CPU), so waiters are woken at once only when the run state, the job's
+    /// outcome, the fault, an override or the layer changes, and otherwise at this period. 0: every tick.
+    pub status_notify_period: f64,
 }
 
 impl Default for ServiceConfig {
@@ -57,6 +62,7 @@ impl Default for ServiceConfig {
             late_threshold: 50e-6,
             joint_feedback: JointFeedback::Driver,
             initial_joints: Vec::new(),
+            status_notify_period: 0.01,
         }
     }
 }
@@ -77,6 +83,12 @@ impl ServiceConfig {
             return Err(InvalidSetting::new(
                 "service",
                 format!("[service] late_threshold = {}: must lie in (0, 1] s", self.late_threshold),
+            ));
+        }
+        if !(self.status_notify_period.is_finite() && (0.0..=1.0).contains(&self.status_notify_period)) {
+            return Err(InvalidSetting::new(
+                "service",
+                format!("[service] status_notify_period = {}: must lie in [0, 1] s", self.status_notify_period),
             ));
         }
         if self.initial_joints.iter().any(|v| !v.is_finite()) {
@@ -238,6 +250,8 @@ impl Runner {
         let cleanup_every = (250_000_000 / self.dt_ns).max(1);
         let mut tick: u64 = 0;
         let mut robot_time = RobotTime::default();
+        let notify_period_ns = (self.service.status_notify_period * 1e9) as u64;
+        let mut last_notified: Option<(u64, ipc::Status)> = None;
         while !stop.load(Ordering::Relaxed) {
             // 1. Wait for the tick.
             let mut wake_lateness_ns = 0;
@@ -288,12 +302,22 @@ impl Runner {
                 }
             }
             self.ports.publish_extruder_command(&out.extruder)?;
-            self.ports.publish_status(&out.status)?;
+            self.ports.publish_status_quietly(&out.status)?;
             let published = monotonic_ns();
+            // The status event: its waiters are woken at once by a change they wait for, else at the
+            // period (the commands above are out already, so a woken process delays nothing of them).
+            let due = match &last_notified {
+                None => true,
+                Some((at, last)) => published.saturating_sub(*at) >= notify_period_ns || status_news(last, &out.status),
+            };
+            if due {
+                self.ports.notify_status()?;
+                last_notified = Some((published, out.status));
+            }
             summary.step_cost.record(after - before);
             summary.tick_cost.record(published - woke);
             if self.service.clock == ClockMode::Timer {
-                summary.cycle.record_work_end(published, timer.next_deadline_ns());
+                summary.cycle.record_work_end(monotonic_ns(), timer.next_deadline_ns());
             }
             let timing = TickTiming { wake_lateness_ns, step_ns: after - before, tick_ns: published - woke };
             if self.service.clock == ClockMode::FreeRun || (self.service.clock == ClockMode::Robot && self.log_waits) {
@@ -391,6 +415,15 @@ impl RobotTime {
         self.time_ns = t.max(self.time_ns);
         self.time_ns
     }
+}
+
+/// A change of `now` against the last status its waiters were woken for that one of them waits on:
+/// the run state, the job's outcome, the fault, a refusal, the overrides, the executing layer.
+pub fn status_news(last: &ipc::Status, now: &ipc::Status) -> bool {
+    (last.run_state, last.job_outcome, last.fault, last.executing_layer, last.rejected)
+        != (now.run_state, now.job_outcome, now.fault, now.executing_layer, now.rejected)
+        || last.feed_override != now.feed_override
+        || last.flow_override != now.flow_override
 }
 
 fn job_seen_open(status: &ipc::Status) -> bool {

@@ -193,3 +193,46 @@ fn the_bead_never_leaves_the_face_holes_are_crossed_by_lifted_travels() {
         }
     }
 }
+
+#[test]
+fn a_face_that_closes_on_itself_is_planned_across_its_seam() {
+    // OpenCascade's cylinder (r 20 mm): its side is one periodic face with a seam edge. A step across
+    // the seam is 5 mm in space, not a jump over the whole (u, v) plane: nothing crosses, nothing is
+    // lifted, and no ring of samples lands on the first one again.
+    let r = json(&["--step", &step("occt_cylinder.step"), "--face", "0", "--spacing", "0.005"]);
+    for alg in ["greedy", "weighted-u", "weighted-v", "tsp"] {
+        assert_eq!(r["algorithms"][alg]["self_intersections"], 0, "{alg}: {r}");
+    }
+    assert_eq!(r["warnings"].as_array().unwrap().len(), 0, "{r}");
+    let dir = common::temp_dir("plan-step", "seam");
+    let out = dir.join("side.jsonl");
+    let run = plan(&[
+        "--step",
+        &step("occt_cylinder.step"),
+        "--face",
+        "0",
+        "--spacing",
+        "0.005",
+        "--algorithm",
+        "greedy",
+        "-o",
+        out.to_str().unwrap(),
+    ]);
+    assert!(run.status.success());
+    let segs: Vec<strand::core::Segment> = strand_job::segfile::read_path(&out, 0).unwrap().segments.into_iter().map(|(s, _)| s).collect();
+    let mut angles: Vec<f64> = segs.iter().map(|s| s.end.y.atan2(s.end.x).rem_euclid(std::f64::consts::TAU)).collect();
+    angles.sort_by(f64::total_cmp);
+    angles.dedup_by(|a, b| (*a - *b).abs() < 1e-6);
+    let gaps: Vec<f64> =
+        angles.windows(2).map(|w| w[1] - w[0]).chain([angles[0] + std::f64::consts::TAU - angles[angles.len() - 1]]).collect();
+    // Arc between rings at the bead's radius (20.2 mm): between half and one and a half spacings.
+    for g in &gaps {
+        assert!(*g * 0.0202 > 0.0025 && *g * 0.0202 < 0.0075, "rings {:.2} mm apart: {gaps:?}", g * 20.2);
+    }
+    assert!(
+        segs.iter()
+            .skip(1)
+            .all(|s| s.flags.contains(strand::core::SegmentFlags::EXTRUDE) || s.flags.contains(strand::core::SegmentFlags::LAST)),
+        "no travels on a whole cylinder"
+    );
+}

@@ -236,6 +236,11 @@ impl StepFace {
         &self.loops
     }
 
+    /// The periods of u and v where the surface closes on itself (a cylinder's u: 2π).
+    pub fn periods(&self) -> [Option<f64>; 2] {
+        [self.surface.u_period(), self.surface.v_period()]
+    }
+
     /// m per unit of the file the face came from.
     pub fn metres_per_unit(&self) -> f64 {
         self.scale

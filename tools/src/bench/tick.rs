@@ -37,6 +37,12 @@ pub struct TickOptions {
     pub root: PathBuf,
     /// Reads the calling thread's allocation count (the binary's counting allocator).
     pub allocations: fn() -> u64,
+    /// Also run the shell: the runner's receive, step, publish and log push over real iceoryx2
+    /// ports, each stage timed and its allocations counted ([`ShellReport`]).
+    pub shell: bool,
+    /// Pace the shell's ticks at this rate (Hz), sleeping between them as the runner does, so each
+    /// tick starts with the caches its sleep left; 0: back to back (everything hot).
+    pub shell_rate: f64,
 }
 
 /// One stage's cost and allocations.
@@ -71,6 +77,10 @@ pub struct TickReport {
     pub allocations: u64,
     /// Per stage, in the controller's order.
     pub stages: Vec<Stage>,
+    /// Allocations over whole runner ticks, receive and publish included (count; with `--shell`).
+    pub runner_allocations: Option<u64>,
+    /// The shell's stages (with `--shell`).
+    pub shell: Option<ShellReport>,
     /// The histograms (whole step, then the stages), for the plot (not printed).
     #[serde(skip)]
     pub histograms: Vec<(String, Histogram)>,
@@ -193,6 +203,7 @@ pub fn run(opts: &TickOptions) -> Result<TickReport> {
     for f in &report.files {
         let _ = std::fs::remove_file(f);
     }
+    let shell = if opts.shell { Some(shell(opts, &cfg, &model)?) } else { None };
     let mut histograms = vec![("Controller::step".to_string(), total.clone())];
     histograms.extend(NAMES.iter().zip(cost.iter()).map(|(n, h)| (n.to_string(), h.clone())));
     Ok(TickReport {
@@ -205,6 +216,218 @@ pub fn run(opts: &TickOptions) -> Result<TickReport> {
         total: Dist::of(&total),
         allocations: total_allocs,
         stages: NAMES
+            .iter()
+            .zip(cost.iter().zip(allocs))
+            .map(|(name, (h, a))| Stage { name: name.to_string(), cost: Dist::of(h), allocations: a })
+            .collect(),
+        runner_allocations: shell.as_ref().map(|s| s.allocations),
+        shell,
+    })
+}
+
+/// The shell around `Controller::step`, stage by stage: what the runner does each tick besides the
+/// step, over real iceoryx2 ports to a feeder and a driver in the same process (the peers' work is
+/// not timed).
+#[derive(Clone, Debug, Serialize)]
+pub struct ShellReport {
+    /// Ticks measured.
+    pub iterations: u64,
+    /// The pace of the ticks (Hz; 0: back to back).
+    pub rate_hz: f64,
+    /// The runner's tick without its wait: first receive to the end of the log push (ns).
+    #[serde(flatten)]
+    pub tick: Dist,
+    /// Allocations over all those ticks (count), every stage included.
+    pub allocations: u64,
+    /// Per stage, in the runner's order.
+    pub stages: Vec<Stage>,
+}
+
+/// The runner's stages, in its order (src/io/runner.rs).
+const SHELL_STAGES: [&str; 12] = [
+    "clock read (monotonic_ns)",
+    "receive segments",
+    "receive control",
+    "receive joint state",
+    "receive base pose",
+    "segment publishers (feeder lost?)",
+    "Controller::step",
+    "publish joint command",
+    "publish extruder command",
+    "publish status (quietly)",
+    "notify status waiters (when due)",
+    "log push",
+];
+
+/// Runs [`ShellReport`]'s ticks: the bench job streamed by a feeder within its credit, the driver
+/// echoing each command as the next joint state, the service side receiving, stepping, publishing
+/// and logging as the runner does.
+fn shell(opts: &TickOptions, cfg: &Config, model: &strand::core::kin::RobotModel) -> Result<ShellReport> {
+    use strand_ipc::ServiceNames;
+    use strand_ipc::ports::{ClientPorts, ClientRoles, ServicePorts};
+    let alloc = opts.allocations;
+    let n = model.dof();
+    let prefix = format!("strand-bench-shell-{}", std::process::id());
+    let names = ServiceNames::new(&prefix);
+    let service = ServicePorts::open(&names, &format!("{prefix}-service"))?;
+    let peer = ClientPorts::open(
+        &names,
+        &format!("{prefix}-peers"),
+        ClientRoles { feeder: true, driver: true, monitor: true, ..Default::default() },
+    )?;
+    let mut ctl = Controller::new(&cfg.controller_settings(), model.clone())?;
+    let job = bench_job(&opts.root, cfg)?;
+    let log_path = std::env::temp_dir().join(format!("strand-bench-shell-{}.mcap", std::process::id()));
+    let logger = Logger::start_at(&cfg.log, LogContext::new(cfg, model), &log_path)?;
+    let mut q = [0.0; ipc::MAX_JOINTS];
+    let start = model.middle_configuration();
+    for (i, v) in q.iter_mut().enumerate().take(n) {
+        *v = cfg.service.initial_joints.get(i).copied().unwrap_or(start[i]);
+    }
+    let dt_ns = (1e9 / cfg.controller.rate_hz).round() as u64;
+    let (first, last) = (job.segments[0].seq, job.segments[job.segments.len() - 1].seq);
+    let (mut sent, mut started, mut batch_seq) = (0usize, false, 0u64);
+    let mut status = ipc::Status::default();
+    let mut cost: [Histogram; 12] = Default::default();
+    let mut allocs = [0u64; 12];
+    let notify_period_ns = (cfg.service.status_notify_period * 1e9) as u64;
+    let mut last_notified: Option<(u64, ipc::Status)> = None;
+    let (mut whole, mut whole_allocs) = (Histogram::new(), 0u64);
+    let mut input = TickInput::new(0, 0);
+    let mut carry: Option<(ipc::SegmentBatch, usize)> = None;
+    let mut time_ns = 0u64;
+    let period_ns = if opts.shell_rate > 0.0 { (1e9 / opts.shell_rate) as u64 } else { 0 };
+    let mut deadline = monotonic_ns();
+    for tick in 0..opts.iterations {
+        time_ns += dt_ns;
+        if period_ns > 0 {
+            deadline += period_ns;
+            let now = monotonic_ns();
+            if deadline > now {
+                std::thread::sleep(std::time::Duration::from_nanos(deadline - now));
+            }
+        }
+        // The peers (not timed): the driver's joint state, the feeder's batches within the credit
+        // of the last Status, and Start once the first batch is out.
+        peer.send_joint_state(&ipc::JointState { seq: tick + 1, stamp_ns: time_ns, dof: n as u32, position: q, ..Default::default() })?;
+        let allowed = (crate::feed::credit(&status, first, last, started) as usize).min(job.segments.len());
+        while sent < allowed {
+            let k = (allowed - sent).min(ipc::SEGMENT_BATCH_CAPACITY);
+            batch_seq += 1;
+            if peer.send_segments(&crate::feed::batch(&job.segments[sent..sent + k], batch_seq))? == 0 {
+                break;
+            }
+            sent += k;
+        }
+        if !started && sent > 0 {
+            peer.send_control(&ipc::Control {
+                seq: 1,
+                stamp_ns: monotonic_ns(),
+                command: ipc::Command::Start as u32,
+                value: 0.0,
+                _reserved: 0,
+            })?;
+            started = true;
+        }
+        // The service's tick, as the runner runs it.
+        let (begin, a_begin) = (monotonic_ns(), alloc());
+        let (mut t, mut a) = (begin, a_begin);
+        let mut stage = 0usize;
+        let mut lap = |stage: &mut usize, t: &mut u64, a: &mut u64| {
+            let (now, count) = (monotonic_ns(), alloc());
+            cost[*stage].record(now - *t);
+            allocs[*stage] += count - *a;
+            *stage += 1;
+            (*t, *a) = (now, count);
+        };
+        // The clock: what a read costs (two reads back to back).
+        std::hint::black_box(monotonic_ns());
+        lap(&mut stage, &mut t, &mut a);
+        input.reset(tick, time_ns);
+        loop {
+            let (batch, from) = match carry.take() {
+                Some(c) => c,
+                None => match service.receive_segments()? {
+                    Some(b) => (b, 0),
+                    None => break,
+                },
+            };
+            let segs = batch.as_slice();
+            let mut k = from;
+            while k < segs.len() && input.push_segment(&segs[k]) {
+                k += 1;
+            }
+            if k < segs.len() {
+                carry = Some((batch, k));
+                break;
+            }
+        }
+        lap(&mut stage, &mut t, &mut a);
+        while input.control_count < strand::core::MAX_CONTROLS_PER_TICK as u32 {
+            match service.receive_control()? {
+                Some(c) => {
+                    input.push_control(&c);
+                }
+                None => break,
+            }
+        }
+        lap(&mut stage, &mut t, &mut a);
+        while let Some(js) = service.receive_joint_state()? {
+            input.joint_state = Some(js);
+        }
+        lap(&mut stage, &mut t, &mut a);
+        while let Some(p) = service.receive_base_pose()? {
+            input.push_base_pose(&p);
+        }
+        lap(&mut stage, &mut t, &mut a);
+        // The runner asks every tick whether a feeder is still there.
+        input.feeder_lost = started && service.segment_publishers() == 0;
+        lap(&mut stage, &mut t, &mut a);
+        let before_step = t;
+        let out = ctl.step(&input);
+        lap(&mut stage, &mut t, &mut a);
+        let step_ns = t - before_step;
+        if out.joint_command.valid == 1 {
+            service.publish_joint_command(&out.joint_command)?;
+        }
+        lap(&mut stage, &mut t, &mut a);
+        service.publish_extruder_command(&out.extruder)?;
+        lap(&mut stage, &mut t, &mut a);
+        service.publish_status_quietly(&out.status)?;
+        lap(&mut stage, &mut t, &mut a);
+        let due = last_notified
+            .as_ref()
+            .is_none_or(|(at, last)| t.saturating_sub(*at) >= notify_period_ns || strand::io::runner::status_news(last, &out.status));
+        if due {
+            service.notify_status()?;
+            last_notified = Some((t, out.status));
+        }
+        lap(&mut stage, &mut t, &mut a);
+        logger.push(&input, &out, &TickTiming { wake_lateness_ns: 0, step_ns, tick_ns: t - begin });
+        lap(&mut stage, &mut t, &mut a);
+        whole.record(t - begin);
+        whole_allocs += a - a_begin;
+        // The peers take what was published (not timed).
+        while let Some(cmd) = peer.receive_joint_command()? {
+            if cmd.valid == 1 {
+                q = cmd.position;
+            }
+        }
+        while peer.receive_extruder_command()?.is_some() {}
+        if let Some(s) = peer.latest_status() {
+            status = s;
+        }
+    }
+    let report = logger.finish();
+    for f in &report.files {
+        let _ = std::fs::remove_file(f);
+    }
+    Ok(ShellReport {
+        iterations: opts.iterations,
+        rate_hz: opts.shell_rate,
+        tick: Dist::of(&whole),
+        allocations: whole_allocs,
+        stages: SHELL_STAGES
             .iter()
             .zip(cost.iter().zip(allocs))
             .map(|(name, (h, a))| Stage { name: name.to_string(), cost: Dist::of(h), allocations: a })
@@ -240,6 +463,22 @@ pub fn print(r: &TickReport) {
         println!("{} {:>7}", s.cost.row(&s.name), s.allocations);
     }
     println!("{} {:>7}", r.total.row("Controller::step (whole)"), r.allocations);
+    if let Some(sh) = &r.shell {
+        let pace = if sh.rate_hz > 0.0 { format!("paced at {} Hz", sh.rate_hz) } else { "back to back".to_string() };
+        println!("shell: the runner's tick over iceoryx2 ports, {} ticks {pace} (a feeder and a driver in this process)", sh.iterations);
+        println!("{} {:>7}", Dist::header("stage"), "allocs");
+        for s in &sh.stages {
+            println!("{} {:>7}", s.cost.row(&s.name), s.allocations);
+        }
+        println!("{} {:>7}", sh.tick.row("runner tick (receive → log push)"), sh.allocations);
+        println!(
+            "runner allocations: {} over {} ticks ({:.2} a tick){}",
+            sh.allocations,
+            sh.iterations,
+            sh.allocations as f64 / sh.iterations.max(1) as f64,
+            if sh.allocations > 0 { ": iceoryx2 0.10 allocates once per published sample (its loan's shared state)" } else { "" }
+        );
+    }
 }
 
 /// Draws the whole step's histogram with the stages'.

@@ -104,6 +104,14 @@ enum Mode {
         /// Draw the histograms (log-scale counts) of the whole step and the stages into this PNG.
         #[arg(long)]
         png: Option<PathBuf>,
+        /// Also time the shell: the runner's receives, publishes and log push over real iceoryx2
+        /// ports (a feeder and a driver in this process), per stage, with `runner_allocations`.
+        #[arg(long)]
+        shell: bool,
+        /// Pace the shell's ticks at this rate (Hz), sleeping between them as the runner does (cold
+        /// caches after each sleep); 0: back to back.
+        #[arg(long, default_value_t = 0.0)]
+        shell_rate: f64,
     },
     /// The ping-pong end of `latency` (started by it).
     #[command(hide = true)]
@@ -210,8 +218,15 @@ fn main() -> ExitCode {
                 r.latency.check("latency")?;
                 r.baseline.check("ping-pong")
             }
-            Mode::Tick { robot, iterations, json, png } => {
-                let opts = tick::TickOptions { config: robot_config(&robot)?, iterations, root: bench::repo_root()?, allocations };
+            Mode::Tick { robot, iterations, json, png, shell, shell_rate } => {
+                let opts = tick::TickOptions {
+                    config: robot_config(&robot)?,
+                    iterations,
+                    root: bench::repo_root()?,
+                    allocations,
+                    shell,
+                    shell_rate,
+                };
                 let r = tick::run(&opts)?;
                 emit(json, &r, tick::print, png.as_deref(), tick::plot)?;
                 r.check()

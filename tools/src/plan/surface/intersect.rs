@@ -68,7 +68,8 @@ fn contact(p: (f64, f64), q: (f64, f64), r: (f64, f64), s: (f64, f64)) -> Option
 /// segments that meet, counted once per pair. Non-adjacent segments count when they share any point: a
 /// proper crossing, a T (an endpoint on the other segment) or a collinear overlap, since each deposits
 /// material twice. Adjacent segments share their joint and count only when they overlap beyond it (the
-/// path turns back 180° on itself). Zero-length segments are skipped.
+/// path turns back 180° on itself). Zero-length segments are skipped, and so are steps across a periodic
+/// seam (`PointCloud::periods`).
 ///
 /// A uniform grid over the normalised (u, v) box (about one cell per segment) holds each segment in the
 /// cells its bounding box covers; a pair is tested in the one cell holding the lower corner of the
@@ -96,7 +97,9 @@ pub fn self_intersections(cloud: &PointCloud, order: &[usize]) -> Vec<Contact> {
         let (a, b) = (pt(k), pt(k + 1));
         let bb = (a.0.min(b.0), a.1.min(b.1), a.0.max(b.0), a.1.max(b.1));
         boxes.push(bb);
-        if a == b {
+        // A step across a periodic seam is short on the surface but spans the plane: it is not drawn
+        // there, so it meets nothing.
+        if a == b || cloud.crosses_seam(order[k], order[k + 1]) {
             continue;
         }
         for cy in cell(bb.1)..=cell(bb.3) {

@@ -644,7 +644,7 @@ mod fixtures {
     /// A cloud from (u, v) points on the plane z = 0.
     pub(super) fn cloud_of(uv: &[(f64, f64)]) -> PointCloud {
         let samples = uv.iter().map(|&(u, v)| Sample { u, v, point: Vector3::new(u, v, 0.0), normal: Vector3::z() }).collect();
-        PointCloud { samples, step_u: 1.0, step_v: 1.0, evaluations: 0 }
+        PointCloud { samples, step_u: 1.0, step_v: 1.0, evaluations: 0, periods: [None; 2] }
     }
 
     pub(super) fn identity(n: usize) -> Vec<usize> {

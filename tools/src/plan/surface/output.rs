@@ -108,7 +108,7 @@ pub fn segments_on(cloud: &PointCloud, order: &[usize], dep: &Deposition, on_fac
         let (end, orientation) = tip(k, 0.0);
         if k == 0 {
             out.push(line(end, orientation, dep.travel_speed, 0.0, SegmentFlags::TRAVEL.with(SegmentFlags::LAYER_START)));
-        } else if chord_on_face(&cloud.samples[order[k - 1]], &cloud.samples[order[k]], on_face) {
+        } else if chord_on_face(cloud, order[k - 1], order[k], on_face) {
             out.push(line(end, orientation, dep.speed, per_m * (end - tip(k - 1, 0.0).0).norm(), SegmentFlags::EXTRUDE));
         } else {
             let (up, up_orientation) = tip(k - 1, dep.lift());
@@ -129,14 +129,23 @@ pub fn segments_on(cloud: &PointCloud, order: &[usize], dep: &Deposition, on_fac
 
 /// Steps of `order` whose chord leaves the face (each becomes a lifted travel in [`segments_on`]).
 pub fn steps_off_face(cloud: &PointCloud, order: &[usize], on_face: &dyn Fn(f64, f64) -> bool) -> usize {
-    order.windows(2).filter(|w| !chord_on_face(&cloud.samples[w[0]], &cloud.samples[w[1]], on_face)).count()
+    order.windows(2).filter(|w| !chord_on_face(cloud, w[0], w[1], on_face)).count()
 }
 
-/// The step from `a` to `b` stays on the face: eight points along its (u, v) chord are on it.
-fn chord_on_face(a: &super::Sample, b: &super::Sample, on_face: &dyn Fn(f64, f64) -> bool) -> bool {
+/// The step from sample `a` to sample `b` stays on the face: eight points along its (u, v) chord, the
+/// short way round a periodic seam, are on it (a point past the seam is on it a period back or on).
+fn chord_on_face(cloud: &PointCloud, a: usize, b: usize, on_face: &dyn Fn(f64, f64) -> bool) -> bool {
+    let (du, dv) = cloud.step(a, b);
+    let s = &cloud.samples[a];
+    let shifts = |period: Option<f64>| match period {
+        Some(p) => [0.0, p, -p],
+        None => [0.0; 3],
+    };
+    let (su, sv) = (shifts(cloud.periods[0]), shifts(cloud.periods[1]));
     (1..8).all(|i| {
         let t = i as f64 / 8.0;
-        on_face(a.u + t * (b.u - a.u), a.v + t * (b.v - a.v))
+        let (u, v) = (s.u + t * du, s.v + t * dv);
+        su.iter().any(|x| sv.iter().any(|y| on_face(u + x, v + y)))
     })
 }
 

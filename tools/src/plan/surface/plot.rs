@@ -55,7 +55,15 @@ fn draw(file: &Path, title: &str, labels: (&str, &str), cloud: &PointCloud, pane
             .y_label_area_size(60)
             .build_cartesian_2d(u0 - pu..u1 + pu, v0 - pv..v1 + pv)?;
         chart.configure_mesh().x_desc(labels.0).y_desc(labels.1).light_line_style(WHITE).draw()?;
-        chart.draw_series(LineSeries::new(p.order.iter().map(|&i| (cloud.samples[i].u, cloud.samples[i].v)), BLUE.stroke_width(1)))?;
+        // One line per run between steps across a periodic seam (those would span the plot).
+        let mut start = 0;
+        for k in 1..=p.order.len() {
+            if k == p.order.len() || cloud.crosses_seam(p.order[k - 1], p.order[k]) {
+                let run = p.order[start..k].iter().map(|&i| (cloud.samples[i].u, cloud.samples[i].v));
+                chart.draw_series(LineSeries::new(run, BLUE.stroke_width(1)))?;
+                start = k;
+            }
+        }
         chart.draw_series(cloud.samples.iter().map(|s| Circle::new((s.u, s.v), 2, BLACK.filled())))?;
         if let Some(&first) = p.order.first() {
             let s = &cloud.samples[first];

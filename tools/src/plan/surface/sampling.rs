@@ -31,6 +31,28 @@ pub struct PointCloud {
     pub step_v: f64,
     /// Surface evaluations spent (`valueAt` calls, including the calibration's).
     pub evaluations: u64,
+    /// The parameters' periods where the surface closes on itself (a full cylinder's u: 2π): a step
+    /// between samples goes the short way round, across the seam.
+    pub periods: [Option<f64>; 2],
+}
+
+impl PointCloud {
+    /// The (u, v) step from sample `a` to sample `b`, the short way round a periodic parameter.
+    pub fn step(&self, a: usize, b: usize) -> (f64, f64) {
+        let (sa, sb) = (&self.samples[a], &self.samples[b]);
+        let wrap = |d: f64, period: Option<f64>| match period {
+            Some(p) if p > 0.0 => d - (d / p).round() * p,
+            _ => d,
+        };
+        (wrap(sb.u - sa.u, self.periods[0]), wrap(sb.v - sa.v, self.periods[1]))
+    }
+
+    /// True if the step from `a` to `b` crosses a periodic seam (its (u, v) chord is not the short way).
+    pub fn crosses_seam(&self, a: usize, b: usize) -> bool {
+        let (du, dv) = self.step(a, b);
+        let (sa, sb) = (&self.samples[a], &self.samples[b]);
+        du != sb.u - sa.u || dv != sb.v - sa.v
+    }
 }
 
 /// Which version of Algorithm 1 to run.
@@ -185,8 +207,14 @@ pub fn sample<S: Surface + ?Sized>(surface: &S, sampling: &Sampling) -> Result<P
     let mut eval = Evaluator { surface, evaluations: 0 };
     let mut cloud = PointCloud::default();
     let (mut sum_u, mut n_u, mut sum_v, mut n_v) = (0.0, 0usize, 0.0, 0usize);
+    // A face that closes on itself (a whole cylinder): its far edge is its near edge again, so the
+    // samples there would lay the same bead twice.
+    let periods = surface.periods();
+    let closes = |span: f64, period: Option<f64>| period.filter(|p| span >= p * (1.0 - 1e-9));
+    let (close_u, close_v) = (closes(d.span_u(), periods[0]), closes(d.span_v(), periods[1]));
     let add = |cloud: &mut PointCloud, eval: &mut Evaluator<S>, u: f64, v: f64| -> Result<()> {
-        if !surface.contains(u, v) {
+        let seam = |x: f64, start: f64, period: Option<f64>| period.is_some_and(|p| x - start >= p * (1.0 - 1e-9));
+        if !surface.contains(u, v) || seam(u, d.u.0, close_u) || seam(v, d.v.0, close_v) {
             return Ok(());
         }
         if cloud.samples.len() >= MAX_SAMPLES {
@@ -287,9 +315,23 @@ pub fn sample<S: Surface + ?Sized>(surface: &S, sampling: &Sampling) -> Result<P
             }
         }
     }
+    // Across the seam of a closed face the last row (or sample of a row) comes round to the first: one
+    // that lands within half a spacing of it would lay its bead almost on the first's, so it goes (the
+    // gap there is then at most 1.5 spacings instead of as little as nothing).
+    if close_u.is_some() || close_v.is_some() {
+        let near_seam = |s: &Sample| {
+            let past_u =
+                close_u.is_some_and(|p| s.u - d.u.0 > 0.5 * p) && (surface.point(d.u.0, s.v) - s.point).norm() < 0.5 * sampling.spacing_u;
+            let past_v =
+                close_v.is_some_and(|p| s.v - d.v.0 > 0.5 * p) && (surface.point(s.u, d.v.0) - s.point).norm() < 0.5 * sampling.spacing_v;
+            past_u || past_v
+        };
+        cloud.samples.retain(|s| !near_seam(s));
+    }
     cloud.step_u = if n_u > 0 { sum_u / n_u as f64 } else { d.span_u() };
     cloud.step_v = if n_v > 0 { sum_v / n_v as f64 } else { d.span_v() };
     cloud.evaluations = eval.evaluations;
+    cloud.periods = surface.periods();
     Ok(cloud)
 }
 

@@ -58,6 +58,11 @@ pub trait Surface {
 
     /// Axis labels for plots, with units: (u, v).
     fn parameter_labels(&self) -> (&'static str, &'static str);
+
+    /// The periods of u and v where the surface closes on itself (a whole cylinder); none by default.
+    fn periods(&self) -> [Option<f64>; 2] {
+        [None, None]
+    }
 }
 
 /// 003's Eq. 2 normal, n = ∂r/∂u × ∂r/∂v, by central differences (step 1e-6 of each span), normalised.

@@ -94,6 +94,9 @@ impl Surface for StepSurface {
     fn parameter_labels(&self) -> (&'static str, &'static str) {
         ("u (the face's own parameter)", "v (the face's own parameter)")
     }
+    fn periods(&self) -> [Option<f64>; 2] {
+        self.face.periods()
+    }
 }
 
 /// A strand-cad error as the planner reports it.
