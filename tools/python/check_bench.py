@@ -50,6 +50,17 @@ def main():
             for s in r["stages"]:
                 check_dist(f"tick stage {s['name']}", s)
                 assert s["allocations"] == 0, s
+            shell = r.get("shell")
+            if shell is not None:
+                # The runner's stages over iceoryx2: only the publishes allocate (iceoryx2 0.10, one per
+                # loan) and the receives while connecting; [RT] wants 0 a tick.
+                check_dist("tick shell", shell)
+                for s in shell["stages"]:
+                    check_dist(f"tick shell stage {s['name']}", s)
+                    if not (s["name"].startswith("publish") or s["name"].startswith("receive")):
+                        assert s["allocations"] <= 100, s
+                per_tick = r["runner_allocations"] / shell["iterations"]
+                assert r["runner_allocations"] == shell["allocations"] and per_tick <= 3.5, r["runner_allocations"]
         elif mode == "log":
             assert r["drops"] == 0, r
         elif mode == "latency-driver":
