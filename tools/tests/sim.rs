@@ -237,3 +237,12 @@ fn the_demo_stops_at_once_when_the_sim_refuses_its_plant() {
     assert!(stderr.contains("plant.toml: joints.lag = NaN"), "the sim's own message: {stderr}");
     assert!(!dir.join("demo/run.mcap").exists());
 }
+
+#[test]
+fn the_sim_takes_the_services_overrides_and_names_a_bad_one() {
+    // strand-demo hands its --set to both processes, so the sim and the service agree on the rate.
+    let out = Command::new(bin("strand-sim")).args(["--set", "controller.rate_hz=-5", "--prefix", "strand/sim-set-test"]).output().unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert!(err.contains("[controller] rate_hz = -5"), "{err}");
+}

@@ -23,6 +23,10 @@ struct Cli {
     /// <prefix>/share/strand/config, the built-in copy).
     #[arg(long)]
     config: Option<PathBuf>,
+    /// Override a service config key (repeatable), as `strand run --set` does: give the sim the same
+    /// overrides as the service (the rate above all), or the two disagree on the time a tick is.
+    #[arg(long = "set", value_name = "SECTION.KEY=VALUE")]
+    set: Vec<String>,
     /// Plant configuration (lags, noise, tracker, flyer); default: sim/free-flyer.toml for a
     /// tracked base, sim/default.toml otherwise, next to --config's folder or else by the search
     /// order.
@@ -60,7 +64,7 @@ extern "C" fn on_signal(_: libc::c_int) {
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
-    let cfg = match locate::service_config(cli.config.as_deref()).and_then(|c| Config::load(&c)) {
+    let cfg = match locate::service_config(cli.config.as_deref()).and_then(|c| Config::load_with(&c, &cli.set)) {
         Ok(c) => c,
         Err(e) => {
             eprintln!("strand-sim: {e}");

@@ -167,6 +167,10 @@ pub fn run(opts: &DemoOptions) -> Result<bool> {
         .arg(&truth)
         .arg("--stats")
         .arg(&stats);
+    // The service's overrides, so that both agree on the rate, the robot and the base.
+    for o in &opts.set {
+        sim.args(["--set", o]);
+    }
     if let Some(s) = opts.seed {
         sim.args(["--seed", &s.to_string()]);
     }
