@@ -250,8 +250,7 @@ impl Runner {
         let cleanup_every = (250_000_000 / self.dt_ns).max(1);
         let mut tick: u64 = 0;
         let mut robot_time = RobotTime::default();
-        let notify_period_ns = (self.service.status_notify_period * 1e9) as u64;
-        let mut last_notified: Option<(u64, ipc::Status)> = None;
+        let mut status_event = StatusEvent::new(self.service.status_notify_period);
         while !stop.load(Ordering::Relaxed) {
             // 1. Wait for the tick.
             let mut wake_lateness_ns = 0;
@@ -306,13 +305,8 @@ impl Runner {
             let published = monotonic_ns();
             // The status event: its waiters are woken at once by a change they wait for, else at the
             // period (the commands above are out already, so a woken process delays nothing of them).
-            let due = match &last_notified {
-                None => true,
-                Some((at, last)) => published.saturating_sub(*at) >= notify_period_ns || status_news(last, &out.status),
-            };
-            if due {
+            if status_event.due(published, &out.status) {
                 self.ports.notify_status()?;
-                last_notified = Some((published, out.status));
             }
             summary.step_cost.record(after - before);
             summary.tick_cost.record(published - woke);
@@ -345,33 +339,8 @@ impl Runner {
     }
 
     fn drain(&mut self, input: &mut TickInput) -> Result<(), RunError> {
-        // Segments: what is left of the last batch first, then new batches while they fit.
-        loop {
-            let (batch, from) = match self.carry.take() {
-                Some(c) => c,
-                None => match self.ports.receive_segments()? {
-                    Some(b) => (b, 0),
-                    None => break,
-                },
-            };
-            let segments = batch.as_slice();
-            let mut k = from;
-            while k < segments.len() && input.push_segment(&segments[k]) {
-                k += 1;
-            }
-            if k < segments.len() {
-                self.carry = Some((batch, k));
-                break;
-            }
-        }
-        while input.control_count < crate::core::MAX_CONTROLS_PER_TICK as u32 {
-            match self.ports.receive_control()? {
-                Some(c) => {
-                    input.push_control(&c);
-                }
-                None => break,
-            }
-        }
+        take_segments(&self.ports, &mut self.carry, input)?;
+        take_controls(&self.ports, input)?;
         while let Some(js) = self.ports.receive_joint_state()? {
             input.joint_state = Some(js);
         }
@@ -417,9 +386,73 @@ impl RobotTime {
     }
 }
 
+/// Moves the segments of the waiting batches into `input`: what is left of the last batch first
+/// (`carry`), then new batches while they fit; a batch that does not fit is carried to the next
+/// tick. Tick-path safe.
+pub fn take_segments(ports: &ServicePorts, carry: &mut Option<(ipc::SegmentBatch, usize)>, input: &mut TickInput) -> Result<(), PortError> {
+    loop {
+        let (batch, from) = match carry.take() {
+            Some(c) => c,
+            None => match ports.receive_segments()? {
+                Some(b) => (b, 0),
+                None => return Ok(()),
+            },
+        };
+        let segments = batch.as_slice();
+        let mut k = from;
+        while k < segments.len() && input.push_segment(&segments[k]) {
+            k += 1;
+        }
+        if k < segments.len() {
+            *carry = Some((batch, k));
+            return Ok(());
+        }
+    }
+}
+
+/// Moves the waiting controls into `input`, as many as a tick takes. Tick-path safe.
+pub fn take_controls(ports: &ServicePorts, input: &mut TickInput) -> Result<(), PortError> {
+    while input.control_count < crate::core::MAX_CONTROLS_PER_TICK as u32 {
+        match ports.receive_control()? {
+            Some(c) => {
+                input.push_control(&c);
+            }
+            None => break,
+        }
+    }
+    Ok(())
+}
+
+/// When to wake the status event's waiters (`[service] status_notify_period`): at once on news, else
+/// at the period. Status itself is published every tick.
+pub struct StatusEvent {
+    period_ns: u64,
+    last: Option<(u64, ipc::Status)>,
+}
+
+impl StatusEvent {
+    /// Waiters woken at least every `period` (s); 0: every tick.
+    pub fn new(period: f64) -> StatusEvent {
+        StatusEvent { period_ns: (period * 1e9) as u64, last: None }
+    }
+
+    /// True if the waiters are to be woken for `status`, published at `now_ns` (and then it is taken
+    /// as the last one they were woken for).
+    pub fn due(&mut self, now_ns: u64, status: &ipc::Status) -> bool {
+        let due = match &self.last {
+            None => true,
+            Some((at, last)) => now_ns.saturating_sub(*at) >= self.period_ns || status_news(last, status),
+        };
+        if due {
+            self.last = Some((now_ns, *status));
+        }
+        due
+    }
+}
+
 /// A change of `now` against the last status its waiters were woken for that one of them waits on:
 /// the run state, the job's outcome, the fault, a refusal, the overrides, the executing layer.
-pub fn status_news(last: &ipc::Status, now: &ipc::Status) -> bool {
+fn status_news(last: &ipc::Status, now: &ipc::Status) -> bool {
     (last.run_state, last.job_outcome, last.fault, last.executing_layer, last.rejected)
         != (now.run_state, now.job_outcome, now.fault, now.executing_layer, now.rejected)
         || last.feed_override != now.feed_override
@@ -458,5 +491,42 @@ fn log_events(out: &TickOutput) {
     }
     if out.events_dropped > 0 {
         tracing::warn!("{} events not reported (more than fit in one tick)", out.events_dropped);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn status_waiters_are_woken_on_news_at_once_and_else_at_the_period() {
+        let mut event = StatusEvent::new(0.01);
+        let mut s = ipc::Status { run_state: RunState::Running as u32, queue_free: 100, ..Default::default() };
+        assert!(event.due(0, &s), "the first status wakes");
+        // Progress alone (the queue, the path) waits for the period: 10 ms.
+        for t in 1..10 {
+            s.queue_free -= 1;
+            s.path_position += 0.001;
+            assert!(!event.due(t * 1_000_000, &s), "{t} ms");
+        }
+        assert!(event.due(10_000_000, &s));
+        // News wakes at once, each kind of it.
+        let news: [fn(&mut ipc::Status); 7] = [
+            |s| s.run_state = RunState::Paused as u32,
+            |s| s.job_outcome = JobOutcome::Finished as u32,
+            |s| s.fault = 3,
+            |s| s.rejected += 1,
+            |s| s.feed_override = 0.5,
+            |s| s.flow_override = 0.9,
+            |s| s.executing_layer += 1,
+        ];
+        for (k, change) in news.iter().enumerate() {
+            change(&mut s);
+            assert!(event.due(10_000_001 + k as u64, &s), "news {k}");
+            assert!(!event.due(10_000_001 + k as u64, &s), "news {k} wakes once");
+        }
+        // Period 0: every tick.
+        let mut every = StatusEvent::new(0.0);
+        assert!((0..5).all(|t| every.due(t, &s)));
     }
 }

@@ -44,24 +44,17 @@ pub fn bump_with_hole() -> Shell {
     let [(ua, ub), (va, vb)] = HOLE_UV;
     let corners = [(ua, va), (ua, vb), (ub, vb), (ub, va)];
     let hv: Vec<Vertex> = corners.iter().map(|&(u, v)| builder::vertex(s.subs(u, v))).collect();
-    let iso_u = |u: f64, v0: f64, v1: f64| {
-        let mut c = s.clone().ucut(u).column_curve(0);
-        let mut mid = c.cut(v0.min(v1));
-        mid.cut(v0.max(v1));
-        if v0 > v1 {
+    // The piece of an iso-parameter curve from t0 to t1 (in that direction).
+    let piece = |mut c: truck_modeling::BSplineCurve<Point3>, t0: f64, t1: f64| {
+        let mut mid = c.cut(t0.min(t1));
+        mid.cut(t0.max(t1));
+        if t0 > t1 {
             mid.invert();
         }
         Curve::BSplineCurve(mid)
     };
-    let iso_v = |v: f64, u0: f64, u1: f64| {
-        let mut c = s.clone().vcut(v).row_curve(0);
-        let mut mid = c.cut(u0.min(u1));
-        mid.cut(u0.max(u1));
-        if u0 > u1 {
-            mid.invert();
-        }
-        Curve::BSplineCurve(mid)
-    };
+    let iso_u = |u: f64, v0: f64, v1: f64| piece(s.clone().ucut(u).column_curve(0), v0, v1);
+    let iso_v = |v: f64, u0: f64, u1: f64| piece(s.clone().vcut(v).row_curve(0), u0, u1);
     let hole: Wire = vec![
         Edge::new(&hv[0], &hv[1], iso_u(ua, va, vb)),
         Edge::new(&hv[1], &hv[2], iso_v(vb, ua, ub)),

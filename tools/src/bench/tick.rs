@@ -18,6 +18,7 @@ use strand::core::{Controller, MAX_SEGMENTS_PER_TICK, TickInput};
 use strand::core::{PathEngine, Segment};
 use strand::io::clock::monotonic_ns;
 use strand::io::histogram::Histogram;
+use strand::io::runner::{StatusEvent, take_controls, take_segments};
 use strand::log::messages::TickTiming;
 use strand::log::writer::{LogContext, Logger};
 use strand_ipc as ipc;
@@ -199,10 +200,7 @@ pub fn run(opts: &TickOptions) -> Result<TickReport> {
         free = out.status.queue_free.saturating_sub(64);
         running_ticks += (out.status.run_state == ipc::RunState::Running as u32) as u64;
     }
-    let report = logger.finish();
-    for f in &report.files {
-        let _ = std::fs::remove_file(f);
-    }
+    discard(logger);
     let shell = if opts.shell { Some(shell(opts, &cfg, &model)?) } else { None };
     let mut histograms = vec![("Controller::step".to_string(), total.clone())];
     histograms.extend(NAMES.iter().zip(cost.iter()).map(|(n, h)| (n.to_string(), h.clone())));
@@ -215,11 +213,7 @@ pub fn run(opts: &TickOptions) -> Result<TickReport> {
         running_ticks,
         total: Dist::of(&total),
         allocations: total_allocs,
-        stages: NAMES
-            .iter()
-            .zip(cost.iter().zip(allocs))
-            .map(|(name, (h, a))| Stage { name: name.to_string(), cost: Dist::of(h), allocations: a })
-            .collect(),
+        stages: stages(&NAMES, &cost, &allocs),
         runner_allocations: shell.as_ref().map(|s| s.allocations),
         shell,
     })
@@ -290,8 +284,7 @@ fn shell(opts: &TickOptions, cfg: &Config, model: &strand::core::kin::RobotModel
     let mut status = ipc::Status::default();
     let mut cost: [Histogram; 12] = Default::default();
     let mut allocs = [0u64; 12];
-    let notify_period_ns = (cfg.service.status_notify_period * 1e9) as u64;
-    let mut last_notified: Option<(u64, ipc::Status)> = None;
+    let mut status_event = StatusEvent::new(cfg.service.status_notify_period);
     let (mut whole, mut whole_allocs) = (Histogram::new(), 0u64);
     let mut input = TickInput::new(0, 0);
     let mut carry: Option<(ipc::SegmentBatch, usize)> = None;
@@ -344,33 +337,9 @@ fn shell(opts: &TickOptions, cfg: &Config, model: &strand::core::kin::RobotModel
         std::hint::black_box(monotonic_ns());
         lap(&mut stage, &mut t, &mut a);
         input.reset(tick, time_ns);
-        loop {
-            let (batch, from) = match carry.take() {
-                Some(c) => c,
-                None => match service.receive_segments()? {
-                    Some(b) => (b, 0),
-                    None => break,
-                },
-            };
-            let segs = batch.as_slice();
-            let mut k = from;
-            while k < segs.len() && input.push_segment(&segs[k]) {
-                k += 1;
-            }
-            if k < segs.len() {
-                carry = Some((batch, k));
-                break;
-            }
-        }
+        take_segments(&service, &mut carry, &mut input)?;
         lap(&mut stage, &mut t, &mut a);
-        while input.control_count < strand::core::MAX_CONTROLS_PER_TICK as u32 {
-            match service.receive_control()? {
-                Some(c) => {
-                    input.push_control(&c);
-                }
-                None => break,
-            }
-        }
+        take_controls(&service, &mut input)?;
         lap(&mut stage, &mut t, &mut a);
         while let Some(js) = service.receive_joint_state()? {
             input.joint_state = Some(js);
@@ -395,12 +364,8 @@ fn shell(opts: &TickOptions, cfg: &Config, model: &strand::core::kin::RobotModel
         lap(&mut stage, &mut t, &mut a);
         service.publish_status_quietly(&out.status)?;
         lap(&mut stage, &mut t, &mut a);
-        let due = last_notified
-            .as_ref()
-            .is_none_or(|(at, last)| t.saturating_sub(*at) >= notify_period_ns || strand::io::runner::status_news(last, &out.status));
-        if due {
+        if status_event.due(t, &out.status) {
             service.notify_status()?;
-            last_notified = Some((t, out.status));
         }
         lap(&mut stage, &mut t, &mut a);
         logger.push(&input, &out, &TickTiming { wake_lateness_ns: 0, step_ns, tick_ns: t - begin });
@@ -418,21 +383,30 @@ fn shell(opts: &TickOptions, cfg: &Config, model: &strand::core::kin::RobotModel
             status = s;
         }
     }
-    let report = logger.finish();
-    for f in &report.files {
-        let _ = std::fs::remove_file(f);
-    }
+    discard(logger);
     Ok(ShellReport {
         iterations: opts.iterations,
         rate_hz: opts.shell_rate,
         tick: Dist::of(&whole),
         allocations: whole_allocs,
-        stages: SHELL_STAGES
-            .iter()
-            .zip(cost.iter().zip(allocs))
-            .map(|(name, (h, a))| Stage { name: name.to_string(), cost: Dist::of(h), allocations: a })
-            .collect(),
+        stages: stages(&SHELL_STAGES, &cost, &allocs),
     })
+}
+
+/// The stages' report rows: each name with its cost and allocations.
+fn stages(names: &[&str], cost: &[Histogram], allocs: &[u64]) -> Vec<Stage> {
+    names
+        .iter()
+        .zip(cost.iter().zip(allocs))
+        .map(|(name, (h, a))| Stage { name: name.to_string(), cost: Dist::of(h), allocations: *a })
+        .collect()
+}
+
+/// Ends a bench's log and removes its files: the logger ran for its cost, not its record.
+fn discard(logger: Logger) {
+    for f in &logger.finish().files {
+        let _ = std::fs::remove_file(f);
+    }
 }
 
 /// Writes the report as a table.
