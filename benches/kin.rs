@@ -7,11 +7,16 @@
 use std::path::PathBuf;
 
 use criterion::{Criterion, criterion_group, criterion_main};
-use nalgebra::{SMatrix, UnitQuaternion, Vector3};
+use nalgebra::SMatrix;
 use strand::config::RobotConfig;
 use strand::core::kin::{
-    ChainState, Clik, ClikConfig, JointVector, Priority, RobotModel, Task, TaskJacobian, TcpTarget, manipulability_gradient, svd,
+    ChainState, Clik, ClikConfig, JointVector, Priority, RobotModel, Task, TaskJacobian, manipulability_gradient, svd,
 };
+
+// The targets `strand-bench clik` and the Pinocchio bench track too: one table.
+#[path = "../tools/src/bench/circle.rs"]
+mod circle;
+use circle::{IIWA_Q0, circle};
 
 fn robot(name: &str) -> RobotModel {
     let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("config/robots").join(format!("{name}.toml"));
@@ -20,33 +25,12 @@ fn robot(name: &str) -> RobotModel {
 
 fn start(name: &str) -> JointVector {
     let v: &[f64] = match name {
-        "iiwa7" => &[0.2, 0.6, -0.1, -1.3, 0.2, 0.9, 0.3],
+        "iiwa7" => &IIWA_Q0,
         _ => &[0.1, 0.0, 2.1, 0.3, 0.9, 0.2],
     };
     let mut q = JointVector::zeros();
     q.as_mut_slice()[..v.len()].copy_from_slice(v);
     q
-}
-
-/// A circle of 20 mm radius traced at constant speed (50 mm/s), 1 kHz, one full period so it wraps smoothly.
-fn circle(model: &RobotModel, q0: &JointVector) -> Vec<TcpTarget> {
-    let start = model.forward_kinematics(q0);
-    let orient = UnitQuaternion::from_rotation_matrix(&start.rotation);
-    let (r, v) = (0.02, 0.05);
-    let omega = v / r;
-    let ticks = (2.0 * std::f64::consts::PI / omega * 1000.0) as usize;
-    let centre = start.translation.vector - Vector3::x() * r;
-    (0..ticks)
-        .map(|k| {
-            let th = omega * (k + 1) as f64 * 1e-3;
-            TcpTarget {
-                position: centre + Vector3::new(r * th.cos(), r * th.sin(), 0.0),
-                orientation: orient,
-                linear_velocity: Vector3::new(-r * omega * th.sin(), r * omega * th.cos(), 0.0),
-                angular_velocity: Vector3::zeros(),
-            }
-        })
-        .collect()
 }
 
 fn kinematics(c: &mut Criterion) {

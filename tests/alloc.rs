@@ -3,7 +3,7 @@
 //! the 6-axis VP6242 in the 5-D task, none in FK or the gradient alone, and none on the rare paths:
 //! joints saturating at their limits (re-solves), NaN targets (braking) and repaired joint input;
 //! and none in a whole controller tick with its log record queued, with and without the live view
-//! streaming to a connected Foxglove client.
+//! streaming to a connected Foxglove client; and none in whole runner ticks, iceoryx2 ports included.
 
 mod common;
 #[path = "common/paths.rs"]
@@ -247,4 +247,96 @@ fn counted_cell_ticks(file: Option<&std::path::Path>, view: Option<strand_view::
         assert_eq!((report.ticks_written, report.drops), (0, 0), "a view-only writer writes no file and loses nothing");
     }
     total
+}
+
+/// Whole runner ticks allocate nothing: `Runner::run` on the timer clock at 1 kHz, its iceoryx2 ports
+/// live, a feeder thread streaming a job within its credit and starting it, joint states echoed.
+/// Each tick's count spans one record to the next: the wait, the drain of every subscriber, the
+/// step, the three publishes, the status notify, the sink and the event logging. Only a peer's
+/// arrival costs allocations (iceoryx2 connects to its ports at the next receive or publish after
+/// they appear): so the feeder opens its ports before the run, and the count starts at the end of the
+/// first tick.
+#[test]
+fn whole_runner_ticks_allocate_nothing() {
+    use common::cell::{IIWA_START, config, square_job};
+    use std::sync::atomic::{AtomicBool, Ordering};
+    use strand::core::{TickInput, TickOutput};
+    use strand::io::clock::ClockMode;
+    use strand::io::rt::RealtimeConfig;
+    use strand::io::runner::{JointFeedback, Runner, StopWhen, TickSink, TickTiming};
+    use strand_ipc::ports::{ClientPorts, ClientRoles};
+    use strand_ipc::{Command, Control, JobOutcome, SegmentBatch, ServiceNames};
+
+    /// Allocations between consecutive records, in room reserved up front.
+    struct PerTick {
+        last: Option<usize>,
+        counts: Vec<usize>,
+    }
+    impl TickSink for PerTick {
+        fn record(&mut self, _: &TickInput, _: &TickOutput, _: &TickTiming) {
+            let now = allocations();
+            if let Some(last) = self.last
+                && self.counts.len() < self.counts.capacity()
+            {
+                self.counts.push(now - last);
+            }
+            self.last = Some(allocations());
+        }
+    }
+
+    let prefix = format!("strand/test-alloc-runner-{}", std::process::id());
+    let cfg = config(|c| {
+        c.service.prefix = prefix.clone();
+        c.service.clock = ClockMode::Timer;
+        c.service.joint_feedback = JointFeedback::Echo;
+        c.service.initial_joints = IIWA_START.to_vec();
+        c.controller.rate_hz = 1000.0;
+    });
+    let job = square_job(1, [0.45, -0.02, 0.2], 0.02, 1, 0.04);
+    let (first, last) = (job[0].seq, job[job.len() - 1].seq);
+    let model = cfg.robot.build_model().unwrap();
+    let controller = strand::core::Controller::new(&cfg.controller_settings(), model).unwrap();
+    let mut runner = Runner::new(controller, &cfg.service, cfg.controller.joint_state_timeout, cfg.controller.rate_hz).unwrap();
+    let mut sink = PerTick { last: None, counts: Vec::with_capacity(20_000) };
+    let stop = AtomicBool::new(false);
+    let feeder_done = AtomicBool::new(false);
+    let feeder_open = std::sync::Barrier::new(2);
+    let summary = std::thread::scope(|scope| {
+        scope.spawn(|| {
+            let roles = ClientRoles { feeder: true, control: true, monitor: true, ..Default::default() };
+            let client = ClientPorts::open(&ServiceNames::new(&prefix), "test-feeder", roles).unwrap();
+            feeder_open.wait();
+            let (mut sent, mut started, mut batch_seq) = (0usize, false, 0u64);
+            while !feeder_done.load(Ordering::Relaxed) {
+                let status = client.latest_status().unwrap_or_default();
+                let ours = started && (first..=last).contains(&status.last_received_seq);
+                let allowed = (if ours { status.last_received_seq - first + 1 } else { 0 } + status.queue_free as u64) as usize;
+                while sent < allowed.min(job.len()) {
+                    let k = (allowed.min(job.len()) - sent).min(strand_ipc::SEGMENT_BATCH_CAPACITY);
+                    batch_seq += 1;
+                    let mut batch = SegmentBatch { seq: batch_seq, len: k as u32, ..Default::default() };
+                    batch.segments[..k].copy_from_slice(&job[sent..sent + k]);
+                    client.send_segments(&batch).unwrap();
+                    sent += k;
+                }
+                if !started && sent > 0 {
+                    client.send_control(&Control { seq: 1, command: Command::Start as u32, ..Default::default() }).unwrap();
+                    started = true;
+                }
+                std::thread::sleep(std::time::Duration::from_millis(2));
+            }
+        });
+        feeder_open.wait();
+        let when = StopWhen { max_ticks: Some(20_000), job_done: true };
+        let summary = runner.run(&RealtimeConfig::default(), &stop, when, &mut sink);
+        feeder_done.store(true, Ordering::Relaxed);
+        summary.unwrap()
+    });
+    assert_eq!(summary.status.job_outcome, JobOutcome::Finished as u32, "the job did not finish: {:?}", summary.status);
+    let counts = &sink.counts;
+    let allocating: Vec<(usize, usize)> = counts.iter().copied().enumerate().filter(|(_, n)| *n > 0).collect();
+    let total: usize = counts.iter().sum();
+    eprintln!("{} ticks counted, {total} allocations, in ticks {allocating:?}", counts.len());
+    assert!(counts.len() > 1000, "{} ticks", counts.len());
+    assert_eq!(total, 0, "{} of {} runner ticks allocated: {allocating:?}", allocating.len(), counts.len());
 }

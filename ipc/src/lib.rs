@@ -27,6 +27,7 @@ use iceoryx2_bb_derive_macros::ZeroCopySend;
 use iceoryx2_bb_elementary_traits::zero_copy_send::ZeroCopySend;
 
 pub mod ports;
+pub mod recycling;
 
 /// Declares a wire enum: `#[repr(u32)]`, its variants with explicit wire values, and the decoders
 /// `from_u32` and `TryFrom<u32>` (the error is the unknown value), derived from the one list so a

@@ -28,18 +28,18 @@
 //! 11.3 MB of `/dev/shm` (sparse: only touched pages are resident, unless a process that maps it
 //! locks its memory with `mlockall`). Docker's default `/dev/shm` is 64 MB.
 //!
-//! Tick path. Receiving, waiting and the publisher counts are tick-path safe: no allocation, no
-//! mutex (the `ipc::Service` ports are single-threaded), no printing, no `tracing`; they copy the
-//! fixed-size payloads out. Publishing is tick-path safe *except* that iceoryx2 0.10 itself makes
-//! one small heap allocation per sample (every loan creates an `Rc` for the sample's shared state,
-//! freed at send; a thread-cache malloc, no lock, no system call); `tests/io_ports.rs` pins that
-//! count so an upgrade that removes it is noticed. Only the error paths allocate on our side (the
-//! [`PortError`] text): treat an error as a fault, not something to retry every tick. Opening and
-//! [`cleanup_dead_nodes`] are start-up code. Opening sets iceoryx2's log level to Error (its WARN
-//! about a missing config file would greet every process) unless `IOX2_LOG_LEVEL` says otherwise.
+//! Tick path. Receiving, waiting, publishing and the publisher counts are tick-path safe: no
+//! allocation, no mutex (the ports are single-threaded), no printing, no `tracing`; they copy the
+//! fixed-size payloads in and out. Publishing allocates nothing because the ports use
+//! [`crate::recycling::Service`], `ipc::Service` with iceoryx2 0.10's per-loan shared state recycled
+//! (plain `ipc::Service` makes one small heap allocation per sample); `tests/ports.rs` counts zero.
+//! Only the error paths allocate (the [`PortError`] text): treat an error as a fault, not something
+//! to retry every tick. Opening and [`cleanup_dead_nodes`] are start-up code. Opening sets
+//! iceoryx2's log level to Error (its WARN about a missing config file would greet every process)
+//! unless `IOX2_LOG_LEVEL` says otherwise.
 //!
-//! Threads: the ports are neither `Send` nor `Sync` (iceoryx2's single-threaded `ipc::Service`
-//! keeps them in `Rc`s). Open them on the thread that uses them: the cycle thread opens its own
+//! Threads: the ports are neither `Send` nor `Sync` (their shared state is single-threaded reference
+//! counts, as in iceoryx2's `ipc::Service`). Open them on the thread that uses them: the cycle thread opens its own
 //! [`ServicePorts`].
 //!
 //! Lifetimes: a subscriber maps a publisher's shared memory at its first `receive()` after the
@@ -169,7 +169,8 @@ const MAX_NODES: usize = 20;
 /// Notifiers and listeners per event service (count).
 const MAX_EVENT_PORTS: usize = 16;
 
-type Ipc = ipc::Service;
+/// iceoryx2's `ipc::Service` with recycled per-sample state: a publish does not allocate.
+type Ipc = crate::recycling::Service;
 
 /// Silences iceoryx2's start-up WARN about a missing config file (IOX2_LOG_LEVEL still overrides).
 fn quiet_iceoryx2() {
@@ -293,8 +294,7 @@ struct Outbox<T: Debug + Copy + ZeroCopySend + 'static> {
 
 impl<T: Debug + Copy + ZeroCopySend + 'static> Outbox<T> {
     /// Copies `value` into shared memory, delivers it, then notifies the event service. Returns the
-    /// number of subscribers that received it. Tick-path safe but for iceoryx2's one allocation per
-    /// loan.
+    /// number of subscribers that received it. Tick-path safe.
     #[inline]
     fn send(&self, value: &T) -> Result<usize, PortError> {
         let delivered = self.send_quiet(value)?;
@@ -390,26 +390,26 @@ impl ServicePorts {
     }
 
     /// Publishes a joint command and notifies; returns the number of subscribers reached.
-    /// Tick-path safe but for iceoryx2's one allocation per sample (module docs).
+    /// Tick-path safe.
     pub fn publish_joint_command(&self, cmd: &JointCommand) -> Result<usize, PortError> {
         self.joint_command.send(cmd)
     }
 
     /// Publishes an extruder command and notifies; returns the number of subscribers reached.
-    /// Tick-path safe but for iceoryx2's one allocation per sample (module docs).
+    /// Tick-path safe.
     pub fn publish_extruder_command(&self, cmd: &ExtruderCommand) -> Result<usize, PortError> {
         self.extruder_command.send(cmd)
     }
 
     /// Publishes the status and notifies; returns the number of subscribers reached. Tick-path
-    /// safe but for iceoryx2's one allocation per sample (module docs).
+    /// safe.
     pub fn publish_status(&self, status: &Status) -> Result<usize, PortError> {
         self.status.send(status)
     }
 
     /// Publishes the status without waking its waiters (they read it at their next receive, or when
     /// [`ServicePorts::notify_status`] wakes them); returns the number of subscribers reached.
-    /// Tick-path safe but for iceoryx2's one allocation per sample.
+    /// Tick-path safe.
     pub fn publish_status_quietly(&self, status: &Status) -> Result<usize, PortError> {
         self.status.send_quiet(status)
     }

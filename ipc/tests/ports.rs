@@ -255,11 +255,11 @@ fn a_second_controller_is_refused() {
     }
 }
 
-/// Receiving, waiting and the publisher counts allocate nothing in steady state. Publishing
-/// allocates exactly once per sample inside iceoryx2 0.10 (every loan creates an `Rc` for the
-/// sample's shared state); this test pins that, so an iceoryx2 upgrade that removes it is noticed.
+/// Nothing on either side's tick allocates in steady state: receiving, waiting, the publisher counts,
+/// and publishing too (iceoryx2 0.10's per-loan shared state is recycled by `strand_ipc::recycling`;
+/// with plain `ipc::Service` this count is one per publish).
 #[test]
-fn steady_state_ports_allocate_only_iceoryx2s_loan() {
+fn steady_state_ports_allocate_nothing() {
     let n = names("alloc");
     let client = ClientPorts::open(&n, "test-client", ALL_ROLES).unwrap();
     let service = ServicePorts::open(&n, "test-service").unwrap();
@@ -307,8 +307,50 @@ fn steady_state_ports_allocate_only_iceoryx2s_loan() {
         });
     }
     assert_eq!(other, 0, "receive/wait/publisher counts allocated {other} times in 1000 rounds");
-    // If this fails with fewer, iceoryx2 stopped allocating per loan: update the docs in strand_ipc::ports.
-    assert_eq!(publish, 7 * 1000, "allocations in 7000 publishes");
+    assert_eq!(publish, 0, "allocations in 7000 publishes");
+}
+
+/// The recycling flavour is `ipc::Service` on the wire: a peer built on iceoryx2's own
+/// `ipc::Service` (as every non-strand client is, the Python one included) receives the controller's
+/// commands bit for bit and its joint states reach the controller.
+#[test]
+fn a_plain_ipc_service_peer_talks_to_the_ports() {
+    use iceoryx2::prelude::*;
+    let n = names("plain");
+    let service = ServicePorts::open(&n, "test-service").unwrap();
+    let node = NodeBuilder::new().create::<ipc::Service>().unwrap();
+    let open = |name: &str, history: usize| {
+        node.service_builder(&ServiceName::new(name).unwrap())
+            .publish_subscribe::<JointCommand>()
+            .subscriber_max_buffer_size(16)
+            .history_size(history)
+            .max_publishers(1)
+            .max_subscribers(8)
+            .max_nodes(20)
+            .enable_safe_overflow(true)
+            .open()
+            .unwrap()
+    };
+    let commands = open(&n.joint_command(), 1).subscriber_builder().create().unwrap();
+    let states = node
+        .service_builder(&ServiceName::new(&n.joint_state()).unwrap())
+        .publish_subscribe::<JointState>()
+        .open()
+        .unwrap()
+        .publisher_builder()
+        .create()
+        .unwrap();
+    for i in 0..20u64 {
+        let mut command = JointCommand { seq: i, stamp_ns: 7 * i, dof: 7, ..JointCommand::default() };
+        command.position[3] = 0.25 * i as f64;
+        service.publish_joint_command(&command).unwrap();
+        let got = commands.receive().unwrap().expect("the plain peer received the command");
+        assert_eq!(bytes(got.payload()), bytes(&command));
+        let state = joint_state(i);
+        states.send_copy(state).unwrap();
+        let back = service.receive_joint_state().unwrap().expect("the controller received the plain peer's state");
+        assert_eq!(bytes(&back), bytes(&state));
+    }
 }
 
 /// Run as a child process by `a_crashed_feeder_is_cleaned_up`: opens a feeder, says READY, waits

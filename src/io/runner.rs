@@ -2,8 +2,9 @@
 //! subscribers into a `TickInput`, calls `Controller::step`, publishes the commands and Status, and
 //! hands the tick's record to a [`TickSink`] (the MCAP logger's seam).
 //!
-//! Nothing between the wake-up and the publish allocates, locks or logs; the events a tick returns
-//! are logged through `tracing` after publishing.
+//! Nothing in the cycle allocates, locks or logs — the iceoryx2 ports included (`tests/alloc.rs`
+//! counts whole runner ticks); the events a tick returns are logged through `tracing` after
+//! publishing. Forgetting crashed peers, which lists iceoryx2's nodes, is a housekeeping thread's.
 
 use std::sync::atomic::{AtomicBool, Ordering};
 
@@ -51,6 +52,12 @@ pub struct ServiceConfig {
     /// it, or interrupts another CPU), so waiters are woken at once only when the run state, the job's
     /// outcome, the fault, an override or the layer changes, and otherwise at this period. 0: every tick.
     pub status_notify_period: f64,
+    /// Most segments taken into the path queue per second (segments/s), spread evenly over the
+    /// ticks: at least one a tick, at most `rate / tick rate` rounded up. Taking a segment in
+    /// (blending, the backward pass) costs microseconds, so a feeder's 64-segment batch taken in one
+    /// tick would overrun a 125 µs tick; the rest of a batch waits in the shell for the next ticks.
+    /// 8,000/s is more than any G-code stream needs (300 mm/s in 0.05 mm segments is 6,000/s).
+    pub segment_intake_rate: f64,
 }
 
 impl Default for ServiceConfig {
@@ -63,6 +70,7 @@ impl Default for ServiceConfig {
             joint_feedback: JointFeedback::Driver,
             initial_joints: Vec::new(),
             status_notify_period: 0.01,
+            segment_intake_rate: 8000.0,
         }
     }
 }
@@ -89,6 +97,12 @@ impl ServiceConfig {
             return Err(InvalidSetting::new(
                 "service",
                 format!("[service] status_notify_period = {}: must lie in [0, 1] s", self.status_notify_period),
+            ));
+        }
+        if !(self.segment_intake_rate.is_finite() && self.segment_intake_rate >= 1.0) {
+            return Err(InvalidSetting::new(
+                "service",
+                format!("[service] segment_intake_rate = {}: must be at least 1 segment/s", self.segment_intake_rate),
             ));
         }
         if self.initial_joints.iter().any(|v| !v.is_finite()) {
@@ -179,6 +193,8 @@ pub struct Runner {
     joint_state_timeout_ns: u64,
     /// Segments of a batch that did not fit in the last tick.
     carry: Option<(ipc::SegmentBatch, usize)>,
+    /// Most segments taken in per tick (count; from `segment_intake_rate`).
+    segments_per_tick: usize,
     echo_state: ipc::JointState,
     /// Robot clock: wait for a log slot rather than drop (`[log] wait_when_full`).
     log_waits: bool,
@@ -202,6 +218,7 @@ impl Runner {
             dt_ns: (1e9 / rate_hz).round() as u64,
             joint_state_timeout_ns: (joint_state_timeout * 1e9) as u64,
             carry: None,
+            segments_per_tick: segments_per_tick(service.segment_intake_rate, rate_hz),
             echo_state,
             log_waits: false,
         })
@@ -221,6 +238,32 @@ impl Runner {
     /// Runs ticks until `stop` is set or `when` says so. Real-time settings are applied to the
     /// calling thread first (refusals are logged as one-line warnings and the run goes on).
     pub fn run(
+        &mut self,
+        realtime: &RealtimeConfig,
+        stop: &AtomicBool,
+        when: StopWhen,
+        sink: &mut dyn TickSink,
+    ) -> Result<RunSummary, RunError> {
+        // The housekeeper is started before the real-time set-up, so it keeps the default policy
+        // and affinity rather than inheriting the cycle thread's.
+        let done = AtomicBool::new(false);
+        std::thread::scope(|scope| {
+            let housekeeper =
+                std::thread::Builder::new().name("strand-housekeeper".into()).spawn_scoped(scope, || forget_dead_peers(&done)).ok();
+            if housekeeper.is_none() {
+                tracing::warn!("no housekeeping thread: a crashed peer counts as present until restart");
+            }
+            let result = self.cycle(realtime, stop, when, sink);
+            done.store(true, Ordering::Relaxed);
+            if let Some(h) = &housekeeper {
+                h.thread().unpark();
+            }
+            result
+        })
+    }
+
+    /// The cycle itself, on the calling thread (see [`Runner::run`]).
+    fn cycle(
         &mut self,
         realtime: &RealtimeConfig,
         stop: &AtomicBool,
@@ -247,7 +290,6 @@ impl Runner {
         let t0 = monotonic_ns();
         timer.start(t0);
         let mut job_seen = false;
-        let cleanup_every = (250_000_000 / self.dt_ns).max(1);
         let mut tick: u64 = 0;
         let mut robot_time = RobotTime::default();
         let mut status_event = StatusEvent::new(self.service.status_notify_period);
@@ -318,12 +360,8 @@ impl Runner {
                 sink.wait_for_room();
             }
             sink.record(&input, &out, &timing);
-            // 5. Off the tick: tell humans what happened; every 0.25 s, let iceoryx2 forget dead
-            //    peers (a crashed feeder or driver counts as a publisher until then).
+            // 5. Off the tick: tell humans what happened (dead peers are the housekeeper's).
             log_events(&out);
-            if tick % cleanup_every == 0 {
-                let _ = strand_ipc::ports::cleanup_dead_nodes();
-            }
             summary.status = out.status;
             summary.ticks += 1;
             tick += 1;
@@ -339,7 +377,7 @@ impl Runner {
     }
 
     fn drain(&mut self, input: &mut TickInput) -> Result<(), RunError> {
-        take_segments(&self.ports, &mut self.carry, input)?;
+        take_segments(&self.ports, &mut self.carry, input, self.segments_per_tick)?;
         take_controls(&self.ports, input)?;
         while let Some(js) = self.ports.receive_joint_state()? {
             input.joint_state = Some(js);
@@ -387,9 +425,14 @@ impl RobotTime {
 }
 
 /// Moves the segments of the waiting batches into `input`: what is left of the last batch first
-/// (`carry`), then new batches while they fit; a batch that does not fit is carried to the next
-/// tick. Tick-path safe.
-pub fn take_segments(ports: &ServicePorts, carry: &mut Option<(ipc::SegmentBatch, usize)>, input: &mut TickInput) -> Result<(), PortError> {
+/// (`carry`), then new batches, until `input` holds `max` segments (or is full); the rest of a batch
+/// is carried to the next tick. Tick-path safe.
+pub fn take_segments(
+    ports: &ServicePorts,
+    carry: &mut Option<(ipc::SegmentBatch, usize)>,
+    input: &mut TickInput,
+    max: usize,
+) -> Result<(), PortError> {
     loop {
         let (batch, from) = match carry.take() {
             Some(c) => c,
@@ -400,7 +443,7 @@ pub fn take_segments(ports: &ServicePorts, carry: &mut Option<(ipc::SegmentBatch
         };
         let segments = batch.as_slice();
         let mut k = from;
-        while k < segments.len() && input.push_segment(&segments[k]) {
+        while k < segments.len() && (input.segment_count as usize) < max && input.push_segment(&segments[k]) {
             k += 1;
         }
         if k < segments.len() {
@@ -472,6 +515,25 @@ fn job_ended(status: &ipc::Status) -> bool {
     let state = RunState::from_u32(status.run_state);
     matches!(outcome, Some(JobOutcome::Finished | JobOutcome::Stopped | JobOutcome::Faulted))
         && matches!(state, Some(RunState::Idle | RunState::Fault))
+}
+
+/// Most segments a tick takes in at `intake_rate` (segments/s) and `rate_hz` ticks/s: at least one.
+pub fn segments_per_tick(intake_rate: f64, rate_hz: f64) -> usize {
+    ((intake_rate / rate_hz).ceil() as usize).clamp(1, crate::core::MAX_SEGMENTS_PER_TICK)
+}
+
+/// How often the housekeeper lets iceoryx2 forget dead peers (s).
+const DEAD_PEER_PERIOD: std::time::Duration = std::time::Duration::from_millis(250);
+
+/// The housekeeper: every [`DEAD_PEER_PERIOD`] until `done`, lets iceoryx2 forget peers that died (a
+/// crashed feeder or driver counts as a publisher until then, and the runner reads a feeder's loss
+/// from that count). Not on the cycle thread: listing the nodes reads directories and allocates, and
+/// it needs none of the cycle's ports.
+fn forget_dead_peers(done: &AtomicBool) {
+    while !done.load(Ordering::Relaxed) {
+        let _ = strand_ipc::ports::cleanup_dead_nodes();
+        std::thread::park_timeout(DEAD_PEER_PERIOD);
+    }
 }
 
 fn log_events(out: &TickOutput) {

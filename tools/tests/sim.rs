@@ -186,6 +186,52 @@ fn a_killed_sim_faults_the_service() {
     assert_eq!(s.job_outcome, JobOutcome::Faulted as u32);
 }
 
+/// A job sent before the robot streams (the sim started late, as an operator may start EGM or RSI
+/// after strand-feed): the controller refuses its Start (NotReady: where the robot is, it does not
+/// know yet) and holds the job open. strand-feed asks again until the job starts, and it finishes
+/// once the robot comes. It used to wait on the open job for ever.
+#[test]
+fn a_job_sent_before_the_robot_streams_starts_when_it_comes() {
+    let dir = temp_dir("sim", "early");
+    let prefix = format!("strand/simtest-early-{}", std::process::id());
+    let program = square_program(&dir, 1, 2, 2400.0);
+    let _svc = spawn({
+        let mut c = Command::new(bin("strand"));
+        c.args(["run", "--config", "config/default.toml", "--clock", "robot", "--no-log", "--prefix", &prefix, "--set", FAST_APPROACH]);
+        c
+    });
+    let monitor =
+        ClientPorts::open(&ServiceNames::new(&prefix), "test-monitor", ClientRoles { monitor: true, ..Default::default() }).unwrap();
+    wait_for(&monitor, 30, "the service ticking without a robot", |s| s.tick > 3);
+    let mut feeder = spawn({
+        let mut c = Command::new(bin("strand-feed"));
+        c.arg(&program).args(["--config", "config/default.toml", "--prefix", &prefix, "--quiet", "--no-check"]);
+        c
+    });
+    let refused = wait_for(&monitor, 60, "the start refused", |s| {
+        s.job_outcome == JobOutcome::InProgress as u32 && s.rejected > 0 && s.run_state == RunState::Idle as u32
+    });
+    assert_eq!(refused.last_reject_reason, strand_ipc::RejectReason::NotReady as u32, "{refused:?}");
+    // A second in which the feeder asks again and is refused again.
+    std::thread::sleep(Duration::from_secs(1));
+    let _sim = spawn({
+        let mut c = Command::new(bin("strand-sim"));
+        c.args(["--config", "config/default.toml", "--prefix", &prefix]);
+        c
+    });
+    let deadline = Instant::now() + Duration::from_secs(180);
+    let code = loop {
+        if let Some(status) = feeder.0.try_wait().unwrap() {
+            break status.code();
+        }
+        assert!(Instant::now() < deadline, "the feeder never ended: {:?}", monitor.latest_status());
+        std::thread::sleep(Duration::from_millis(50));
+    };
+    assert_eq!(code, Some(0), "the job finished: {:?}", monitor.latest_status());
+    let s = monitor.latest_status().unwrap();
+    assert_eq!(s.job_outcome, JobOutcome::Finished as u32, "{s:?}");
+}
+
 /// strand-demo run from a scratch folder outside the repository (the built-in config).
 fn demo_elsewhere(dir: &Path, args: &[&str]) -> (std::process::Output, Duration) {
     let work = dir.join("work");

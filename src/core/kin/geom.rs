@@ -10,7 +10,7 @@ use nalgebra::{Matrix3, Rotation3, Unit, UnitQuaternion, Vector3};
 /// Rotation by `angle` (rad) about the unit `axis`, by Rodrigues' formula.
 #[inline]
 pub fn axis_angle(axis: &Vector3<f64>, angle: f64) -> Rotation3<f64> {
-    let (s, c) = (libm::sin(angle), libm::cos(angle));
+    let (s, c) = libm::sincos(angle);
     let t = 1.0 - c;
     let (x, y, z) = (axis.x, axis.y, axis.z);
     Rotation3::from_matrix_unchecked(Matrix3::new(
@@ -85,7 +85,7 @@ pub fn quaternion_exp(rotation: &Vector3<f64>) -> UnitQuaternion<f64> {
         let h = rotation * 0.5;
         return UnitQuaternion::new_normalize(nalgebra::Quaternion::new(1.0, h.x, h.y, h.z));
     }
-    let (s, c) = (libm::sin(0.5 * angle), libm::cos(0.5 * angle));
+    let (s, c) = libm::sincos(0.5 * angle);
     let v = rotation * (s / angle);
     UnitQuaternion::new_unchecked(nalgebra::Quaternion::new(c, v.x, v.y, v.z))
 }

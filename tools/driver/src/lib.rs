@@ -41,6 +41,16 @@ pub enum SetupError {
         /// What is wrong.
         source: strand::core::InvalidSetting,
     },
+    /// The robot's joints cannot be carried by the protocol (a linear axis where it has none).
+    #[error("{file}: the robot cannot be driven over {protocol}: {why}")]
+    Robot {
+        /// The config file.
+        file: String,
+        /// The protocol (`egm`, `rsi`).
+        protocol: &'static str,
+        /// Which joint, and why.
+        why: String,
+    },
     /// No `[driver]` section, or one for another protocol.
     #[error("{file}: {why}")]
     Section {
@@ -87,8 +97,10 @@ fn name(p: DriverProtocol) -> &'static str {
 /// A session for the robot of `cfg` with its `[driver]` section `d`: the axis mapping, and the
 /// guard with the URDF's position and velocity limits, the robot file's acceleration limits and
 /// the robot's cycle (`[controller] rate_hz`).
-pub fn session<P: RobotProtocol>(cfg: &Config, d: &DriverConfig, protocol: P) -> Result<Session<P>, SetupError> {
+pub fn session<P: RobotProtocol>(cfg: &Config, d: &DriverConfig, mut protocol: P) -> Result<Session<P>, SetupError> {
     let model = cfg.robot.build_model()?;
+    let linear: Vec<bool> = model.joints().iter().map(|j| !j.kind.rotates()).collect();
+    protocol.set_linear_axes(&linear).map_err(|why| SetupError::Robot { file: cfg.file.display().to_string(), protocol: P::NAME, why })?;
     let bounds = model
         .joints()
         .iter()

@@ -49,6 +49,12 @@ pub trait RobotProtocol {
     /// cycle late (EGM takes the latest answer).
     const LATE_ANSWER_DISCARDED: bool;
 
+    /// Which of the robot's axes are linear (prismatic URDF joints), in chain order: the vendors
+    /// send linear axes in millimetres where rotary ones are in degrees, so the protocol converts
+    /// them apart (to and from metres). Called once, before the first packet. An axis the protocol
+    /// cannot carry as linear is refused with the reason.
+    fn set_linear_axes(&mut self, linear: &[bool]) -> Result<(), String>;
+
     /// Decodes a packet from the robot.
     fn decode(&mut self, packet: &[u8]) -> Result<RobotPacket, PacketError>;
 
@@ -57,6 +63,6 @@ pub trait RobotProtocol {
     fn reset(&mut self);
 
     /// Encodes into `out` (cleared first) the answer to `to`: the robot's axes should go to `axes`
-    /// (rad, the robot's own axes, `to.dof` of them).
+    /// (rad, or m for a linear axis; the robot's own axes, `to.dof` of them).
     fn encode_reply(&mut self, to: &RobotPacket, axes: &[f64], out: &mut Vec<u8>);
 }

@@ -73,6 +73,18 @@ impl RobotProtocol for Rsi {
     const MAX_PACKET: usize = 4096;
     const LATE_ANSWER_DISCARDED: bool = true;
 
+    /// A1..A6 are the arm's rotary axes (degrees); the external axes (`EIPos`, E1..E6, where a
+    /// linear track would be) are not streamed by this driver, so no axis can be linear.
+    fn set_linear_axes(&mut self, linear: &[bool]) -> Result<(), String> {
+        match linear.iter().position(|l| *l) {
+            Some(k) => Err(format!(
+                "joint {} is prismatic, but RSI's A1..A6 are rotary (degrees) and external axes (E1..E6) are not streamed",
+                k + 1
+            )),
+            None => Ok(()),
+        }
+    }
+
     fn decode(&mut self, packet: &[u8]) -> Result<RobotPacket, PacketError> {
         if packet.len() > Self::MAX_PACKET {
             return Err(PacketError::Oversized(packet.len()));

@@ -58,6 +58,10 @@ pub struct JitterReport {
     pub overruns: u64,
     /// Wake-ups later than the service's late threshold (count).
     pub late_wakeups: u64,
+    /// The runner's tick, wake → last publish (ns).
+    pub tick: Dist,
+    /// `Controller::step` alone (ns).
+    pub step: Dist,
     /// The same TimerClock in an empty loop (ns).
     pub baseline: Dist,
     /// cyclictest at the same period (ns; µs resolution), if it ran.
@@ -68,6 +72,8 @@ pub struct JitterReport {
     pub ratio_p999_baseline: f64,
     /// Runner p99.9 / cyclictest p99.9.
     pub ratio_p999_cyclictest: Option<f64>,
+    /// Runner p99 / cyclictest p99 ([RT]'s aim: at most 1.2).
+    pub ratio_p99_cyclictest: Option<f64>,
     /// The histograms, for the plot (not printed).
     #[serde(skip)]
     pub histograms: Vec<(String, Histogram)>,
@@ -123,6 +129,7 @@ pub fn run(opts: &JitterOptions) -> Result<JitterReport> {
     let spin_ns = (cfg.service.spin * 1e9) as u64;
     let (mut lateness_h, mut baseline, mut cyclictest) = (Histogram::new(), Histogram::new(), opts.cyclictest.then(Histogram::new));
     let (mut overruns, mut late_wakeups, mut realtime, mut cyclictest_note) = (0, 0, String::new(), None);
+    let (mut tick, mut step) = (Histogram::new(), Histogram::new());
     std::thread::scope(|scope| {
         let feeder = job.as_ref().map(|job| scope.spawn(|| stream_job(&prefix, job, &stop_feed)));
         let mut result = Ok(());
@@ -131,6 +138,8 @@ pub fn run(opts: &JitterOptions) -> Result<JitterReport> {
             match runner.run(&rt_cfg, &stop_runner, when, &mut NullSink) {
                 Ok(summary) => {
                     lateness_h.merge(&summary.lateness);
+                    tick.merge(&summary.tick_cost);
+                    step.merge(&summary.step_cost);
                     overruns += summary.cycle.overruns;
                     late_wakeups += summary.cycle.late_wakeups;
                     realtime = summary.realtime.to_string();
@@ -177,9 +186,12 @@ pub fn run(opts: &JitterOptions) -> Result<JitterReport> {
         lateness,
         overruns,
         late_wakeups,
+        tick: Dist::of(&tick),
+        step: Dist::of(&step),
         baseline: base,
         ratio_p999_baseline: ratio(lateness.p999_ns, base.p999_ns),
         ratio_p999_cyclictest: ct.map(|c| ratio(lateness.p999_ns, c.p999_ns)),
+        ratio_p99_cyclictest: ct.map(|c| ratio(lateness.p99_ns, c.p99_ns)),
         cyclictest: ct,
         cyclictest_note,
         histograms,
@@ -284,9 +296,15 @@ pub fn print(r: &JitterReport) {
         _ => {}
     }
     println!("overruns {}, late wake-ups {}", r.overruns, r.late_wakeups);
+    println!("{}", Dist::header("the runner's tick"));
+    println!("{}", r.tick.row("wake → last publish"));
+    println!("{}", r.step.row("Controller::step"));
     print!("p99.9 ratio: {:.2}× the empty loop", r.ratio_p999_baseline);
     if let Some(c) = r.ratio_p999_cyclictest {
         print!(", {c:.2}× cyclictest");
+    }
+    if let Some(c) = r.ratio_p99_cyclictest {
+        print!("; p99 ratio: {c:.2}× cyclictest");
     }
     println!();
 }

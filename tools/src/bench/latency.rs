@@ -8,6 +8,12 @@
 //! that answers each JointState at once over the same iceoryx2 services (publish-subscribe plus an
 //! event, as the service does) with no controller behind it. So latency − ping-pong is what the
 //! service adds, and the aim is that it stays within the tick's own cost plus a few microseconds.
+//!
+//! `--rt P` runs it as a cell runs: the service's tick thread SCHED_FIFO P with its memory locked
+//! and PM QoS at 0 (`[realtime]`), the ping-pong process the same, and this driver's thread FIFO
+//! P + 1 — a robot driver outranks the controller, as the README's set-up advice says. (With the
+//! driver left SCHED_OTHER, a command's wake-up of the driver waits behind the rest of the
+//! service's tick whenever the two share a CPU, which measures the bench's priorities, not strand.)
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
@@ -39,6 +45,12 @@ pub struct LatencyOptions {
     pub root: PathBuf,
     /// The strand and strand-bench binaries' folder.
     pub bin_dir: PathBuf,
+    /// SCHED_FIFO priority of the service and the ping-pong (the driver gets one more); none: all
+    /// SCHED_OTHER.
+    pub rt_priority: Option<u32>,
+    /// Pin the service's tick thread, the ping-pong and this driver to this CPU (with `rt_priority`:
+    /// the driver then preempts the service the moment its command is out, with no other CPU to wake).
+    pub cpu: Option<usize>,
 }
 
 /// The report; `--json` prints it as one object.
@@ -69,6 +81,12 @@ pub struct LatencyReport {
     pub budget_p99_ns: u64,
     /// Latency p99 − budget (ns; negative: within it).
     pub excess_p99_ns: i64,
+    /// [RT]'s aim for the p99: ping-pong p99 + step p99 + 5 µs (ns).
+    pub aim_p99_ns: u64,
+    /// The SCHED_FIFO priority of the service and the ping-pong (`--rt`; the driver one more).
+    pub rt_priority: Option<u32>,
+    /// The CPU all three were pinned to (`--cpu`).
+    pub cpu: Option<usize>,
     /// The histograms, for the plot (not printed).
     #[serde(skip)]
     pub histograms: Vec<(String, Histogram)>,
@@ -88,21 +106,36 @@ pub fn run(opts: &LatencyOptions) -> Result<LatencyReport> {
 
     // 1. The baseline: the driver against `strand-bench pong`.
     let pong_prefix = format!("strand/bench-pong-{pid}");
-    let pong = Command::new(opts.bin_dir.join("strand-bench"))
-        .args(["pong", "--prefix", &pong_prefix, "--seconds"])
-        .arg(format!("{}", opts.seconds + 30.0))
-        .stdin(Stdio::null())
-        .spawn()
-        .map_err(|e| ToolError::Measurement(format!("cannot start strand-bench pong: {e}")))?;
+    let mut pong = Command::new(opts.bin_dir.join("strand-bench"));
+    pong.args(["pong", "--prefix", &pong_prefix, "--seconds"]).arg(format!("{}", opts.seconds + 30.0));
+    if let Some(p) = opts.rt_priority {
+        pong.args(["--rt", &p.to_string()]);
+    }
+    if let Some(c) = opts.cpu {
+        pong.args(["--cpu", &c.to_string()]);
+    }
+    let pong = pong.stdin(Stdio::null()).spawn().map_err(|e| ToolError::Measurement(format!("cannot start strand-bench pong: {e}")))?;
     let pong = Reaped(pong);
-    let (baseline, baseline_missed) = drive(&pong_prefix, dof, q0, opts.rate_hz, opts.seconds, false)?;
+    let driver_rt = Realtime { priority: opts.rt_priority.map(|p| p + 1), cpu: opts.cpu };
+    let (baseline, baseline_missed) =
+        std::thread::scope(|scope| scope.spawn(|| drive(&pong_prefix, dof, q0, opts.rate_hz, opts.seconds, false, driver_rt)).join())
+            .map_err(|_| ToolError::Measurement("the driver thread panicked".to_string()))??;
     pong.finish(Duration::from_secs(3));
 
     // 2. The service on the robot clock, printing the box.
     let prefix = format!("strand/bench-latency-{pid}");
     let log = std::env::temp_dir().join(format!("strand-bench-latency-{pid}.mcap"));
-    let service = Command::new(opts.bin_dir.join("strand"))
-        .args(["run", "--clock", "robot", "--exit-when-done", "--prefix", &prefix])
+    let mut service = Command::new(opts.bin_dir.join("strand"));
+    service.args(["run", "--clock", "robot", "--exit-when-done", "--prefix", &prefix]);
+    if let Some(p) = opts.rt_priority {
+        for set in [format!("realtime.fifo_priority={p}"), "realtime.lock_memory=true".into(), "realtime.cpu_dma_latency_us=0".into()] {
+            service.args(["--set", &set]);
+        }
+    }
+    if let Some(c) = opts.cpu {
+        service.args(["--set", &format!("realtime.cpu={c}")]);
+    }
+    let service = service
         .arg("--config")
         .arg(&opts.config)
         .arg("--log")
@@ -118,7 +151,10 @@ pub fn run(opts: &LatencyOptions) -> Result<LatencyReport> {
     let stop_feed = AtomicBool::new(false);
     let driven = std::thread::scope(|scope| {
         let feeder = scope.spawn(|| stream_job(&prefix, &job, &stop_feed));
-        let driven = drive(&prefix, dof, q0, opts.rate_hz, opts.seconds, true);
+        let driven = scope
+            .spawn(|| drive(&prefix, dof, q0, opts.rate_hz, opts.seconds, true, driver_rt))
+            .join()
+            .unwrap_or_else(|_| Err(ToolError::Measurement("the driver thread panicked".to_string())));
         stop_feed.store(true, Ordering::Relaxed);
         let fed = feeder.join().map_err(|_| ToolError::Measurement("feeder panicked".to_string())).and_then(|r| r);
         driven.and_then(|d| fed.map(|_| d))
@@ -144,6 +180,9 @@ pub fn run(opts: &LatencyOptions) -> Result<LatencyReport> {
         step: Dist::of(&step),
         budget_p99_ns: budget,
         excess_p99_ns: lat.p99_ns as i64 - budget as i64,
+        aim_p99_ns: base.p99_ns + Dist::of(&step).p99_ns + 5_000,
+        rt_priority: opts.rt_priority,
+        cpu: opts.cpu,
         histograms: vec![("state → command via strand".to_string(), latency), ("iceoryx2 ping-pong".to_string(), baseline)],
     })
 }
@@ -163,8 +202,18 @@ fn tick_costs(log: &Path) -> (Histogram, Histogram) {
 /// The robot driver: publishes a stamped JointState every period at `rate_hz` for `seconds` and waits
 /// (until the next period) for the JointCommand answering it. `follow`: the next state is the last
 /// command (a robot that follows exactly, so the job moves). Waits up to 10 s for the first answer
-/// before it measures. Returns the round trips (ns) and the states not answered in time.
-fn drive(prefix: &str, dof: usize, q0: [f64; ipc::MAX_JOINTS], rate_hz: f64, seconds: f64, follow: bool) -> Result<(Histogram, u64)> {
+/// before it measures. Returns the round trips (ns) and the states not answered in time. `rt`: the
+/// calling thread's real-time set-up (run it on a thread of its own).
+fn drive(
+    prefix: &str,
+    dof: usize,
+    q0: [f64; ipc::MAX_JOINTS],
+    rate_hz: f64,
+    seconds: f64,
+    follow: bool,
+    rt: Realtime,
+) -> Result<(Histogram, u64)> {
+    rt.apply()?;
     let ports = ClientPorts::open(
         &ServiceNames::new(prefix),
         &format!("strand-bench-driver-{}", std::process::id()),
@@ -224,7 +273,8 @@ fn drive(prefix: &str, dof: usize, q0: [f64; ipc::MAX_JOINTS], rate_hz: f64, sec
 /// `strand-bench pong`: answers every JointState under `prefix` with a JointCommand at once, over the
 /// service's own ports (the baseline of `latency`). Ends `seconds` after it starts, or 2 s after the
 /// last state once states have come.
-pub fn pong(prefix: &str, seconds: f64) -> Result<()> {
+pub fn pong(prefix: &str, seconds: f64, rt: Realtime) -> Result<()> {
+    rt.apply()?;
     let ports = ServicePorts::open(&ServiceNames::new(prefix), "strand-bench-pong")?;
     let end = Instant::now() + Duration::from_secs_f64(seconds);
     let mut last_state: Option<Instant> = None;
@@ -251,6 +301,36 @@ pub fn pong(prefix: &str, seconds: f64) -> Result<()> {
     Ok(())
 }
 
+/// A bench thread's real-time set-up.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Realtime {
+    /// SCHED_FIFO priority, with locked memory and PM QoS 0; none: SCHED_OTHER.
+    pub priority: Option<u32>,
+    /// The CPU to pin the thread to.
+    pub cpu: Option<usize>,
+}
+
+impl Realtime {
+    /// Applies it to the calling thread; an error if a step is refused (the figures would not be
+    /// what they say).
+    fn apply(self) -> Result<()> {
+        if self.priority.is_none() && self.cpu.is_none() {
+            return Ok(());
+        }
+        let report = strand::io::rt::apply(&strand::io::rt::RealtimeConfig {
+            fifo_priority: self.priority.unwrap_or(0),
+            lock_memory: self.priority.is_some(),
+            cpu_dma_latency_us: self.priority.map(|_| 0),
+            cpu: self.cpu,
+            ..Default::default()
+        });
+        match report.warnings().next() {
+            Some(w) => Err(ToolError::Measurement(format!("real-time set-up refused: {w}"))),
+            None => Ok(()),
+        }
+    }
+}
+
 /// Writes the report as a table.
 pub fn print(r: &LatencyReport) {
     println!("strand-bench latency: {} at {} Hz for {} s per run (robot clock, printing 004's box)", r.robot, r.rate_hz, r.seconds);
@@ -265,6 +345,16 @@ pub fn print(r: &LatencyReport) {
         r.latency.p99_ns as f64 * 1e-3,
         r.budget_p99_ns as f64 * 1e-3,
         r.excess_p99_ns as f64 * 1e-3
+    );
+    println!(
+        "[RT]'s aim, ping-pong p99 + step p99 + 5 µs: {:.1} µs ({})",
+        r.aim_p99_ns as f64 * 1e-3,
+        match (r.rt_priority, r.cpu) {
+            (Some(p), None) => format!("service and ping-pong SCHED_FIFO {p}, driver {}", p + 1),
+            (Some(p), Some(c)) => format!("service and ping-pong SCHED_FIFO {p}, driver {}, all on CPU {c}", p + 1),
+            (None, Some(c)) => format!("all SCHED_OTHER on CPU {c}"),
+            (None, None) => "all SCHED_OTHER".to_string(),
+        }
     );
 }
 

@@ -6,6 +6,8 @@
 //! per stage of one controller tick, allocations counted), [`log`] (the MCAP logger at a control
 //! rate). `strand-bench`'s main only parses the command line and prints.
 
+pub mod circle;
+pub mod clik;
 pub mod driver;
 pub mod jitter;
 pub mod latency;

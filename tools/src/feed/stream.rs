@@ -92,6 +92,8 @@ pub fn stream(job: &Job, opts: &StreamOptions, interrupts: &AtomicU32, keys: Opt
     progress.set_name(&opts.name);
     let mut progress_sent: Option<Instant> = None;
     let mut stop_sent_at: Option<Instant> = None;
+    let mut start_sent_at: Option<Instant> = None;
+    let mut start_refusal_said = false;
     let send_control_value = |seq: &mut u64, command: Command, value: f64| {
         *seq += 1;
         let c = ipc::Control { seq: *seq, stamp_ns: strand::io::clock::monotonic_ns(), command: command as u32, value, _reserved: 0 };
@@ -163,11 +165,34 @@ pub fn stream(job: &Job, opts: &StreamOptions, interrupts: &AtomicU32, keys: Opt
                 if !started {
                     send_control(&mut control_seq, Command::Start)?;
                     started = true;
+                    start_sent_at = Some(Instant::now());
                 }
             }
         }
         // Progress.
         job_seen |= started && status.job_outcome == JobOutcome::InProgress as u32;
+        // Our job open and the controller idle: our Start was refused (NotReady: the controller
+        // does not know where the robot is yet, its driver not streaming). Nothing else will start
+        // it; ask again every half second until the job starts (a Start it does not need is
+        // refused as NotAllowed, which ends nothing).
+        if job_seen
+            && stop_sent_at.is_none()
+            && status.job_outcome == JobOutcome::InProgress as u32
+            && RunState::from_u32(status.run_state) == Some(RunState::Idle)
+            && start_sent_at.is_some_and(|t| t.elapsed() >= Duration::from_millis(500))
+        {
+            if !start_refusal_said {
+                start_refusal_said = true;
+                bar.suspend(|| {
+                    eprintln!(
+                        "strand-feed: the controller has not started the job ({:?}); is the robot streaming? asking again",
+                        ipc::RejectReason::from_u32(status.last_reject_reason).unwrap_or_default()
+                    )
+                });
+            }
+            send_control(&mut control_seq, Command::Start)?;
+            start_sent_at = Some(Instant::now());
+        }
         let done = if job_seen && status.executing_seq >= first_seq { (status.executing_seq - first_seq) as usize } else { 0 };
         let done_length: f64 = job.lengths[..done.min(job.lengths.len())].iter().sum();
         let layer = job.layers.get(done).copied().flatten().map_or("-".to_string(), |l| l.to_string());

@@ -171,6 +171,9 @@ pub struct PathStats {
     /// scale drop) and the engine braked as hard as allowed instead, towards the lowest boundary
     /// speed within its stopping distance, until a position plan fit again (one count per episode).
     pub forced_brakes: u64,
+    /// Re-plans whose solver answer was slower than the rest of the current trajectory to the same
+    /// boundary, which was kept instead (see `current_is_sooner` in the executor).
+    pub solver_detours: u64,
     /// Junction updates done by the backward pass.
     pub plan_work: u64,
 }

@@ -11,8 +11,9 @@
 //! undefined, a RobotWare quirk after restart). Before that the answer repeats the measured joints,
 //! so the robot starts from where it is. A new EGM session (RAPID runs `EGMRunJoint` again) restarts
 //! `seqno` at 0: that is a new epoch of the driver's sequence, not an out-of-order packet.
-//! External axes are converted as rotary (degrees): a linear external axis (a track, in mm) is not
-//! supported yet.
+//! External axes (`externalJoints`) are degrees when rotary and millimetres when linear (a track):
+//! the URDF joint's type says which (`set_linear_axes`). The six robot axes are rotary; a URDF whose
+//! first six joints include a prismatic one is refused.
 
 pub mod proto;
 
@@ -45,6 +46,8 @@ pub struct Egm {
     first_tm: Option<u32>,
     /// The robot's `tm` of the last packet (ms).
     last_tm: u32,
+    /// Axes that are linear (mm on the wire, m here); kept across sessions.
+    linear: [bool; MAX_JOINTS],
 }
 
 impl Egm {
@@ -54,11 +57,36 @@ impl Egm {
     }
 }
 
+/// An axis value on the wire (degrees, or mm when linear) in the driver's units (rad, or m).
+fn from_wire(v: f64, linear: bool) -> f64 {
+    if linear { v * 1e-3 } else { v.to_radians() }
+}
+
+/// An axis value in the driver's units (rad, or m) on the wire (degrees, or mm when linear).
+fn to_wire(v: f64, linear: bool) -> f64 {
+    if linear { v * 1e3 } else { v.to_degrees() }
+}
+
 impl RobotProtocol for Egm {
     const NAME: &'static str = "egm";
     /// An `EgmRobot` with every field is under 400 bytes; abb_libegm reads into 1024.
     const MAX_PACKET: usize = 1024;
     const LATE_ANSWER_DISCARDED: bool = false;
+
+    fn set_linear_axes(&mut self, linear: &[bool]) -> Result<(), String> {
+        if let Some(k) = linear.iter().take(ROBOT_AXES).position(|l| *l) {
+            return Err(format!(
+                "joint {} is prismatic, but EGM's six robot axes are rotary (degrees); a linear axis (a track) must come after them, as an external axis",
+                k + 1
+            ));
+        }
+        if linear.len() > MAX_JOINTS {
+            return Err(format!("{} axes; at most {MAX_JOINTS}", linear.len()));
+        }
+        self.linear = [false; MAX_JOINTS];
+        self.linear[..linear.len()].copy_from_slice(linear);
+        Ok(())
+    }
 
     fn decode(&mut self, packet: &[u8]) -> Result<RobotPacket, PacketError> {
         if packet.len() > Self::MAX_PACKET {
@@ -84,7 +112,7 @@ impl RobotProtocol for Egm {
             if !v.is_finite() {
                 return Err(PacketError::BadValue(format!("joint {}: {v}", k + 1)));
             }
-            axes[k] = v.to_radians();
+            axes[k] = from_wire(*v, self.linear[k]);
         }
         let (motors, mci, rapid) = (
             robot.motor_state.as_ref().ok_or_else(|| PacketError::Truncated("no motorState".into()))?.state(),
@@ -108,26 +136,22 @@ impl RobotProtocol for Egm {
     }
 
     fn reset(&mut self) {
-        *self = Egm::default();
+        *self = Egm { linear: self.linear, ..Egm::default() };
     }
 
     fn encode_reply(&mut self, to: &RobotPacket, axes: &[f64], out: &mut Vec<u8>) {
         out.clear();
-        let degrees = |a: &[f64]| a.iter().map(|x| x.to_degrees()).collect::<Vec<f64>>();
         let n = to.dof.min(axes.len());
-        let robot = &axes[..n.min(ROBOT_AXES)];
-        let external = if n > ROBOT_AXES { Some(EgmJoints { joints: degrees(&axes[ROBOT_AXES..n]) }) } else { None };
+        let wire = |from: usize, to: usize| (from..to).map(|k| to_wire(axes[k], self.linear[k])).collect::<Vec<f64>>();
+        let robot = wire(0, n.min(ROBOT_AXES));
+        let external = if n > ROBOT_AXES { Some(EgmJoints { joints: wire(ROBOT_AXES, n) }) } else { None };
         let sensor = EgmSensor {
             header: Some(EgmHeader {
                 seqno: Some(self.replies),
                 tm: Some(self.last_tm.wrapping_sub(self.first_tm.unwrap_or(self.last_tm))),
                 mtype: Some(MessageType::MsgtypeCorrection as i32),
             }),
-            planned: Some(EgmPlanned {
-                joints: Some(EgmJoints { joints: degrees(robot) }),
-                external_joints: external,
-                ..Default::default()
-            }),
+            planned: Some(EgmPlanned { joints: Some(EgmJoints { joints: robot }), external_joints: external, ..Default::default() }),
             speed_ref: None,
         };
         self.replies = self.replies.wrapping_add(1);
@@ -161,6 +185,32 @@ mod tests {
         assert_eq!((h.seqno, h.mtype()), (Some(0), MessageType::MsgtypeCorrection));
         let j = sensor.planned.unwrap().joints.unwrap().joints;
         assert!((j[0] - 10.0).abs() < 1e-12 && (j[1] + 30.0).abs() < 1e-12, "{j:?}");
+    }
+
+    /// A track as the 7th axis: millimetres on the wire, metres in the driver; a rotary external
+    /// axis stays in degrees; a prismatic joint among the six robot axes is refused.
+    #[test]
+    fn a_linear_external_axis_is_millimetres_on_the_wire() {
+        let mut egm = Egm::new();
+        let e = egm.set_linear_axes(&[false, true, false, false, false, false, false]).unwrap_err();
+        assert!(e.contains("joint 2 is prismatic"), "{e}");
+        let m = robot_message(1, 4, &[0.0, -30.0, 30.0, 0.0, 60.0, 0.0, 1250.0], true);
+        let rotary = egm.decode(&m.encode_to_vec()).unwrap();
+        assert!((rotary.axes[6] - 1250f64.to_radians()).abs() < 1e-12);
+        egm.set_linear_axes(&[false, false, false, false, false, false, true]).unwrap();
+        let p = egm.decode(&m.encode_to_vec()).unwrap();
+        assert_eq!(p.dof, 7);
+        assert!((p.axes[6] - 1.25).abs() < 1e-15 && (p.axes[1] + 30f64.to_radians()).abs() < 1e-15);
+        let mut target = p.axes;
+        target[6] = 0.5;
+        let mut out = Vec::new();
+        egm.encode_reply(&p, &target[..7], &mut out);
+        let planned = EgmSensor::decode(&out[..]).unwrap().planned.unwrap();
+        assert_eq!(planned.external_joints.unwrap().joints, vec![500.0]);
+        assert!((planned.joints.unwrap().joints[1] + 30.0).abs() < 1e-12);
+        // A new EGM session keeps the axes' kinds.
+        egm.reset();
+        assert!((egm.decode(&m.encode_to_vec()).unwrap().axes[6] - 1.25).abs() < 1e-15);
     }
 
     #[test]
