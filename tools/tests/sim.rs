@@ -232,6 +232,53 @@ fn a_job_sent_before_the_robot_streams_starts_when_it_comes() {
     assert_eq!(s.job_outcome, JobOutcome::Finished as u32, "{s:?}");
 }
 
+/// A service that stops ticking with a job open (frozen here with SIGSTOP: hung, or stopped in a
+/// debugger) keeps its Status publisher, so the feeder cannot see it go away. The feeder must end
+/// anyway, saying why, rather than wait on the job for ever.
+#[test]
+fn a_service_that_stops_ticking_ends_the_feeder_with_a_named_error() {
+    let dir = temp_dir("sim", "frozen");
+    let prefix = format!("strand/simtest-frozen-{}", std::process::id());
+    let program = square_program(&dir, 1, 2, 2400.0);
+    let svc = spawn({
+        let mut c = Command::new(bin("strand"));
+        c.args(["run", "--config", "config/default.toml", "--clock", "robot", "--no-log", "--prefix", &prefix]);
+        c
+    });
+    let monitor =
+        ClientPorts::open(&ServiceNames::new(&prefix), "test-monitor", ClientRoles { monitor: true, ..Default::default() }).unwrap();
+    wait_for(&monitor, 30, "the service ticking without a robot", |s| s.tick > 3);
+    let stderr = dir.join("feed.err");
+    let mut feeder = Proc(
+        Command::new(bin("strand-feed"))
+            .current_dir(root())
+            .arg(&program)
+            .args(["--config", "config/default.toml", "--prefix", &prefix, "--quiet", "--no-check"])
+            .stdout(Stdio::null())
+            .stderr(std::fs::File::create(&stderr).unwrap())
+            .spawn()
+            .unwrap(),
+    );
+    // The job open (its Start refused: no robot streams), the feeder asking again.
+    wait_for(&monitor, 60, "the job open", |s| s.job_outcome == JobOutcome::InProgress as u32);
+    // SAFETY: kill(2) on our own child; the Proc's drop kills it (SIGKILL ends a stopped process).
+    unsafe { libc::kill(svc.0.id() as libc::pid_t, libc::SIGSTOP) };
+    let frozen = Instant::now();
+    let code = loop {
+        if let Some(status) = feeder.0.try_wait().unwrap() {
+            break status.code();
+        }
+        assert!(frozen.elapsed() < Duration::from_secs(30), "the feeder still waits on a frozen service");
+        std::thread::sleep(Duration::from_millis(50));
+    };
+    let waited = frozen.elapsed().as_secs_f64();
+    let said = std::fs::read_to_string(&stderr).unwrap();
+    assert_eq!(code, Some(1), "{said}");
+    assert!(said.contains("stopped ticking"), "{said}");
+    // It gave the service its 5 s, and not much more.
+    assert!((4.5..15.0).contains(&waited), "ended {waited:.1} s after the freeze: {said}");
+}
+
 /// strand-demo run from a scratch folder outside the repository (the built-in config).
 fn demo_elsewhere(dir: &Path, args: &[&str]) -> (std::process::Output, Duration) {
     let work = dir.join("work");

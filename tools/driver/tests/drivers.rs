@@ -163,6 +163,15 @@ impl Cell {
         c
     }
 
+    /// What the service, the driver and the feeder wrote to their logs so far.
+    fn logs(&self) -> String {
+        ["service.log", "driver.log", "feed.log"]
+            .iter()
+            .map(|f| format!("--- {f}:\n{}", std::fs::read_to_string(self.dir.join(f)).unwrap_or_default()))
+            .collect::<Vec<_>>()
+            .join("\n")
+    }
+
     /// Stops the fake and the driver; the fake's report and the driver's stats.
     fn finish(mut self) -> (FakeReport, serde_json::Value, String) {
         self.stop_fake.store(true, Ordering::Relaxed);
@@ -173,6 +182,17 @@ impl Cell {
         assert_eq!(code, Some(0), "the driver exits cleanly on SIGTERM:\n{log}");
         let stats: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(self.dir.join("driver.json")).unwrap()).unwrap();
         (report, stats, log)
+    }
+}
+
+/// A test that fails half-way still stops its fake robot: its real-time loop would otherwise run on
+/// beside the next test's cell.
+impl Drop for Cell {
+    fn drop(&mut self) {
+        self.stop_fake.store(true, Ordering::Relaxed);
+        if let Some(fake) = self.fake.take() {
+            let _ = fake.join();
+        }
     }
 }
 
@@ -206,10 +226,19 @@ fn in_time_needed() -> f64 {
 fn a_job_streams_through(protocol: &str, robot: &str) {
     let cell = Cell::start(protocol, robot, &format!("job-{protocol}"));
     let job = job(&cell.dir);
-    let out = cell.feed(&job).output().unwrap();
+    // Bounded: a feeder that never ends is this test's failure, with what each process said, not a
+    // test run that hangs until CI's own limit.
+    let feed_log = cell.dir.join("feed.log");
+    let mut feed = Kid(cell.feed(&job).stdout(Stdio::null()).stderr(std::fs::File::create(&feed_log).unwrap()).spawn().unwrap());
+    let code = feed.wait_exit(Duration::from_secs(120));
+    if code.is_none() {
+        feed.signal(libc::SIGQUIT);
+        panic!("{protocol}: strand-feed did not end within 120 s\n{}", cell.logs());
+    }
     let config = cell.config.clone();
+    let feed_said = std::fs::read_to_string(&feed_log).unwrap_or_default();
     let (report, stats, log) = cell.finish();
-    assert!(out.status.success(), "strand-feed: {}\n{}\ndriver:\n{log}", out.status, String::from_utf8_lossy(&out.stderr));
+    assert_eq!(code, Some(0), "strand-feed:\n{feed_said}\ndriver:\n{log}");
     eprintln!("{protocol}: {report:?}\ndriver: {stats}");
     assert!(report.cycles > 1000, "{report:?}");
     let share = report.in_time_share();
@@ -292,10 +321,13 @@ fn bad_packets_are_dropped_and_counted_and_the_driver_goes_on() {
     for packet in [&b"<Rob TYPE=\"KUKA\"><AIPos A1=\"0\"/><IPOC>1</IPOC></Rob>"[..], b"garbage", &[0u8; 8000]] {
         other.send_to(packet, ("127.0.0.1", driver_port)).unwrap();
     }
-    std::thread::sleep(Duration::from_millis(300));
+    std::thread::sleep(Duration::from_millis(1000));
     let (report, stats, _) = cell.finish();
     assert_eq!(stats["counters"]["foreign"], 3, "{stats}");
-    assert!(report.in_time_share() >= in_time_needed(), "{report:?}");
+    assert_eq!(stats["counters"]["faults"], 0, "{stats}");
+    // The robot's cycles went on being answered. A count, not a share: over these ~300 cycles one
+    // late wake-up of a loaded 2-core machine is a third of a percent (seen: 1 of 80 at 300 ms).
+    assert!(report.cycles >= 200 && report.cycles - report.in_time <= 3, "{report:?}");
 }
 
 #[test]

@@ -94,6 +94,9 @@ pub fn stream(job: &Job, opts: &StreamOptions, interrupts: &AtomicU32, keys: Opt
     let mut stop_sent_at: Option<Instant> = None;
     let mut start_sent_at: Option<Instant> = None;
     let mut start_refusal_said = false;
+    // The service's tick count and when it last moved: a service that stops ticking (hung, or
+    // stopped by a signal) keeps its Status publisher, so "went away" below never fires for it.
+    let mut last_tick = (status.tick, Instant::now());
     let send_control_value = |seq: &mut u64, command: Command, value: f64| {
         *seq += 1;
         let c = ipc::Control { seq: *seq, stamp_ns: strand::io::clock::monotonic_ns(), command: command as u32, value, _reserved: 0 };
@@ -265,6 +268,19 @@ pub fn stream(job: &Job, opts: &StreamOptions, interrupts: &AtomicU32, keys: Opt
                 }
             }
         }
+        // A service that stopped ticking: every job ends, so the feeder does too, saying why.
+        if status.tick != last_tick.0 {
+            last_tick = (status.tick, Instant::now());
+        } else if last_tick.1.elapsed() > SERVICE_STALL {
+            bar.abandon();
+            return Err(ToolError::Measurement(format!(
+                "the service under {prefix} stopped ticking: no new Status for {} s (tick {}, state {:?}, job {:?})",
+                SERVICE_STALL.as_secs(),
+                status.tick,
+                RunState::from_u32(status.run_state),
+                JobOutcome::from_u32(status.job_outcome)
+            )));
+        }
         // A service that went away.
         if ports.status_publishers() == 0 {
             let since = *silent_since.get_or_insert_with(Instant::now);
@@ -279,6 +295,11 @@ pub fn stream(job: &Job, opts: &StreamOptions, interrupts: &AtomicU32, keys: Opt
         let _ = ports.wait_status(10_000_000);
     }
 }
+
+/// How long the service's Status may stand still before the feeder gives up on it (s). A service
+/// ticks at its rate, on the robot clock on its joint-state timeout too, and publishes its Status at
+/// least every `[service] status_notify_period` (at most 1 s).
+const SERVICE_STALL: Duration = Duration::from_secs(5);
 
 fn eta(elapsed: Duration, fraction: f64) -> String {
     eta_s(elapsed, fraction).map_or(String::new(), |left| format!(" | ETA {left:.0} s"))
