@@ -125,18 +125,12 @@ fn spawn(mut c: Command) -> Proc {
 /// Service on the robot clock + sim + feeder with a long job, running on the path.
 fn cell(prefix: &str, dir: &Path) -> (Proc, Proc, Proc, ClientPorts) {
     let program = square_program(dir, 1, 400, 2400.0);
-    let svc = spawn({
-        let mut c = Command::new(bin("strand"));
-        c.args(["run", "--config", "config/default.toml", "--clock", "robot", "--no-log", "--prefix", prefix, "--set", FAST_APPROACH]);
-        c
-    });
+    let (svc, monitor) = service_without_robot(prefix);
     let sim = spawn({
         let mut c = Command::new(bin("strand-sim"));
         c.args(["--config", "config/default.toml", "--prefix", prefix]);
         c
     });
-    let monitor =
-        ClientPorts::open(&ServiceNames::new(prefix), "test-monitor", ClientRoles { monitor: true, ..Default::default() }).unwrap();
     wait_for(&monitor, 30, "the sim clocking the service", |s| s.tick > 100);
     let feeder = spawn({
         let mut c = Command::new(bin("strand-feed"));
@@ -147,6 +141,32 @@ fn cell(prefix: &str, dir: &Path) -> (Proc, Proc, Proc, ClientPorts) {
     });
     wait_for(&monitor, 120, "the job on the path", |s| s.run_state == RunState::Running as u32 && s.path_speed > 0.0);
     (svc, sim, feeder, monitor)
+}
+
+/// The service on the robot clock with no robot (it ticks on its joint-state timeout), and a monitor
+/// that has seen it tick.
+fn service_without_robot(prefix: &str) -> (Proc, ClientPorts) {
+    let svc = spawn({
+        let mut c = Command::new(bin("strand"));
+        c.args(["run", "--config", "config/default.toml", "--clock", "robot", "--no-log", "--prefix", prefix, "--set", FAST_APPROACH]);
+        c
+    });
+    let monitor =
+        ClientPorts::open(&ServiceNames::new(prefix), "test-monitor", ClientRoles { monitor: true, ..Default::default() }).unwrap();
+    wait_for(&monitor, 30, "the service ticking without a robot", |s| s.tick > 3);
+    (svc, monitor)
+}
+
+/// The child's exit code, waiting at most `seconds` (the test fails, with the last Status, past it).
+fn exit_code_within(child: &mut Proc, seconds: u64, m: &ClientPorts) -> Option<i32> {
+    let deadline = Instant::now() + Duration::from_secs(seconds);
+    loop {
+        if let Some(status) = child.0.try_wait().unwrap() {
+            return status.code();
+        }
+        assert!(Instant::now() < deadline, "still running after {seconds} s: {:?}", m.latest_status());
+        std::thread::sleep(Duration::from_millis(50));
+    }
 }
 
 fn wait_for(m: &ClientPorts, seconds: u64, what: &str, until: impl Fn(&Status) -> bool) -> Status {
@@ -195,14 +215,7 @@ fn a_job_sent_before_the_robot_streams_starts_when_it_comes() {
     let dir = temp_dir("sim", "early");
     let prefix = format!("strand/simtest-early-{}", std::process::id());
     let program = square_program(&dir, 1, 2, 2400.0);
-    let _svc = spawn({
-        let mut c = Command::new(bin("strand"));
-        c.args(["run", "--config", "config/default.toml", "--clock", "robot", "--no-log", "--prefix", &prefix, "--set", FAST_APPROACH]);
-        c
-    });
-    let monitor =
-        ClientPorts::open(&ServiceNames::new(&prefix), "test-monitor", ClientRoles { monitor: true, ..Default::default() }).unwrap();
-    wait_for(&monitor, 30, "the service ticking without a robot", |s| s.tick > 3);
+    let (_svc, monitor) = service_without_robot(&prefix);
     let mut feeder = spawn({
         let mut c = Command::new(bin("strand-feed"));
         c.arg(&program).args(["--config", "config/default.toml", "--prefix", &prefix, "--quiet", "--no-check"]);
@@ -219,14 +232,7 @@ fn a_job_sent_before_the_robot_streams_starts_when_it_comes() {
         c.args(["--config", "config/default.toml", "--prefix", &prefix]);
         c
     });
-    let deadline = Instant::now() + Duration::from_secs(180);
-    let code = loop {
-        if let Some(status) = feeder.0.try_wait().unwrap() {
-            break status.code();
-        }
-        assert!(Instant::now() < deadline, "the feeder never ended: {:?}", monitor.latest_status());
-        std::thread::sleep(Duration::from_millis(50));
-    };
+    let code = exit_code_within(&mut feeder, 180, &monitor);
     assert_eq!(code, Some(0), "the job finished: {:?}", monitor.latest_status());
     let s = monitor.latest_status().unwrap();
     assert_eq!(s.job_outcome, JobOutcome::Finished as u32, "{s:?}");
@@ -240,14 +246,7 @@ fn a_service_that_stops_ticking_ends_the_feeder_with_a_named_error() {
     let dir = temp_dir("sim", "frozen");
     let prefix = format!("strand/simtest-frozen-{}", std::process::id());
     let program = square_program(&dir, 1, 2, 2400.0);
-    let svc = spawn({
-        let mut c = Command::new(bin("strand"));
-        c.args(["run", "--config", "config/default.toml", "--clock", "robot", "--no-log", "--prefix", &prefix]);
-        c
-    });
-    let monitor =
-        ClientPorts::open(&ServiceNames::new(&prefix), "test-monitor", ClientRoles { monitor: true, ..Default::default() }).unwrap();
-    wait_for(&monitor, 30, "the service ticking without a robot", |s| s.tick > 3);
+    let (svc, monitor) = service_without_robot(&prefix);
     let stderr = dir.join("feed.err");
     let mut feeder = Proc(
         Command::new(bin("strand-feed"))
@@ -264,13 +263,7 @@ fn a_service_that_stops_ticking_ends_the_feeder_with_a_named_error() {
     // SAFETY: kill(2) on our own child; the Proc's drop kills it (SIGKILL ends a stopped process).
     unsafe { libc::kill(svc.0.id() as libc::pid_t, libc::SIGSTOP) };
     let frozen = Instant::now();
-    let code = loop {
-        if let Some(status) = feeder.0.try_wait().unwrap() {
-            break status.code();
-        }
-        assert!(frozen.elapsed() < Duration::from_secs(30), "the feeder still waits on a frozen service");
-        std::thread::sleep(Duration::from_millis(50));
-    };
+    let code = exit_code_within(&mut feeder, 30, &monitor);
     let waited = frozen.elapsed().as_secs_f64();
     let said = std::fs::read_to_string(&stderr).unwrap();
     assert_eq!(code, Some(1), "{said}");

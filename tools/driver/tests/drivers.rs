@@ -232,7 +232,6 @@ fn a_job_streams_through(protocol: &str, robot: &str) {
     let mut feed = Kid(cell.feed(&job).stdout(Stdio::null()).stderr(std::fs::File::create(&feed_log).unwrap()).spawn().unwrap());
     let code = feed.wait_exit(Duration::from_secs(120));
     if code.is_none() {
-        feed.signal(libc::SIGQUIT);
         panic!("{protocol}: strand-feed did not end within 120 s\n{}", cell.logs());
     }
     let config = cell.config.clone();
@@ -325,9 +324,10 @@ fn bad_packets_are_dropped_and_counted_and_the_driver_goes_on() {
     let (report, stats, _) = cell.finish();
     assert_eq!(stats["counters"]["foreign"], 3, "{stats}");
     assert_eq!(stats["counters"]["faults"], 0, "{stats}");
-    // The robot's cycles went on being answered. A count, not a share: over these ~300 cycles one
-    // late wake-up of a loaded 2-core machine is a third of a percent (seen: 1 of 80 at 300 ms).
-    assert!(report.cycles >= 200 && report.cycles - report.in_time <= 3, "{report:?}");
+    // The robot's cycles went on being answered, judged as the job tests judge them: over ~250
+    // cycles, not 80, where one late wake-up of this shared machine was 1.25 % (seen once in 9).
+    assert!(report.cycles >= 200, "{report:?}");
+    assert!(report.in_time_share() >= in_time_needed(), "{report:?}");
 }
 
 #[test]

@@ -296,9 +296,9 @@ pub fn stream(job: &Job, opts: &StreamOptions, interrupts: &AtomicU32, keys: Opt
     }
 }
 
-/// How long the service's Status may stand still before the feeder gives up on it (s). A service
-/// ticks at its rate, on the robot clock on its joint-state timeout too, and publishes its Status at
-/// least every `[service] status_notify_period` (at most 1 s).
+/// How long the service's Status tick may stand still before the feeder gives up on it (s). A running
+/// service publishes Status every tick, and ticks without a robot too (the robot clock falls back on
+/// its joint-state timeout), so 5 s of one tick is a service that no longer runs.
 const SERVICE_STALL: Duration = Duration::from_secs(5);
 
 fn eta(elapsed: Duration, fraction: f64) -> String {
