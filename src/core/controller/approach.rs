@@ -12,6 +12,22 @@ use crate::kin::{Clik, JointVector, RobotModel, TcpTarget};
 /// IK iterations per tick while solving for the first point, and in total before giving up.
 const IK_ITERATIONS_PER_TICK: u32 = 25;
 const IK_ITERATIONS_MAX: u32 = 4000;
+/// IK iterations from one seed before the next is tried (see [`reseed`]).
+const IK_ITERATIONS_PER_SEED: u32 = 1000;
+
+/// The seed the IK of the first point starts from after `attempt` seeds did not converge: from
+/// where the arm is (attempt 0, not here); then with its wrist (the last three joints) in the
+/// middle of their ranges, the rest as it is; then every joint in the middle of its range.
+fn reseed(model: &RobotModel, q: &JointVector, attempt: u32) -> JointVector {
+    let n = model.dof();
+    let middle = model.middle_configuration();
+    let mut seed = *q;
+    let first = if attempt == 1 { n.saturating_sub(3) } else { 0 };
+    for i in first..n {
+        seed[i] = middle[i];
+    }
+    seed
+}
 
 /// Where the approach is.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -112,6 +128,12 @@ impl Approach {
             if !done {
                 if k >= IK_ITERATIONS_MAX {
                     return ApproachStep::Failed;
+                }
+                if k.is_multiple_of(IK_ITERATIONS_PER_SEED) {
+                    // Stuck from this seed (a far start: a wrist turned well away from the job, a
+                    // joint against its limit): start again from another.
+                    self.q_first = reseed(model, q, k / IK_ITERATIONS_PER_SEED);
+                    self.ik.reset(JointVector::zeros());
                 }
                 self.phase = Phase::Solving { iterations: k };
                 return ApproachStep::Hold;

@@ -1,10 +1,39 @@
-//! The last check before a reply leaves: never a jump. Each target is held inside the joint's
-//! position limits, and the step from the previous reply inside its velocity limit and the change
-//! of step inside its acceleration limit, at the robot's own period. A target that needs clamping
-//! is clamped, and counted: the service's commands already respect these limits, so a clamp means
-//! something upstream went wrong (a restart, a skipped cycle), and the log line says which joint.
+//! The last check before a reply leaves: never a jump, never an overshoot. Each target is held
+//! inside the joint's position limits, and the step from the previous reply inside its velocity
+//! limit and the change of step inside its acceleration limit, at the robot's own period.
+//!
+//! In step with the service, an answer is the service's command unchanged: its commands already
+//! keep these limits. After a late, missed or held cycle the robot stood still (a hold, or RSI
+//! throwing an answer away) while the service's command kept moving, so the answers must *catch
+//! up* with a moving target. Limiting only the change of step towards it (the guard before this
+//! one) accelerates until it reaches the target and only then brakes: it passes it, and the next
+//! catch-up passes it the other way — it rings, and a print faults on its Cartesian error. Here
+//! every joint catches up the way a time-optimal double integrator chases a target that moves at
+//! the target's own velocity (estimated from the service's commands): in the target's frame the
+//! relative speed never exceeds what can still brake to zero on the gap left (the discrete
+//! square-root law, the same one that brakes towards the position limits), so the gap closes
+//! without a sign change. The joints are also *synchronised*: each one's relative acceleration is
+//! scaled so that all end together with the slowest. A hold at path speed leaves every joint's gap
+//! and relative velocity proportional to the path's joint velocity, so the synchronised catch-up
+//! keeps them proportional: the tool falls behind along its path and catches up along it, instead
+//! of each joint arriving on its own time and the tool leaving the path sideways.
+//!
+//! The catch-up law uses [`CATCH_UP_SHARE`] of each joint's acceleration limit; the rest is
+//! left for the target's own acceleration, so a target that brakes while it is chased is not
+//! passed either. Its length is bounded (see [`catch_up_bound`]): behind a target moving at `u`
+//! with a gap `g`, from rest, the catch-up takes at most `|u|/A + 2·√((|g| + u²/2A)/A)` plus two
+//! cycles, with `A` the share of the acceleration limit. A clamp (an answer that is not the
+//! service's command) happens only while catching up; each is counted, and the log line says which
+//! joint.
 
 use strand_ipc::MAX_JOINTS;
+
+/// The share of each joint's acceleration limit the catch-up law plans with (the rest is the
+/// target's own acceleration: a target that brakes while it is chased is not passed).
+pub const CATCH_UP_SHARE: f64 = 0.5;
+
+/// Below this (rad or m) an answer is the service's command.
+const SAME: f64 = 1e-12;
 
 /// The limits of one joint (rad, rad/s, rad/s²; or m, m/s, m/s²).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -29,26 +58,91 @@ pub struct ReplyGuard {
     velocity: [f64; MAX_JOINTS],
     /// The state before the last target, for [`ReplyGuard::take_back`].
     before: Option<([f64; MAX_JOINTS], [f64; MAX_JOINTS])>,
+    /// The service's last command (inside the position limits), and the cycles since it came:
+    /// the target's velocity is measured between two commands.
+    target: Option<[f64; MAX_JOINTS]>,
+    cycles_since_target: u32,
+    /// The target's velocity at the last command (rad/s or m/s).
+    target_velocity: [f64; MAX_JOINTS],
     /// Targets clamped so far.
     pub clamps: u64,
     /// The joint clamped last, for the log line.
     pub last_clamped_joint: Option<usize>,
 }
 
+/// The time (s) a double integrator needs from a gap `gap` (to go, signed) and a relative velocity
+/// `w` (signed, same axis) to reach the target at its velocity: the bang-bang profile with
+/// acceleration `a`, its relative speed towards the target at most `cap`; continuous time.
+fn time_to_go(gap: f64, w: f64, a: f64, cap: f64) -> f64 {
+    let (d, toward) = if gap >= 0.0 { (gap, w) } else { (-gap, -w) };
+    // From rest, `d` to go.
+    let from_rest = |d: f64| if a * d <= cap * cap { 2.0 * (d / a).sqrt() } else { d / cap + cap / a };
+    if toward < 0.0 {
+        // Moving away: brake first, then the longer gap.
+        return -toward / a + from_rest(d + toward * toward / (2.0 * a));
+    }
+    let stop = toward * toward / (2.0 * a);
+    if stop > d {
+        // It cannot stop in time: it passes and comes back.
+        return toward / a + from_rest(stop - d);
+    }
+    let peak = (a * d + 0.5 * toward * toward).sqrt();
+    if peak <= cap || toward >= cap {
+        (2.0 * peak - toward) / a
+    } else {
+        // Up to the cap, along it, and down.
+        let (up, down) = ((cap * cap - toward * toward) / (2.0 * a), cap * cap / (2.0 * a));
+        (cap - toward) / a + cap / a + (d - up - down) / cap
+    }
+}
+
+/// The relative speed (rad/s or m/s) a joint may close a gap with: its speed limit `limit` less
+/// what the target's velocity `u` uses of it in the direction of the gap `gap`.
+fn headroom(gap: f64, u: f64, limit: f64) -> f64 {
+    (limit - u * gap.signum()).max(1e-9 * limit)
+}
+
+/// The longest a catch-up takes (s), by the law here: a joint at rest behind a target moving at
+/// `target_velocity` (rad/s or m/s) with `gap` (rad or m) to go, with `velocity` and
+/// `acceleration` its limits (rad/s, rad/s² or m/s, m/s²) and `period` the robot's cycle (s):
+/// the time-optimal catch-up at the [`CATCH_UP_SHARE`] of the acceleration limit and within the
+/// speed limit, plus two cycles for the discrete steps. (Braking the relative velocity −u takes
+/// u/A and widens the gap by u²/2A; then the gap closes at A, at most at the speed left.)
+pub fn catch_up_bound(gap: f64, target_velocity: f64, velocity: f64, acceleration: f64, period: f64) -> f64 {
+    let a = CATCH_UP_SHARE * acceleration;
+    let u = target_velocity * gap.signum();
+    time_to_go(gap, -u, a, headroom(gap, target_velocity, velocity)) + 2.0 * period
+}
+
 impl ReplyGuard {
     /// A guard for joints with `bounds`, replying every `period` seconds (the robot's cycle).
     pub fn new(bounds: Vec<JointBounds>, period: f64) -> ReplyGuard {
-        ReplyGuard { bounds, period, last: None, velocity: [0.0; MAX_JOINTS], before: None, clamps: 0, last_clamped_joint: None }
+        ReplyGuard {
+            bounds,
+            period,
+            last: None,
+            velocity: [0.0; MAX_JOINTS],
+            before: None,
+            target: None,
+            cycles_since_target: 1,
+            target_velocity: [0.0; MAX_JOINTS],
+            clamps: 0,
+            last_clamped_joint: None,
+        }
     }
 
     /// Starts from where the robot is (`q` measured, at rest): the next target steps from here.
     pub fn reset(&mut self, q: &[f64; MAX_JOINTS]) {
         self.last = Some(*q);
         self.velocity = [0.0; MAX_JOINTS];
+        self.target = None;
+        self.cycles_since_target = 1;
+        self.target_velocity = [0.0; MAX_JOINTS];
     }
 
     /// Forgets the last target: the robot never got it (it came after the robot's cycle, and the
-    /// robot kept the one before). The next target steps from the one before.
+    /// robot kept the one before). The next target steps from the one before. (The service's
+    /// command is kept: it is what the next answer catches up with.)
     pub fn take_back(&mut self) {
         if let Some((last, _)) = self.before.take() {
             // The robot held its previous target this cycle: it is at rest there.
@@ -72,7 +166,14 @@ impl ReplyGuard {
         self.last.as_ref()
     }
 
-    /// `target` (joint space) within the limits from the last reply; records it as sent.
+    /// The velocity of the last target sent (rad/s or m/s).
+    pub fn velocity(&self) -> &[f64; MAX_JOINTS] {
+        &self.velocity
+    }
+
+    /// `target` (joint space), the service's command, within the limits from the last reply;
+    /// records it as sent. In step, it is `target` itself; behind it (after a hold), the
+    /// synchronised catch-up described in the module's documentation.
     pub fn admit(&mut self, target: &[f64; MAX_JOINTS]) -> [f64; MAX_JOINTS] {
         let Some(prev) = self.last else {
             // Nothing sent yet: the caller resets to the measured position first.
@@ -81,19 +182,51 @@ impl ReplyGuard {
         };
         self.before = Some((prev, self.velocity));
         let dt = self.period;
-        let mut out = prev;
+        let n = self.bounds.len();
         let mut clamped = None;
+        // The target inside the limits, its velocity over the cycles since the last command, and
+        // the chase in the target's frame: the gap the target had one cycle ago (at its
+        // velocity), and the answers' velocity relative to it.
+        let [mut x, mut u, mut gap, mut w, mut share, mut cap] = [[0.0; MAX_JOINTS]; 6];
+        let mut slowest = 0.0f64;
         for (k, b) in self.bounds.iter().enumerate() {
-            let mut x = target[k];
-            if !x.is_finite() {
-                x = prev[k];
+            let mut xk = target[k];
+            if !xk.is_finite() {
+                xk = self.target.map_or(prev[k], |t| t[k]);
                 clamped = Some(k);
             }
-            let x_in = x.clamp(b.lower, b.upper);
-            // The step this cycle, inside what the acceleration allows from the last step, and
-            // inside the velocity limit; braking first if the last step already was too fast.
-            let v_wanted = (x_in - prev[k]) / dt;
+            x[k] = xk.clamp(b.lower, b.upper);
+            u[k] = self.target.map_or(0.0, |t| (x[k] - t[k]) / (dt * f64::from(self.cycles_since_target))).clamp(-b.velocity, b.velocity);
+            gap[k] = x[k] - u[k] * dt - prev[k];
+            w[k] = self.velocity[k] - u[k];
+            share[k] = CATCH_UP_SHARE * b.acceleration;
+            cap[k] = headroom(gap[k], u[k], b.velocity);
+            slowest = slowest.max(time_to_go(gap[k], w[k], share[k], cap[k]));
+        }
+        // Synchronised: a joint that would arrive sooner than the slowest chases with less
+        // acceleration, so that all arrive together (its gap and relative speed shrink in
+        // proportion with the slowest joint's: the tool comes back along its path).
+        if slowest > 2.0 * dt {
+            for k in 0..n {
+                share[k] = synchronised(gap[k], w[k], share[k], cap[k], dt, slowest);
+            }
+        }
+        let mut out = prev;
+        for (k, b) in self.bounds.iter().enumerate() {
             let dv = b.acceleration * dt;
+            // The relative speed towards the target: land on it this cycle if that is slow
+            // enough to stop there (in step: the gap is nought, and the answer is the target);
+            // else the square-root law. Towards the target it speeds up by the (synchronised)
+            // share of the acceleration at most, so that the joints' chases stay in proportion;
+            // braking is never held back (a target that brakes hard must not be passed). The
+            // change is counted from the relative speed against the target's velocity as it was:
+            // a target that accelerates uses its own part of the limit, not the chase's.
+            let d = gap[k].abs();
+            let h = 0.5 * share[k] * dt;
+            let law = (-h + (h * h + 2.0 * share[k] * d).sqrt()).max(0.0);
+            let toward_was = (self.velocity[k] - self.target_velocity[k]) * gap[k].signum();
+            let w_new = if d / dt <= law { gap[k] / dt } else { law.min(toward_was + share[k] * dt) * gap[k].signum() };
+            let v_chase = u[k] + w_new;
             // Never faster than what can still stop before a position limit (the discrete
             // square-root law: after this step, braking at the acceleration limit stops in time).
             let stop = |room: f64| {
@@ -102,9 +235,12 @@ impl ReplyGuard {
             };
             let v_up = b.velocity.min(stop(b.upper - prev[k]));
             let v_down = b.velocity.min(stop(prev[k] - b.lower));
-            let v = v_wanted.clamp(self.velocity[k] - dv, self.velocity[k] + dv).clamp(-v_down, v_up);
-            let x_out = (prev[k] + v * dt).clamp(b.lower, b.upper);
-            if (x_out - x).abs() > 1e-12 {
+            let v = v_chase.clamp(self.velocity[k] - dv, self.velocity[k] + dv).clamp(-v_down, v_up);
+            let mut x_out = (prev[k] + v * dt).clamp(b.lower, b.upper);
+            if (x_out - x[k]).abs() <= SAME && x[k] == target[k] {
+                // In step: the service's command itself, to the bit.
+                x_out = x[k];
+            } else {
                 clamped = Some(k);
             }
             self.velocity[k] = (x_out - prev[k]) / dt;
@@ -114,6 +250,9 @@ impl ReplyGuard {
             self.clamps += 1;
             self.last_clamped_joint = clamped;
         }
+        self.target = Some(x);
+        self.target_velocity = u;
+        self.cycles_since_target = 1;
         self.last = Some(out);
         out
     }
@@ -123,6 +262,8 @@ impl ReplyGuard {
     pub fn hold(&mut self) -> Option<[f64; MAX_JOINTS]> {
         let prev = self.last?;
         self.before = Some((prev, self.velocity));
+        // The service's command did not come this cycle: its next one is a cycle further on.
+        self.cycles_since_target = self.cycles_since_target.saturating_add(1);
         let dt = self.period;
         let mut out = prev;
         for (k, b) in self.bounds.iter().enumerate() {
@@ -143,6 +284,36 @@ impl ReplyGuard {
     pub fn outside_limits(&self, q: &[f64; MAX_JOINTS], tolerance: f64) -> Option<usize> {
         self.bounds.iter().enumerate().find(|(k, b)| q[*k] < b.lower - tolerance || q[*k] > b.upper + tolerance).map(|(k, _)| k)
     }
+}
+
+/// The acceleration (at most `a`) with which a chase from (`gap`, `w`) within `cap` takes `time`
+/// (s), if it can be that slow without passing the target; else the slowest that does not pass it.
+fn synchronised(gap: f64, w: f64, a: f64, cap: f64, period: f64, time: f64) -> f64 {
+    let t = |a: f64| time_to_go(gap, w, a, cap);
+    if t(a) >= time {
+        return a;
+    }
+    // Approaching: below w²/(2d + w·dt) the discrete law could no longer brake onto the target
+    // (the speed it allows on the gap is below what one cycle's braking reaches).
+    let toward = if gap >= 0.0 { w } else { -w };
+    let lowest = if toward > 0.0 && gap != 0.0 { (toward * toward / (2.0 * gap.abs() + toward * period)) * (1.0 + 1e-9) } else { a * 1e-6 };
+    if lowest >= a {
+        return a;
+    }
+    let (mut lo, mut hi) = (lowest, a);
+    if t(lo) <= time {
+        return lo;
+    }
+    // The time falls as the acceleration grows: keep t(lo) > time ≥ t(hi).
+    for _ in 0..40 {
+        let mid = 0.5 * (lo + hi);
+        if t(mid) > time {
+            lo = mid;
+        } else {
+            hi = mid;
+        }
+    }
+    hi
 }
 
 #[cfg(test)]
@@ -247,5 +418,133 @@ mod tests {
             assert!(out[0] == 0.0 && out[1] <= 1.0);
         }
         assert_eq!(g.clamps, 1000);
+    }
+
+    /// Two joints at constant `speed` (rad/s; limits 1 rad/s, 10 rad/s²), reached with the target
+    /// accelerating at 3 rad/s²; then `missed` answers the robot threw away; after `brake_after`
+    /// more cycles the target brakes to rest at 4.5 rad/s² (within the 5 rad/s² the catch-up
+    /// leaves it). Returns the guard's answers and the targets from the first missed cycle on.
+    fn chase(speed: [f64; 2], missed: usize, brake_after: Option<usize>) -> (Vec<[f64; 2]>, Vec<[f64; 2]>, u64) {
+        let b = JointBounds { lower: -10.0, upper: 10.0, velocity: 1.0, acceleration: 10.0 };
+        let mut g = ReplyGuard::new(vec![b; 2], 0.004);
+        g.reset(&[0.0; MAX_JOINTS]);
+        let (mut x, mut v) = ([0.0f64; 2], [0.0f64; 2]);
+        let mut t = [0.0; MAX_JOINTS];
+        let (mut outs, mut targets) = (Vec::new(), Vec::new());
+        for cycle in 0..1000 {
+            // The target: up to speed at 3 rad/s², then (optionally) braking to rest at 5 rad/s².
+            for k in 0..2 {
+                let want = if brake_after.is_some_and(|c| cycle >= 300 + c) { 0.0 } else { speed[k] };
+                let a = if want == 0.0 { 4.5 } else { 3.0 };
+                v[k] += (want - v[k]).clamp(-a * 0.004, a * 0.004);
+                x[k] += v[k] * 0.004;
+                t[k] = x[k];
+            }
+            let out = g.admit(&t);
+            if cycle < 300 {
+                assert_eq!(&out[..2], &t[..2], "in step, the answer is the command (cycle {cycle})");
+                continue;
+            }
+            if cycle < 300 + missed {
+                g.take_back();
+                outs.push([g.last().unwrap()[0], g.last().unwrap()[1]]);
+            } else {
+                outs.push([out[0], out[1]]);
+            }
+            targets.push([t[0], t[1]]);
+        }
+        (outs, targets, g.clamps)
+    }
+
+    #[test]
+    fn a_catch_up_after_missed_cycles_never_passes_the_target_and_ends_within_its_bound() {
+        // A print's joint speeds, and speeds near the limit (where the catch-up has little
+        // speed left to close the gap with).
+        for (speed, missed) in [[0.3, -0.12], [0.8f64, -0.3]].into_iter().flat_map(|s| [1, 3, 10].map(|m| (s, m))) {
+            let (outs, targets, clamps) = chase(speed, missed, None);
+            let mut caught_up = None;
+            let (mut v_prev, mut prev) = ([0.0; 2], outs[0]);
+            // From the last held cycle on, the robot moves again.
+            for (i, (o, t)) in outs.iter().zip(&targets).enumerate().skip(missed - 1) {
+                for k in 0..2 {
+                    // Behind, in the direction of travel, or on it: never past.
+                    let ahead = (o[k] - t[k]) * speed[k].signum();
+                    assert!(ahead <= 1e-12, "{missed} missed: joint {k} {ahead} rad past its target at cycle {i}");
+                    if i >= missed {
+                        let v = (o[k] - prev[k]) / 0.004;
+                        assert!(v.abs() <= 1.0 + 1e-9, "speed {v}");
+                        assert!(((v - v_prev[k]) / 0.004).abs() <= 10.0 + 1e-6, "acceleration {}", (v - v_prev[k]) / 0.004);
+                        v_prev[k] = v;
+                    }
+                }
+                prev = *o;
+                if caught_up.is_none() && o == t {
+                    caught_up = Some(i);
+                }
+            }
+            // In step again at answer `at`; the robot moved again from answer `missed` on.
+            let at = caught_up.unwrap_or_else(|| panic!("{missed} missed: never caught up"));
+            let cycles = at + 1 - missed;
+            eprintln!("{speed:?} rad/s, {missed} missed: caught up after {cycles} cycles");
+            // The bound, for the slowest joint (they end together).
+            let bound = (0..2).map(|k| catch_up_bound(missed as f64 * speed[k] * 0.004, speed[k], 1.0, 10.0, 0.004)).fold(0.0, f64::max);
+            assert!(cycles as f64 * 0.004 <= bound, "{missed} missed: caught up in {cycles} cycles, bound {bound} s");
+            // Clamped only while catching up: the answers thrown away after the first, and those
+            // before the one in step.
+            assert_eq!(clamps as usize, at - 1, "{missed} missed");
+        }
+    }
+
+    #[test]
+    fn the_joints_catch_up_together_so_the_tool_stays_on_its_path() {
+        // Joint 0 moves 0.3 rad/s, joint 1 −0.12 rad/s: a straight line in joint space. Behind,
+        // the answers stay on that line (the gaps keep their ratio) until they are back on the
+        // target.
+        let (outs, targets, _) = chase([0.3, -0.12], 10, None);
+        for (o, t) in outs.iter().zip(&targets) {
+            let (g0, g1) = (t[0] - o[0], t[1] - o[1]);
+            if g0.abs() > 1e-6 {
+                let ratio = g1 / g0;
+                assert!((ratio + 0.12 / 0.3).abs() < 0.01, "off the line: gaps {g0} {g1}");
+            }
+        }
+    }
+
+    #[test]
+    fn a_target_that_brakes_while_it_is_chased_is_not_passed() {
+        for missed in [1, 3, 10] {
+            let speed = [0.8f64, -0.3];
+            let (outs, targets, _) = chase(speed, missed, Some(missed + 2));
+            for (i, (o, t)) in outs.iter().zip(&targets).enumerate() {
+                for k in 0..2 {
+                    let ahead = (o[k] - t[k]) * speed[k].signum();
+                    assert!(ahead <= 1e-12, "{missed} missed: joint {k} {ahead} rad past its braking target at cycle {i}");
+                }
+            }
+            assert_eq!(outs.last(), targets.last(), "at rest on the target");
+        }
+    }
+
+    #[test]
+    fn after_late_cycles_held_to_rest_the_answers_catch_up_without_passing() {
+        let b = JointBounds { lower: -10.0, upper: 10.0, velocity: 1.0, acceleration: 10.0 };
+        let mut g = ReplyGuard::new(vec![b], 0.004);
+        g.reset(&[0.0; MAX_JOINTS]);
+        let mut t = [0.0; MAX_JOINTS];
+        let mut v = 0.0f64;
+        for cycle in 0..600 {
+            // Up to 0.5 rad/s at 2 rad/s².
+            v = (v + 2.0 * 0.004).min(0.5);
+            t[0] += v * 0.004;
+            if (200..203).contains(&cycle) {
+                g.hold();
+                continue;
+            }
+            let out = g.admit(&t);
+            assert!(out[0] <= t[0] + 1e-12, "past the target at {cycle}: {} > {}", out[0], t[0]);
+            if cycle > 300 {
+                assert_eq!(out[0], t[0], "caught up by {cycle}");
+            }
+        }
     }
 }

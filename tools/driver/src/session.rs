@@ -261,14 +261,15 @@ impl<P: RobotProtocol> Session<P> {
         None
     }
 
-    /// The last answer left after the robot's cycle (the bridge measured it): if the protocol's
-    /// robot throws such answers away, the guard forgets it, so the next answer steps from what
-    /// the robot really has. Counted in `missed_cycle`.
+    /// The last answer left after the robot's cycle (the bridge measured it): the robot stood at
+    /// its previous target that cycle, so the guard forgets the answer, and the next one catches
+    /// up from where the robot really is, at rest. That holds whether the protocol's robot throws
+    /// the late answer away (RSI) or would take it a cycle late (EGM): by then the answer to the
+    /// next packet, stepping from the held target, is the newest, and the robot takes the newest.
+    /// Counted in `missed_cycle`.
     pub fn answer_missed_its_cycle(&mut self) {
         self.counters.missed_cycle += 1;
-        if P::LATE_ANSWER_DISCARDED {
-            self.guard.take_back();
-        }
+        self.guard.take_back();
     }
 
     /// The guard (its clamp count and last clamped joint, for the log).

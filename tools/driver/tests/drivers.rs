@@ -243,12 +243,15 @@ fn a_job_streams_through(protocol: &str, robot: &str) {
     let share = report.in_time_share();
     assert!(share >= in_time_needed(), "{protocol}: {:.4} % of {} cycles answered in time: {report:?}", 100.0 * share, report.cycles);
     assert_eq!(stats["counters"]["faults"], 0, "{stats}");
-    // The service's commands keep the limits by themselves; only after a hold does the guard spread
-    // the catch-up over a few cycles. A hold is a late cycle, or an answer that missed the robot's
-    // cycle (RSI throws it away, so the robot stood still that cycle just the same).
+    // The service's commands keep the limits by themselves; only after a hold does the guard catch
+    // up with them, time-optimally and without passing them (what those answers do is judged, per
+    // robot and for 1, 3 and 10 missed cycles at full speed, in tests/catch_up.rs). A hold is a
+    // late cycle, or an answer that missed the robot's cycle (the robot stood still that cycle).
+    // A catch-up on these robots ends within 40 cycles there (36 on the IRB 140, 31 on the KR 6):
+    // every clamp here must belong to one.
     let count = |k: &str| stats["counters"][k].as_u64().unwrap();
     let (clamped, holds) = (count("clamped"), count("late") + count("missed_cycle"));
-    assert!(clamped <= 10 * holds, "{clamped} answers clamped after {holds} late or missed cycles: {stats}");
+    assert!(clamped <= 40 * holds, "{clamped} answers clamped after {holds} late or missed cycles: {stats}");
     let (v, a) = report.max_rates(0.004);
     for (k, (vl, al)) in limits_deg(&config).iter().enumerate() {
         assert!(v[k] <= vl * 1.001, "{protocol}: axis {} at {:.1} deg/s, limit {vl:.1}", k + 1, v[k]);
