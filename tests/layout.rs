@@ -3,6 +3,8 @@
 //! - the core (`strand-core`) depends only on the math, the trajectory generator, URDF text, the
 //!   config derives and the wire contract, and its source names no clock, file, thread, network,
 //!   printing or tracing;
+//! - the wire contract (`strand-wire`) links no transport, and neither do the crates that use only it
+//!   (the core, the offline job crate): no iceoryx2 in their dependency trees (from `Cargo.lock`);
 //! - the client crate (`strand-ipc`) depends on iceoryx2 and nothing of the controller;
 //! - the offline job crate (`strand-job`) does not depend on the service crate;
 //! - the service's folders (check, config, io, log) import each other without a loop;
@@ -37,7 +39,7 @@ fn rust_files(dir: &Path, out: &mut Vec<PathBuf>) {
 #[test]
 fn the_core_depends_on_nothing_of_the_shell() {
     let allowed: BTreeSet<String> =
-        ["nalgebra", "urdf-rs", "libm", "serde", "thiserror", "rsruckig", "strand-ipc"].iter().map(|s| s.to_string()).collect();
+        ["nalgebra", "urdf-rs", "libm", "serde", "thiserror", "rsruckig", "strand-wire"].iter().map(|s| s.to_string()).collect();
     let deps = dependencies(&root().join("src/core/Cargo.toml"));
     let extra: Vec<_> = deps.difference(&allowed).collect();
     assert!(extra.is_empty(), "strand-core may not depend on {extra:?}: the core does no I/O");
@@ -74,6 +76,43 @@ fn the_core_depends_on_nothing_of_the_shell() {
         }
     }
     assert!(found.is_empty(), "the core names I/O, a clock or printing:\n{}", found.join("\n"));
+}
+
+/// Every package `name` depends on, directly or not, by `Cargo.lock`.
+fn locked_tree(name: &str) -> BTreeSet<String> {
+    let lock: toml::Table = std::fs::read_to_string(root().join("Cargo.lock")).unwrap().parse().unwrap();
+    let packages = lock["package"].as_array().unwrap();
+    let deps_of = |n: &str| -> Vec<String> {
+        packages
+            .iter()
+            .filter(|p| p["name"].as_str() == Some(n))
+            .flat_map(|p| p.get("dependencies").and_then(|d| d.as_array()).cloned().unwrap_or_default())
+            .map(|d| d.as_str().unwrap().split(' ').next().unwrap().to_string())
+            .collect()
+    };
+    let (mut seen, mut todo) = (BTreeSet::new(), vec![name.to_string()]);
+    while let Some(n) = todo.pop() {
+        for d in deps_of(&n) {
+            if seen.insert(d.clone()) {
+                todo.push(d);
+            }
+        }
+    }
+    seen
+}
+
+#[test]
+fn the_wire_contract_and_the_crates_on_it_link_no_transport() {
+    let wire = dependencies(&root().join("wire/Cargo.toml"));
+    let allowed: BTreeSet<String> = ["iceoryx2-bb-derive-macros", "iceoryx2-bb-elementary-traits"].iter().map(|s| s.to_string()).collect();
+    assert!(wire.is_subset(&allowed), "strand-wire depends on {:?}: the types only", wire.difference(&allowed).collect::<Vec<_>>());
+    for name in ["strand-wire", "strand-core", "strand-job"] {
+        let tree = locked_tree(name);
+        assert!(tree.contains("nalgebra") || name == "strand-wire", "{name}'s tree read from Cargo.lock: {tree:?}");
+        for transport in ["iceoryx2", "iceoryx2-cal", "strand-ipc"] {
+            assert!(!tree.contains(transport), "{name} links {transport}");
+        }
+    }
 }
 
 #[test]
@@ -175,7 +214,18 @@ fn library_code_returns_typed_errors() {
     // `Result<_, String>` in a public signature of a library crate (the core, the client crate, the
     // job crate, the service's library and the tools' modules) hides what failed from the caller.
     let mut files = Vec::new();
-    for dir in ["src/core", "ipc/src", "tools/job/src", "src/check", "src/config", "src/io", "src/log", "tools/src", "tools/driver/src"] {
+    for dir in [
+        "src/core",
+        "wire/src",
+        "ipc/src",
+        "tools/job/src",
+        "src/check",
+        "src/config",
+        "src/io",
+        "src/log",
+        "tools/src",
+        "tools/driver/src",
+    ] {
         rust_files(&root().join(dir), &mut files);
     }
     files.extend(["src/lib.rs", "src/config.rs"].map(|f| root().join(f)));

@@ -6,7 +6,7 @@
 //! is quinn-proto's `lib.rs`). The rule "the core does no I/O and imports nothing of the shell" is
 //! kept by the build: the core is its own crate, its dependencies are nalgebra, rsruckig, urdf-rs
 //! (URDF *text*; the shell reads the file), serde (config derives), thiserror and the wire contract
-//! `strand-ipc`, and it cannot name the shell's `io`, `log` or `config`.
+//! `strand-wire` (the wire types, no transport), and it cannot name the shell's `io`, `log` or `config`.
 //!
 //! - The controller: [`Controller::step`]`(&`[`TickInput`]`) -> `[`TickOutput`], built from
 //!   [`ControllerSettings`] (the `[controller]`, `[clik]`, `[path]`, `[extruder]` and `[base]`

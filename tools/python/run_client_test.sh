@@ -7,7 +7,7 @@
 # Starts the service on a private prefix with a timer clock, echoed joint state and
 # --exit-when-done, waits until its Status is visible (up to 10 s), runs strand_client.py (60 s
 # limit), waits for the service to exit (it does when the job ends), kills it if it does not, and
-# exits with the client's status. First checks strand_ipc.py against ipc/src/lib.rs
+# exits with the client's status. First checks strand_ipc.py against wire/src/lib.rs
 # (test_strand_ipc.py, no service needed). Needs `pip install iceoryx2==0.10.0`.
 # Environment: STRAND_BIN (service binary, default target/debug/strand), PYTHON (interpreter,
 # default python3), CLIENT_ARGS (extra client arguments, e.g. -v), STRAND_LOG (keep the service's
@@ -31,10 +31,10 @@ if [ ! -x "$bin" ]; then
     exit 2
 fi
 
-# The ctypes mirrors against ipc/src/lib.rs (field order, type names, enums): no service needed.
+# The ctypes mirrors against wire/src/lib.rs (field order, type names, enums): no service needed.
 if ! "$python" "$here/test_strand_ipc.py" >/dev/null; then
     "$python" "$here/test_strand_ipc.py" >&2
-    echo "run_client_test: strand_ipc.py does not match ipc/src/lib.rs" >&2
+    echo "run_client_test: strand_ipc.py does not match wire/src/lib.rs" >&2
     exit 1
 fi
 

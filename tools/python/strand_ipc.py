@@ -1,4 +1,4 @@
-"""strand's wire contract in Python: ctypes mirrors of the messages in ``ipc/src/lib.rs``.
+"""strand's wire contract in Python: ctypes mirrors of the messages in ``wire/src/lib.rs``.
 
 Every message is a fixed-size ``#[repr(C)]`` struct on the Rust side with no implicit padding (each
 gap is a named ``_reserved`` field, always zero), so the ``ctypes.Structure`` below with the same
@@ -483,7 +483,7 @@ def service_names(prefix: str = DEFAULT_PREFIX) -> ServiceNames:
 
 MESSAGE_TYPES = (Segment, SegmentBatch, Control, JointState, BasePose, JointCommand, ExtruderCommand, Status, JobProgress)
 
-#: Sizes from the Rust test ``sizes_are_stable`` (ipc/src/lib.rs).
+#: Sizes from the Rust test ``sizes_are_stable`` (wire/src/lib.rs).
 EXPECTED_SIZES = {
     Segment: 176,
     SegmentBatch: 24 + 32 * 176,

@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Checks strand_ipc.py against the Rust wire contract (ipc/src/lib.rs), without iceoryx2 or cargo.
+"""Checks strand_ipc.py against the Rust wire contract (wire/src/lib.rs), without iceoryx2 or cargo.
 
 Sizes alone do not catch two same-typed fields swapped, so this parses every ``#[repr(C)]`` message
 struct of the Rust source and compares field names, scalar types and array lengths in order, the
@@ -18,7 +18,7 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, HERE)
 import strand_ipc as ipc  # noqa: E402
 
-LIB_RS = os.path.join(HERE, "..", "..", "ipc", "src", "lib.rs")
+LIB_RS = os.path.join(HERE, "..", "..", "wire", "src", "lib.rs")
 
 _SCALARS = {"u32": ctypes.c_uint32, "u64": ctypes.c_uint64, "f64": ctypes.c_double, "i32": ctypes.c_int32, "u8": ctypes.c_uint8}
 

@@ -3,8 +3,8 @@
 //! a stop that ended their job); every refusal (of a segment, a control or a joint state) is
 //! counted, and the last one is named in `Status`.
 
-use strand_ipc as ipc;
-use strand_ipc::RejectReason;
+use strand_wire as ipc;
+use strand_wire::RejectReason;
 
 use crate::path::{Segment, SegmentKind};
 

@@ -25,8 +25,8 @@
 //! the first point, `command.rs` the final command stage.
 
 use nalgebra::{UnitQuaternion, Vector3};
-use strand_ipc as ipc;
-use strand_ipc::{Command, FaultCode, JobOutcome, RejectReason, RunState};
+use strand_wire as ipc;
+use strand_wire::{Command, FaultCode, JobOutcome, RejectReason, RunState};
 
 use super::base::{BaseEstimator, BaseState};
 use super::extrude::Extruder;

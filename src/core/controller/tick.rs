@@ -4,8 +4,8 @@
 
 use nalgebra::{UnitQuaternion, Vector3};
 use serde::{Deserialize, Serialize};
-use strand_ipc as ipc;
-use strand_ipc::{FaultCode, JobOutcome, RejectReason, RunState};
+use strand_wire as ipc;
+use strand_wire::{FaultCode, JobOutcome, RejectReason, RunState};
 
 use crate::base::{BaseConfig, BaseState};
 use crate::extrude::ExtruderConfig;

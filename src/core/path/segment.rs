@@ -1,16 +1,16 @@
 //! The motion segment: one piece of path as the controller receives it, in the world frame W and SI
 //! units. Fixed size and `Copy`, so the real-time queue holds segments by value and the wire type in
-//! `strand-ipc` can mirror it field for field.
+//! `strand-wire` can mirror it field for field.
 
 use nalgebra::{Quaternion, UnitQuaternion, Vector3};
-use strand_ipc as ipc;
-use strand_ipc::RejectReason;
+use strand_wire as ipc;
+use strand_wire::RejectReason;
 
 /// What a segment asks for: the wire contract's kind, one type on both sides. A line runs from
 /// the previous end point to `end`; an arc (or helix, or a spiral as LinuxCNC allows) turns about
 /// `centre` counter-clockwise about `normal` by `sweep`; a dwell stands still for `duration`, the
 /// extruder pushing `filament` evenly meanwhile (a slicer's retraction).
-pub use strand_ipc::SegmentKind;
+pub use strand_wire::SegmentKind;
 
 /// The most an arc may turn (rad): 1,000 full turns. A helix of more turns is a program error, not
 /// a path (at a 0.2 mm pitch it is 20 cm of spring), and the bound keeps the arc's length and its

@@ -7,7 +7,7 @@ use std::path::Path;
 
 use nalgebra::{UnitQuaternion, Vector3};
 
-use strand_ipc as ipc;
+use strand_wire as ipc;
 
 use crate::bed::BedTransform;
 use crate::gcode::GcodeError;
