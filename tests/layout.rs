@@ -4,7 +4,8 @@
 //!   config derives and the wire contract, and its source names no clock, file, thread, network,
 //!   printing or tracing;
 //! - the wire contract (`strand-wire`) links no transport, and neither do the crates that use only it
-//!   (the core, the offline job crate): no iceoryx2 in their dependency trees (from `Cargo.lock`);
+//!   (the core, the offline job crate, the drivers' shared `strand-robot`): no iceoryx2 in their
+//!   dependency trees (from `Cargo.lock`);
 //! - the client crate (`strand-ipc`) depends on iceoryx2 and nothing of the controller;
 //! - the offline job crate (`strand-job`) does not depend on the service crate;
 //! - the service's folders (check, config, io, log) import each other without a loop;
@@ -106,9 +107,16 @@ fn the_wire_contract_and_the_crates_on_it_link_no_transport() {
     let wire = dependencies(&root().join("wire/Cargo.toml"));
     let allowed: BTreeSet<String> = ["iceoryx2-bb-derive-macros", "iceoryx2-bb-elementary-traits"].iter().map(|s| s.to_string()).collect();
     assert!(wire.is_subset(&allowed), "strand-wire depends on {:?}: the types only", wire.difference(&allowed).collect::<Vec<_>>());
-    for name in ["strand-wire", "strand-core", "strand-job"] {
+    // What every robot driver shares: on the wire types, not on the service or a transport.
+    let robot = dependencies(&root().join("tools/robot/Cargo.toml"));
+    let allowed: BTreeSet<String> = ["strand-wire", "thiserror", "serde"].iter().map(|s| s.to_string()).collect();
+    assert!(robot.is_subset(&allowed), "strand-robot depends on {:?}", robot.difference(&allowed).collect::<Vec<_>>());
+    for name in ["strand-wire", "strand-core", "strand-job", "strand-robot"] {
         let tree = locked_tree(name);
-        assert!(tree.contains("nalgebra") || name == "strand-wire", "{name}'s tree read from Cargo.lock: {tree:?}");
+        assert!(
+            tree.contains("nalgebra") || name == "strand-wire" || name == "strand-robot",
+            "{name}'s tree read from Cargo.lock: {tree:?}"
+        );
         for transport in ["iceoryx2", "iceoryx2-cal", "strand-ipc"] {
             assert!(!tree.contains(transport), "{name} links {transport}");
         }

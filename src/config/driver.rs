@@ -80,25 +80,14 @@ impl DriverConfig {
         self.bind.parse().map_err(|_| InvalidSetting::new("driver", format!("[driver] bind = {:?}: not an IP:PORT address", self.bind)))
     }
 
-    /// The sender to accept, if one is configured: an address, or an IP with any port.
-    pub fn robot_address(&self) -> Result<Option<RobotAddress>, InvalidSetting> {
-        if self.robot.is_empty() {
-            return Ok(None);
-        }
-        if let Ok(a) = self.robot.parse::<SocketAddr>() {
-            return Ok(Some(RobotAddress::Exact(a)));
-        }
-        self.robot
-            .parse::<IpAddr>()
-            .map(|ip| Some(RobotAddress::Ip(ip)))
-            .map_err(|_| InvalidSetting::new("driver", format!("[driver] robot = {:?}: not an IP or IP:PORT address", self.robot)))
-    }
-
     /// Checks every key; `dof` is the robot's joint count (for the per-joint lists).
     pub fn validate(&self, dof: usize) -> Result<(), InvalidSetting> {
         let bad = |m: String| Err(InvalidSetting::new("driver", m));
         self.bind_address()?;
-        self.robot_address()?;
+        // The sender to accept: an address, or an IP with any port (the driver parses it again).
+        if !self.robot.is_empty() && self.robot.parse::<SocketAddr>().is_err() && self.robot.parse::<IpAddr>().is_err() {
+            return bad(format!("[driver] robot = {:?}: not an IP or IP:PORT address", self.robot));
+        }
         if !(self.reply_deadline.is_finite() && (0.0001..=0.1).contains(&self.reply_deadline)) {
             return bad(format!("[driver] reply_deadline = {}: must lie in [0.0001, 0.1] s", self.reply_deadline));
         }
@@ -120,24 +109,5 @@ impl DriverConfig {
             return bad(format!("[driver] axis_offset: {o} is not finite"));
         }
         Ok(())
-    }
-}
-
-/// Which sender a driver accepts.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum RobotAddress {
-    /// This address and port only.
-    Exact(SocketAddr),
-    /// This address, any port.
-    Ip(IpAddr),
-}
-
-impl RobotAddress {
-    /// Whether `from` is this sender.
-    pub fn matches(&self, from: SocketAddr) -> bool {
-        match self {
-            RobotAddress::Exact(a) => *a == from,
-            RobotAddress::Ip(ip) => *ip == from.ip(),
-        }
     }
 }

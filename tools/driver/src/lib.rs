@@ -3,21 +3,20 @@
 //! service; each answer carries the service's JointCommand for it, checked against the joint
 //! limits, or a hold when the command is late.
 //!
-//! - [`protocol`] — the one small trait a robot interface implements; [`egm`] (ABB) and [`rsi`]
-//!   (KUKA) implement it. A new interface (UR RTDE, FANUC Stream Motion) is one more module.
-//! - [`session`] — one connection as a state machine without I/O: senders, order, holds, faults.
-//! - [`guard`] — the limits every answer keeps; [`axes`] — controller axes ↔ URDF joints.
+//! - [`protocol`], [`session`], [`guard`], [`axes`] — what every driver shares, from the
+//!   `strand-robot` crate (re-exported here): the protocol trait, the sans-IO session, the limits
+//!   every answer keeps and the catch-up after a missed cycle, the axis mapping.
+//! - [`egm`] (ABB) and [`rsi`] (KUKA) implement the protocol trait. A new interface (FRI, b-CAP,
+//!   the Meca500's TCP API, UR RTDE) is one more module.
 //! - [`bridge`] — the process loop: UDP socket, service ports, deadlines.
 //! - [`fake`] — fake robot controllers speaking the real wire formats, for tests and benchmarks.
 
-pub mod axes;
 pub mod bridge;
 pub mod egm;
 pub mod fake;
-pub mod guard;
-pub mod protocol;
 pub mod rsi;
-pub mod session;
+
+pub use strand_robot::{axes, guard, protocol, session};
 
 use strand::config::Config;
 use strand::config::driver::{DriverConfig, DriverProtocol};
@@ -113,7 +112,12 @@ pub fn session<P: RobotProtocol>(cfg: &Config, d: &DriverConfig, mut protocol: P
         .collect();
     let guard = ReplyGuard::new(bounds, 1.0 / cfg.controller.rate_hz);
     let map = AxisMap::new(model.dof(), &d.axis_sign, &d.axis_offset);
-    let file = cfg.file.display().to_string();
-    let robot = d.robot_address().map_err(|source| SetupError::Setting { file, source })?;
+    let robot = match d.robot.as_str() {
+        "" => None,
+        text => Some(text.parse().map_err(|e: strand_robot::BadRobotAddress| SetupError::Setting {
+            file: cfg.file.display().to_string(),
+            source: strand::core::InvalidSetting::new("driver", e.to_string()),
+        })?),
+    };
     Ok(Session::new(protocol, map, guard, SessionRules { robot, max_late_cycles: d.max_late_cycles, recover_cycles: d.recover_cycles }))
 }

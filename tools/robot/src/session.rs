@@ -14,8 +14,8 @@
 
 use std::net::SocketAddr;
 
-use strand::config::driver::RobotAddress;
-use strand_ipc::{JointCommand, MAX_JOINTS};
+use crate::RobotAddress;
+use strand_wire::{JointCommand, MAX_JOINTS};
 
 use crate::axes::AxisMap;
 use crate::guard::ReplyGuard;
@@ -400,131 +400,5 @@ impl<P: RobotProtocol> Session<P> {
         self.protocol.encode_reply(&packet, &axes[..packet.dof], out);
         self.counters.replies += 1;
         (kind, transition)
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use crate::guard::JointBounds;
-    use crate::rsi::Rsi;
-
-    fn rob(ipoc: u64, a1: f64) -> Vec<u8> {
-        format!(
-            "<Rob TYPE=\"KUKA\"><AIPos A1=\"{a1}\" A2=\"-90.0\" A3=\"90.0\" A4=\"0.0\" A5=\"90.0\" A6=\"0.0\"/><Delay D=\"0\"/><IPOC>{ipoc}</IPOC></Rob>"
-        )
-        .into_bytes()
-    }
-
-    fn session() -> Session<Rsi> {
-        let b = JointBounds { lower: -3.0, upper: 3.0, velocity: 2.0, acceleration: 10.0 };
-        let rules = SessionRules { robot: None, max_late_cycles: 3, recover_cycles: 5 };
-        Session::new(Rsi::new(), AxisMap::identity(6), ReplyGuard::new(vec![b; 6], 0.004), rules)
-    }
-
-    fn command(seq: u64, a1: f64) -> JointCommand {
-        let mut c = JointCommand { state_seq: seq, dof: 6, valid: 1, ..Default::default() };
-        c.position[..6].copy_from_slice(&[
-            a1,
-            -std::f64::consts::FRAC_PI_2,
-            std::f64::consts::FRAC_PI_2,
-            0.0,
-            std::f64::consts::FRAC_PI_2,
-            0.0,
-        ]);
-        c
-    }
-
-    #[test]
-    fn every_bad_packet_kind_is_dropped_and_counted() {
-        let mut s = session();
-        let robot: SocketAddr = "127.0.0.1:5000".parse().unwrap();
-        let other: SocketAddr = "127.0.0.2:5000".parse().unwrap();
-        assert!(s.on_packet(&rob(100, 0.0), robot).is_ok());
-        let good = rob(104, 0.0);
-        assert!(matches!(s.on_packet(&good, other), Err(Dropped::Foreign(_))));
-        assert!(matches!(s.on_packet(&good[..good.len() - 12], robot), Err(Dropped::Packet(_))));
-        assert!(matches!(s.on_packet(b"\x00\x01\x02", robot), Err(Dropped::Packet(PacketError::Malformed(_)))));
-        assert!(matches!(s.on_packet(&vec![b'<'; 5000], robot), Err(Dropped::Packet(PacketError::Oversized(_)))));
-        assert!(matches!(s.on_packet(&rob(100, 0.0), robot), Err(Dropped::Order { .. })));
-        assert!(matches!(s.on_packet(&rob(96, 0.0), robot), Err(Dropped::Order { .. })));
-        assert!(s.on_packet(&good, robot).is_ok());
-        let c = s.counters;
-        assert_eq!((c.packets, c.foreign, c.malformed, c.oversized, c.duplicate, c.out_of_order), (2, 1, 2, 1, 1, 1), "{c:?}");
-    }
-
-    #[test]
-    fn late_commands_hold_then_fault_then_recover_without_a_jump() {
-        let mut s = session();
-        let robot: SocketAddr = "127.0.0.1:5000".parse().unwrap();
-        let mut out = Vec::new();
-        let mut ipoc = 1000;
-        let mut next = |s: &mut Session<Rsi>| {
-            ipoc += 4;
-            s.on_packet(&rob(ipoc, 0.0), robot).unwrap().0
-        };
-        // Following, A1 speeding up at 5 rad/s² (inside the 10 rad/s² limit).
-        let (mut a1, mut v) = (0.0, 0.0);
-        for _ in 0..50 {
-            let seq = next(&mut s);
-            v += 5.0 * 0.004;
-            a1 += v * 0.004;
-            assert_eq!(s.reply(Some(&command(seq, a1)), &mut out).0, ReplyKind::Command);
-        }
-        assert_eq!(s.state(), DriverState::Following);
-        // Three late: holds, then the latched fault.
-        let mut transitions = Vec::new();
-        for _ in 0..3 {
-            next(&mut s);
-            let (kind, t) = s.reply(None, &mut out);
-            assert_eq!(kind, ReplyKind::Late);
-            transitions.extend(t);
-        }
-        assert_eq!(transitions.last().map(|t| t.to), Some(DriverState::HeldAfterFault));
-        assert_eq!(s.counters.faults, 1);
-        // The service answers again: five cycles in time release it.
-        let mut released = None;
-        for k in 0..5 {
-            next(&mut s);
-            released = released.or(s.note_service(true).map(|t| (k, t)));
-        }
-        assert_eq!(released.map(|(k, t)| (k, t.to)), Some((4, DriverState::Following)));
-        // The guard never let a step pass the limits (the hold braked within 10 rad/s²).
-        assert_eq!(s.guard().clamps, 0, "holds brake, they do not clamp");
-    }
-
-    #[test]
-    fn a_robot_starting_outside_its_limits_is_refused_and_a_restart_is_a_new_session() {
-        let mut s = session();
-        let robot: SocketAddr = "127.0.0.1:5000".parse().unwrap();
-        // A1 at 200°: outside ±3 rad (a wrong mapping would look like this).
-        assert!(matches!(s.on_packet(&rob(100, 200.0), robot), Err(Dropped::OutsideLimits { joint: 1, .. })));
-        assert_eq!((s.counters.outside_limits, s.state()), (1, DriverState::WaitingForRobot));
-        assert!(s.on_packet(&rob(104, 10.0), robot).is_ok(), "a later good packet starts the session");
-        // RSI off and on again at another pose, the controller's IPOC lower after a reboot.
-        let t = s.reset().unwrap();
-        assert_eq!(t.to, DriverState::WaitingForRobot);
-        let other: SocketAddr = "127.0.0.1:5001".parse().unwrap();
-        let (_, q, t) = s.on_packet(&rob(8, 20.0), other).expect("a new session: new sender, new sequence");
-        assert_eq!(t.map(|t| t.to), Some(DriverState::Holding));
-        let mut out = Vec::new();
-        s.reply(None, &mut out);
-        let text = String::from_utf8(out).unwrap();
-        assert!(text.contains("A1=\"0.000000\""), "the new reference is the new pose (no jump): {text}");
-        assert!((q[0] - 20f64.to_radians()).abs() < 1e-12);
-    }
-
-    #[test]
-    fn the_robot_is_held_until_the_first_valid_command() {
-        let mut s = session();
-        let robot: SocketAddr = "127.0.0.1:5000".parse().unwrap();
-        let mut out = Vec::new();
-        let (seq, _, t) = s.on_packet(&rob(8, 5.0), robot).unwrap();
-        assert_eq!(t.map(|t| t.to), Some(DriverState::Holding));
-        let mut invalid = command(seq, 1.0);
-        invalid.valid = 0;
-        assert_eq!(s.reply(Some(&invalid), &mut out).0, ReplyKind::Hold);
-        let text = String::from_utf8(out.clone()).unwrap();
-        assert!(text.contains("A1=\"0.000000\""), "a hold is a zero correction: {text}");
     }
 }

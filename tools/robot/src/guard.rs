@@ -26,7 +26,7 @@
 //! service's command) happens only while catching up; each is counted, and the log line says which
 //! joint.
 
-use strand_ipc::MAX_JOINTS;
+use strand_wire::MAX_JOINTS;
 
 /// The share of each joint's acceleration limit the catch-up law plans with (the rest is the
 /// target's own acceleration: a target that brakes while it is chased is not passed).

@@ -3,7 +3,7 @@
 //! (RSI's reference axes, EGM's motion-control state), nothing of sockets, the service or limits —
 //! so the next interface (UR RTDE, FANUC Stream Motion, Franka) is one new module.
 
-use strand_ipc::MAX_JOINTS;
+use strand_wire::MAX_JOINTS;
 
 /// A robot packet, decoded.
 #[derive(Clone, Copy, Debug, PartialEq)]

@@ -3,7 +3,7 @@
 //! URDFs'. The controller's axis angle is `sign · joint + offset`; every conversion goes through
 //! here, and a test per bundled robot checks that it round-trips.
 
-use strand_ipc::MAX_JOINTS;
+use strand_wire::MAX_JOINTS;
 
 /// The mapping of one robot.
 #[derive(Clone, Copy, Debug, PartialEq)]
