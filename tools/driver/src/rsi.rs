@@ -73,6 +73,12 @@ impl RobotProtocol for Rsi {
     const MAX_PACKET: usize = 4096;
     const LATE_ANSWER_DISCARDED: bool = true;
 
+    /// `IPOC` is the controller's clock in ms: a cycle is `period` of it.
+    fn cycles_between(earlier: u64, later: u64, period: f64) -> u64 {
+        let ms = (period * 1e3).max(1e-3);
+        (later.saturating_sub(earlier) as f64 / ms).round() as u64
+    }
+
     /// A1..A6 are the arm's rotary axes (degrees); the external axes (`EIPos`, E1..E6, where a
     /// linear track would be) are not streamed by this driver, so no axis can be linear.
     fn set_linear_axes(&mut self, linear: &[bool]) -> Result<(), String> {

@@ -129,3 +129,29 @@ fn the_robot_is_held_until_the_first_valid_command() {
     let text = String::from_utf8(out.clone()).unwrap();
     assert!(text.contains("A1=\"0.000000\""), "a hold is a zero correction: {text}");
 }
+
+#[test]
+fn cycles_without_a_packet_are_counted_and_the_next_answer_starts_from_rest() {
+    let mut s = session();
+    let robot: SocketAddr = "127.0.0.1:5000".parse().unwrap();
+    let mut out = Vec::new();
+    // Following at 0.5 rad/s on A1 (reached at 5 rad/s²).
+    let (mut ipoc, mut a1, mut v) = (1000u64, 0.0f64, 0.0f64);
+    for _ in 0..100 {
+        ipoc += 4;
+        let seq = s.on_packet(&rob(ipoc, a1.to_degrees()), robot).unwrap().0;
+        v = (v + 5.0 * 0.004).min(0.5);
+        a1 += v * 0.004;
+        s.reply(Some(&command(seq, a1)), &mut out);
+    }
+    assert!((s.guard().velocity()[0] - 0.5).abs() < 1e-9, "in step at 0.5 rad/s");
+    // Two packets lost: IPOC steps by three cycles. The robot held its target through them.
+    ipoc += 12;
+    let seq = s.on_packet(&rob(ipoc, a1.to_degrees()), robot).unwrap().0;
+    assert_eq!(s.counters.lost_cycles, 2);
+    let held = s.guard().last().unwrap()[0];
+    a1 += 3.0 * 0.5 * 0.004;
+    s.reply(Some(&command(seq, a1)), &mut out);
+    let step = s.guard().last().unwrap()[0] - held;
+    assert!(step >= 0.0 && step / 0.004 <= 10.0 * 0.004 + 1e-12, "from rest, within the acceleration limit: {} rad/s", step / 0.004);
+}

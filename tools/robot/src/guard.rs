@@ -151,6 +151,20 @@ impl ReplyGuard {
         }
     }
 
+    /// The robot went without an answer for one or more cycles that this guard never saw (a
+    /// packet lost or skipped): it held its last target, which is the last answer sent, so it is
+    /// at rest there. The next answer starts from rest (no step of two cycles' motion in one).
+    pub fn robot_stood_still(&mut self) {
+        self.velocity = [0.0; MAX_JOINTS];
+        self.before = None;
+        // The commands the robot did not get: the next one steps over those cycles.
+    }
+
+    /// The robot's cycle (s).
+    pub fn period(&self) -> f64 {
+        self.period
+    }
+
     /// Whether the last target left the robot at rest (every joint's step below `1e-9`).
     pub fn at_rest(&self) -> bool {
         self.velocity.iter().all(|v| v.abs() * self.period < 1e-9)

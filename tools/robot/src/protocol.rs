@@ -49,6 +49,17 @@ pub trait RobotProtocol {
     /// cycle late (EGM takes the latest answer).
     const LATE_ANSWER_DISCARDED: bool;
 
+    /// The robot's cycles from the packet with sequence `earlier` to the one with `later` (1 for
+    /// the next packet). More than one means cycles in between went unanswered — a packet lost
+    /// on the way, or skipped because a newer one was already queued — and the robot held its
+    /// target through them. By default the sequence counts packets (EGM's `seqno`); a protocol
+    /// whose sequence is a clock says how it converts (RSI's `IPOC`, in ms), with `period` the
+    /// cycle (s).
+    fn cycles_between(earlier: u64, later: u64, period: f64) -> u64 {
+        let _ = period;
+        later.saturating_sub(earlier)
+    }
+
     /// Which of the robot's axes are linear (prismatic URDF joints), in chain order: the vendors
     /// send linear axes in millimetres where rotary ones are in degrees, so the protocol converts
     /// them apart (to and from metres). Called once, before the first packet. An axis the protocol

@@ -96,6 +96,9 @@ pub struct Counters {
     pub faults: u64,
     /// Answers sent after the robot's cycle had ended (the robot discarded or delayed them).
     pub missed_cycle: u64,
+    /// Robot cycles that went by without an answer the driver knew of (their packets lost, or
+    /// skipped because a newer one was queued): the robot held its target through them.
+    pub lost_cycles: u64,
     /// Packets dropped: from another sender.
     pub foreign: u64,
     /// Packets dropped: malformed, truncated, a bad value, or the wrong number of axes.
@@ -322,6 +325,18 @@ impl<P: RobotProtocol> Session<P> {
             // offset) or a wrong robot: following it would start with a jump to the limit.
             self.protocol.reset();
             return Err(Dropped::OutsideLimits { joint: joint + 1, value: q[joint] });
+        }
+        if let Some(last) = self.last_seq
+            && self.state != DriverState::WaitingForRobot
+        {
+            let cycles = P::cycles_between(last, packet.seq, self.guard.period());
+            if cycles > 1 {
+                // Cycles went by without an answer (lost, or skipped behind a newer packet): the
+                // robot held its target through them, so it is at rest where the last answer put
+                // it; the next answer must start from rest, not go on at the old speed.
+                self.counters.lost_cycles += cycles - 1;
+                self.guard.robot_stood_still();
+            }
         }
         self.sender.get_or_insert(from);
         self.last_seq = Some(packet.seq);

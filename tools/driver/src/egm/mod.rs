@@ -73,6 +73,11 @@ impl RobotProtocol for Egm {
     const MAX_PACKET: usize = 1024;
     const LATE_ANSWER_DISCARDED: bool = false;
 
+    /// `seqno` counts packets; a new epoch (RAPID restarted EGM) is a new session, not lost cycles.
+    fn cycles_between(earlier: u64, later: u64, _period: f64) -> u64 {
+        if earlier >> 32 != later >> 32 { 1 } else { later.saturating_sub(earlier) }
+    }
+
     fn set_linear_axes(&mut self, linear: &[bool]) -> Result<(), String> {
         if let Some(k) = linear.iter().take(ROBOT_AXES).position(|l| *l) {
             return Err(format!(
