@@ -14,6 +14,8 @@
 //! pass the service's command (overshoot 0); the catch-up must end within the bound the guard
 //! derives ([`catch_up_bound`]); and answers may differ from the command only in the catch-up.
 
+mod common;
+
 use std::net::SocketAddr;
 use std::path::PathBuf;
 
@@ -44,20 +46,6 @@ const BOUND_TOLERANCE: f64 = PERIOD;
 
 fn root() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..")
-}
-
-/// Two layers of three 10 mm squares at 30 mm/s in the middle of the bundled robots' beds (the
-/// driver end-to-end tests' job).
-fn job_gcode() -> String {
-    let mut g = String::from("G21\nG90\nM83\n");
-    for l in 0..2 {
-        let z = 0.2 * (l + 1) as f64;
-        g += &format!(";LAYER_CHANGE\n;Z:{z:.1}\nG0 X120 Y120 Z{z:.1} F6000\nG1 F1800\n");
-        for _ in 0..3 {
-            g += "G1 X130 Y120 E0.4\nG1 X130 Y130 E0.4\nG1 X120 Y130 E0.4\nG1 X120 Y120 E0.4\n";
-        }
-    }
-    g
 }
 
 /// What one run did.
@@ -271,7 +259,7 @@ fn segments(cfg: &Config) -> Vec<ipc::Segment> {
     let dir = std::env::temp_dir().join(format!("strand-catch-up-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let file = dir.join("squares.gcode");
-    std::fs::write(&file, job_gcode()).unwrap();
+    std::fs::write(&file, common::squares_gcode()).unwrap();
     let (all, _) = strand_job::load_segments(&file, &cfg.bed_transform().unwrap()).unwrap();
     strand_job::wire_job(&all).0
 }

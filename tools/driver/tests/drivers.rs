@@ -14,6 +14,8 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
+mod common;
+
 use strand::config::Config;
 use strand_driver::fake::egm::FakeEgm;
 use strand_driver::fake::rsi::FakeRsi;
@@ -70,18 +72,10 @@ fn free_udp_port() -> u16 {
     UdpSocket::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port()
 }
 
-/// Two layers of three 10 mm squares at 30 mm/s in the middle of the bundled robots' beds.
+/// The shared job (`common::squares_gcode`), written into `dir`.
 fn job(dir: &Path) -> PathBuf {
-    let mut g = String::from("G21\nG90\nM83\n");
-    for l in 0..2 {
-        let z = 0.2 * (l + 1) as f64;
-        g += &format!(";LAYER_CHANGE\n;Z:{z:.1}\nG0 X120 Y120 Z{z:.1} F6000\nG1 F1800\n");
-        for _ in 0..3 {
-            g += "G1 X130 Y120 E0.4\nG1 X130 Y130 E0.4\nG1 X120 Y130 E0.4\nG1 X120 Y120 E0.4\n";
-        }
-    }
     let p = dir.join("squares.gcode");
-    std::fs::write(&p, g).unwrap();
+    std::fs::write(&p, common::squares_gcode()).unwrap();
     p
 }
 
