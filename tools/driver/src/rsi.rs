@@ -71,7 +71,6 @@ impl RobotProtocol for Rsi {
     /// A KR C4 packet with every element is about 600 bytes; 4 KiB leaves room for extra sensor
     /// elements the RSI XML may add.
     const MAX_PACKET: usize = 4096;
-    const LATE_ANSWER_DISCARDED: bool = true;
 
     /// `IPOC` is the controller's clock in ms: a cycle is `period` of it.
     fn cycles_between(earlier: u64, later: u64, period: f64) -> u64 {

@@ -157,7 +157,8 @@ impl ReplyGuard {
     pub fn robot_stood_still(&mut self) {
         self.velocity = [0.0; MAX_JOINTS];
         self.before = None;
-        // The commands the robot did not get: the next one steps over those cycles.
+        // (The service was not clocked through those cycles either: its next command is one
+        // step on from the last, so the target's bookkeeping stays as it is.)
     }
 
     /// The robot's cycle (s).

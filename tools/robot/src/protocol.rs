@@ -44,10 +44,6 @@ pub trait RobotProtocol {
     const NAME: &'static str;
     /// The longest packet it sends (bytes); longer ones are dropped as oversized.
     const MAX_PACKET: usize;
-    /// Whether the robot throws away an answer that comes after its cycle (RSI: the `IPOC` no
-    /// longer matches), so that the robot keeps the previous target; otherwise it applies it a
-    /// cycle late (EGM takes the latest answer).
-    const LATE_ANSWER_DISCARDED: bool;
 
     /// The robot's cycles from the packet with sequence `earlier` to the one with `later` (1 for
     /// the next packet). More than one means cycles in between went unanswered — a packet lost

@@ -71,7 +71,6 @@ impl RobotProtocol for Egm {
     const NAME: &'static str = "egm";
     /// An `EgmRobot` with every field is under 400 bytes; abb_libegm reads into 1024.
     const MAX_PACKET: usize = 1024;
-    const LATE_ANSWER_DISCARDED: bool = false;
 
     /// `seqno` counts packets; a new epoch (RAPID restarted EGM) is a new session, not lost cycles.
     fn cycles_between(earlier: u64, later: u64, _period: f64) -> u64 {
