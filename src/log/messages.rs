@@ -25,7 +25,11 @@ cdr_message!(
     [seq, stamp_ns, kind, flags, end, centre, normal, sweep, orientation, feed, filament, duration, source_line, pressure_advance]
 );
 cdr_message!(ipc::Control, "strand_msgs/msg/Control", [seq, stamp_ns, command, value]);
-cdr_message!(ipc::JointState, "strand_msgs/msg/JointState", [seq, stamp_ns, dof, position, velocity, effort]);
+cdr_message!(
+    ipc::JointState,
+    "strand_msgs/msg/JointState",
+    [seq, stamp_ns, dof, flags, position, velocity, effort, robot_target, robot_target_velocity]
+);
 cdr_message!(ipc::BasePose, "strand_msgs/msg/BasePose", [seq, stamp_ns, position, orientation]);
 cdr_message!(
     ipc::JointCommand,

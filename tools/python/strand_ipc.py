@@ -4,7 +4,7 @@ Every message is a fixed-size ``#[repr(C)]`` struct on the Rust side with no imp
 gap is a named ``_reserved`` field, always zero), so the ``ctypes.Structure`` below with the same
 fields in the same order has the same layout. iceoryx2 checks the type name, size and alignment
 when a service is opened, so each class has a ``type_name()`` staticmethod returning the exact
-string of the Rust ``#[type_name("strand.v2.…")]`` attribute; a mismatch gives ``IncompatibleTypes``
+string of the Rust ``#[type_name("strand.v3.…")]`` attribute; a mismatch gives ``IncompatibleTypes``
 instead of misread bytes. The sizes are asserted at import time (they are part of the contract and
 the Rust test ``sizes_are_stable`` pins the same numbers).
 
@@ -29,6 +29,7 @@ __all__ = [
     "SegmentKind",
     "SegmentFlags",
     "ExtruderFlags",
+    "JointStateFlags",
     "Command",
     "RunState",
     "FaultCode",
@@ -52,7 +53,7 @@ __all__ = [
 # --- constants -------------------------------------------------------------------------------------
 
 #: Version of the contract; part of every type name and published in every Status.
-CONTRACT_VERSION = 2
+CONTRACT_VERSION = 3
 #: Joints per message (the longest chain strand drives).
 MAX_JOINTS = 8
 #: Segments per SegmentBatch.
@@ -88,6 +89,18 @@ class ExtruderFlags(enum.IntFlag):
     NONE = 0
     EXTRUDING = 1
     RETRACTED = 2
+
+
+class JointStateFlags(enum.IntFlag):
+    """Bits of ``JointState.flags``."""
+
+    NONE = 0
+    #: ``JointState.robot_target`` holds the joint target the robot was last given.
+    TARGET_KNOWN = 1
+    #: Since the previous JointState the robot kept its last target through one cycle or more.
+    HELD = 2
+    #: The robot's last target was not the service's command: the driver's guard is catching up.
+    CATCHING_UP = 4
 
 
 class Command(enum.IntEnum):
@@ -227,7 +240,7 @@ class Segment(_Message):
 
     @staticmethod
     def type_name() -> str:
-        return "strand.v2.Segment"
+        return "strand.v3.Segment"
 
     @classmethod
     def line(
@@ -266,7 +279,7 @@ class SegmentBatch(_Message):
 
     @staticmethod
     def type_name() -> str:
-        return "strand.v2.SegmentBatch"
+        return "strand.v3.SegmentBatch"
 
     def as_list(self) -> list[Segment]:
         """The segments in use (copies)."""
@@ -286,25 +299,27 @@ class Control(_Message):
 
     @staticmethod
     def type_name() -> str:
-        return "strand.v2.Control"
+        return "strand.v3.Control"
 
 
 class JointState(_Message):
-    """Measured joint state from the robot driver. 216 bytes."""
+    """Measured joint state from the robot driver, and what the driver last told the robot. 344 bytes."""
 
     _fields_ = [
         ("seq", _u64),
         ("stamp_ns", _u64),
         ("dof", _u32),
-        ("_reserved", _u32),
+        ("flags", _u32),
         ("position", _f64 * MAX_JOINTS),
         ("velocity", _f64 * MAX_JOINTS),
         ("effort", _f64 * MAX_JOINTS),
+        ("robot_target", _f64 * MAX_JOINTS),
+        ("robot_target_velocity", _f64 * MAX_JOINTS),
     ]
 
     @staticmethod
     def type_name() -> str:
-        return "strand.v2.JointState"
+        return "strand.v3.JointState"
 
 
 class BasePose(_Message):
@@ -319,7 +334,7 @@ class BasePose(_Message):
 
     @staticmethod
     def type_name() -> str:
-        return "strand.v2.BasePose"
+        return "strand.v3.BasePose"
 
 
 class JointCommand(_Message):
@@ -340,7 +355,7 @@ class JointCommand(_Message):
 
     @staticmethod
     def type_name() -> str:
-        return "strand.v2.JointCommand"
+        return "strand.v3.JointCommand"
 
 
 class ExtruderCommand(_Message):
@@ -360,7 +375,7 @@ class ExtruderCommand(_Message):
 
     @staticmethod
     def type_name() -> str:
-        return "strand.v2.ExtruderCommand"
+        return "strand.v3.ExtruderCommand"
 
 
 class Status(_Message):
@@ -404,7 +419,7 @@ class Status(_Message):
 
     @staticmethod
     def type_name() -> str:
-        return "strand.v2.Status"
+        return "strand.v3.Status"
 
     def credit_limit(self) -> int:
         """The last segment sequence number a feeder may send now."""
@@ -442,7 +457,7 @@ class JobProgress(_Message):
 
     @staticmethod
     def type_name() -> str:
-        return "strand.v2.JobProgress"
+        return "strand.v3.JobProgress"
 
 
 # --- service names ---------------------------------------------------------------------------------
@@ -488,7 +503,7 @@ EXPECTED_SIZES = {
     Segment: 176,
     SegmentBatch: 24 + 32 * 176,
     Control: 32,
-    JointState: 24 + 3 * 64,
+    JointState: 24 + 5 * 64,
     BasePose: 72,
     JointCommand: 48 + 3 * 64,
     ExtruderCommand: 64,
@@ -499,7 +514,7 @@ EXPECTED_SIZES = {
 assert ctypes.sizeof(Segment) == 176
 assert ctypes.sizeof(SegmentBatch) == 24 + 32 * 176
 assert ctypes.sizeof(Control) == 32
-assert ctypes.sizeof(JointState) == 216
+assert ctypes.sizeof(JointState) == 344
 assert ctypes.sizeof(BasePose) == 72
 assert ctypes.sizeof(JointCommand) == 240
 assert ctypes.sizeof(ExtruderCommand) == 64

@@ -121,7 +121,11 @@ def test_enums():
         want = {_snake(k): v for k, v in enums[rust_name].items()}
         got = {m.name: m.value for m in py}
         assert got == want, (rust_name, got, want)
-    for module, py in (("segment_flags", ipc.SegmentFlags), ("extruder_flags", ipc.ExtruderFlags)):
+    for module, py in (
+        ("segment_flags", ipc.SegmentFlags),
+        ("extruder_flags", ipc.ExtruderFlags),
+        ("joint_state_flags", ipc.JointStateFlags),
+    ):
         want = _rust_flag_mod(src, module)
         got = {m.name: m.value for m in py if m.value}
         assert got == want, (module, got, want)

@@ -7,7 +7,7 @@
 //! gap is a named `_reserved` field, always zero), so a Python `ctypes.Structure` or a C++ struct with
 //! the same fields in the same order has the same layout, and the bytes of a message are fully
 //! defined (the logger can store them bit for bit). Each type carries an explicit iceoryx2 type name
-//! that includes the contract version ("strand.v2.Segment"): a client built against another version
+//! that includes the contract version ("strand.v3.Segment"): a client built against another version
 //! fails to open the service with `IncompatibleTypes` instead of misreading bytes. [`CONTRACT_VERSION`]
 //! is also published in every [`Status`]. (The type names and the `ZeroCopySend` marker come from
 //! iceoryx2's two building-block crates of derive macro and trait, not from iceoryx2 itself.)
@@ -53,7 +53,7 @@ macro_rules! wire_enum {
 }
 
 /// Version of this contract. Bumped on any change of layout or meaning; part of every type name.
-pub const CONTRACT_VERSION: u32 = 2;
+pub const CONTRACT_VERSION: u32 = 3;
 /// Joints per message (the longest chain strand drives).
 pub const MAX_JOINTS: usize = 8;
 /// Segments per [`SegmentBatch`].
@@ -91,7 +91,7 @@ pub mod segment_flags {
 
 /// One planned motion segment, world frame W. 176 bytes.
 #[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
-#[type_name("strand.v2.Segment")]
+#[type_name("strand.v3.Segment")]
 #[repr(C)]
 pub struct Segment {
     /// Sequence number; consecutive within a job (a gap is rejected).
@@ -130,7 +130,7 @@ pub struct Segment {
 
 /// Up to [`SEGMENT_BATCH_CAPACITY`] segments in one message, in order.
 #[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
-#[type_name("strand.v2.SegmentBatch")]
+#[type_name("strand.v3.SegmentBatch")]
 #[repr(C)]
 pub struct SegmentBatch {
     /// Batch sequence number.
@@ -183,7 +183,7 @@ wire_enum! {
 
 /// A command to the controller. 32 bytes.
 #[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
-#[type_name("strand.v2.Control")]
+#[type_name("strand.v3.Control")]
 #[repr(C)]
 pub struct Control {
     /// Sequence number.
@@ -198,9 +198,23 @@ pub struct Control {
     pub value: f64,
 }
 
-/// Measured joint state from the robot driver. 216 bytes.
+/// Bits of `JointState::flags`.
+pub mod joint_state_flags {
+    /// `robot_target` holds the joint target the robot was last given (a driver fills it; a
+    /// simulator or a client that does not know leaves it 0).
+    pub const TARGET_KNOWN: u32 = 1;
+    /// Since the previous JointState the robot kept its last target through one cycle or more: an
+    /// answer never reached it in its cycle (the service was late, the answer left too late, or a
+    /// packet was lost). It stood at `robot_target`; the driver's guard catches up from there.
+    pub const HELD: u32 = 2;
+    /// The robot's last target was not the service's command: the driver's guard is catching up
+    /// with it after a hold.
+    pub const CATCHING_UP: u32 = 4;
+}
+
+/// Measured joint state from the robot driver, and what the driver last told the robot. 344 bytes.
 #[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
-#[type_name("strand.v2.JointState")]
+#[type_name("strand.v3.JointState")]
 #[repr(C)]
 pub struct JointState {
     /// Sequence number.
@@ -209,14 +223,21 @@ pub struct JointState {
     pub stamp_ns: u64,
     /// Joints used.
     pub dof: u32,
-    /// Always 0.
-    pub _reserved: u32,
+    /// [`joint_state_flags`] bits.
+    pub flags: u32,
     /// Joint positions (rad or m).
     pub position: [f64; MAX_JOINTS],
     /// Joint velocities (rad/s or m/s).
     pub velocity: [f64; MAX_JOINTS],
     /// Joint torques or forces (N·m or N); 0 if not measured.
     pub effort: [f64; MAX_JOINTS],
+    /// The joint target the robot holds, as the driver last gave it (rad or m): the service's
+    /// command when in step, the guard's answer while it catches up. Valid with
+    /// [`joint_state_flags::TARGET_KNOWN`].
+    pub robot_target: [f64; MAX_JOINTS],
+    /// The velocity of that target (rad/s or m/s): its step over the robot's last cycle, divided
+    /// by the cycle. Valid with [`joint_state_flags::TARGET_KNOWN`].
+    pub robot_target_velocity: [f64; MAX_JOINTS],
 }
 
 /// A feeder's view of the job it streams, for consoles (`strand ctl status`) and HMIs: what the
@@ -224,7 +245,7 @@ pub struct JointState {
 /// Published by the feeder about once a second on its own service (the controller does not read
 /// it); history 1, so a console that opens late gets the latest at the next publish. 112 bytes.
 #[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
-#[type_name("strand.v2.JobProgress")]
+#[type_name("strand.v3.JobProgress")]
 #[repr(C)]
 pub struct JobProgress {
     /// Sequence number.
@@ -289,7 +310,7 @@ impl JobProgress {
 
 /// A measured pose of the robot base B in W, from tracking. 72 bytes.
 #[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
-#[type_name("strand.v2.BasePose")]
+#[type_name("strand.v3.BasePose")]
 #[repr(C)]
 pub struct BasePose {
     /// Sequence number.
@@ -304,7 +325,7 @@ pub struct BasePose {
 
 /// The joint command for the robot driver. 240 bytes.
 #[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
-#[type_name("strand.v2.JointCommand")]
+#[type_name("strand.v3.JointCommand")]
 #[repr(C)]
 pub struct JointCommand {
     /// Sequence number (one per tick).
@@ -340,7 +361,7 @@ pub mod extruder_flags {
 
 /// The extruder command for the extruder driver. 64 bytes.
 #[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
-#[type_name("strand.v2.ExtruderCommand")]
+#[type_name("strand.v3.ExtruderCommand")]
 #[repr(C)]
 pub struct ExtruderCommand {
     /// Sequence number (one per tick).
@@ -474,7 +495,7 @@ wire_enum! {
 /// last segment sequence number they may send (credit-based back-pressure: nothing is ever dropped).
 /// 192 bytes.
 #[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
-#[type_name("strand.v2.Status")]
+#[type_name("strand.v3.Status")]
 #[repr(C)]
 pub struct Status {
     /// Sequence number (one per tick).
@@ -619,7 +640,7 @@ mod tests {
         assert_eq!(size_of::<Segment>(), 176);
         assert_eq!(size_of::<SegmentBatch>(), 24 + 32 * 176);
         assert_eq!(size_of::<Control>(), 32);
-        assert_eq!(size_of::<JointState>(), 24 + 3 * 64);
+        assert_eq!(size_of::<JointState>(), 24 + 5 * 64);
         assert_eq!(size_of::<BasePose>(), 72);
         assert_eq!(size_of::<JointCommand>(), 48 + 3 * 64);
         assert_eq!(size_of::<ExtruderCommand>(), 64);

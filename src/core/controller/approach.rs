@@ -96,6 +96,22 @@ impl Approach {
         self.phase = Phase::Solving { iterations: 0 };
     }
 
+    /// The robot is at `q` (rad or m) moving at `qd` (rad/s or m/s) instead of where the
+    /// trajectory put it (its driver held it for a cycle or more): the rest of the move starts
+    /// again from there. Whether the move was under way (while the IK is still solved the command
+    /// stands still anyway).
+    pub(super) fn restart_from(&mut self, q: &JointVector, qd: &JointVector, dof: usize) -> bool {
+        if self.phase != Phase::Moving || self.done {
+            return false;
+        }
+        for i in 0..dof {
+            self.input.current_position[i] = q[i];
+            self.input.current_velocity[i] = qd[i];
+            self.input.current_acceleration[i] = 0.0;
+        }
+        true
+    }
+
     /// One tick towards `first_point` (W) from the command (`q`, `qd`, `qdd`) through `base`.
     pub(super) fn step(
         &mut self,

@@ -181,7 +181,19 @@ pub fn run<P: RobotProtocol>(session: &mut Session<P>, opts: &BridgeOptions, sto
         if let Some(t) = transition {
             log_transition(name, t, &format!(" (robot at {from})"));
         }
-        let mut state = JointState { seq, stamp_ns: received, dof: session.dof() as u32, position: q, ..Default::default() };
+        // With what the robot was last told, and whether it held: the service plans again from
+        // there where it can.
+        let told = session.robot_report();
+        let mut state = JointState {
+            seq,
+            stamp_ns: received,
+            dof: session.dof() as u32,
+            flags: told.flags,
+            position: q,
+            robot_target: told.target,
+            robot_target_velocity: told.target_velocity,
+            ..Default::default()
+        };
         // Velocity over the robot's own period (the receive times carry the network's jitter).
         if let Some(p) = previous_q {
             for k in 0..state.dof as usize {

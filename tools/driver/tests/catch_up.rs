@@ -57,6 +57,8 @@ struct Run {
     /// The cycle of the highest joint speed on the path (relative to the limits), and that speed
     /// as a share of the limit.
     fastest: (u64, f64),
+    /// The same on the approach (the joint-space move to the first point).
+    fastest_approach: (u64, f64),
     /// Answers that were not the service's command (the session's count).
     clamped: u64,
     /// Of them, outside the catch-up window.
@@ -77,6 +79,25 @@ struct Run {
     overshoot_allowed: f64,
 }
 
+/// How the robot goes without the service's command.
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum How {
+    /// The answer left after the robot's cycle: the robot kept its previous target (the session
+    /// is told, as the bridge tells it).
+    AnswerMissed,
+    /// The service's command came after the reply deadline: the driver answered in time with a
+    /// hold, braking.
+    ServiceLate,
+}
+
+/// `count` cycles in a row from cycle `at` without the service's command reaching the robot.
+#[derive(Clone, Copy, Debug)]
+struct Miss {
+    at: u64,
+    count: u64,
+    how: How,
+}
+
 /// One robot and one protocol, closed around the controller; `miss` answers in a row miss the
 /// robot's cycle from cycle `at` on.
 fn run<P: RobotProtocol>(
@@ -85,7 +106,7 @@ fn run<P: RobotProtocol>(
     fake: &mut dyn FakeProtocol,
     start: &[f64],
     segments: &[ipc::Segment],
-    miss: Option<(u64, u64)>,
+    miss: Option<Miss>,
 ) -> Run {
     let model = cfg.robot.build_model().unwrap();
     let n = model.dof();
@@ -114,13 +135,24 @@ fn run<P: RobotProtocol>(
         result.cycles = k + 1;
         fake.packet(k, &actual, &mut packet);
         let (seq, q, _) = session.on_packet(&packet, robot).unwrap_or_else(|e| panic!("cycle {k}: the session dropped the packet: {e}"));
-        let missed = miss.is_some_and(|(at, count)| (at..at + count).contains(&k));
+        let missed = miss.is_some_and(|m| (m.at..m.at + m.count).contains(&k));
+        let late = missed && miss.is_some_and(|m| m.how == How::ServiceLate);
         if !session.robot_following() {
             // EGM before MCI_RUNNING: held, the service not clocked (as the bridge does).
             session.reply_hold(&mut reply);
         } else {
             let mut input = TickInput::new(k, 1_000_000_000 + k * dt_ns);
-            input.joint_state = Some(ipc::JointState { seq, stamp_ns: input.time_ns, dof: n as u32, position: q, ..Default::default() });
+            let told = session.robot_report();
+            input.joint_state = Some(ipc::JointState {
+                seq,
+                stamp_ns: input.time_ns,
+                dof: n as u32,
+                flags: told.flags,
+                position: q,
+                robot_target: told.target,
+                robot_target_velocity: told.target_velocity,
+                ..Default::default()
+            });
             while next < segments.len() && (input.segment_count as usize) < MAX_SEGMENTS_PER_TICK && segments[next].seq <= credit {
                 input.push_segment(&segments[next]);
                 next += 1;
@@ -156,20 +188,22 @@ fn run<P: RobotProtocol>(
             let cmd = out.joint_command;
             let before = session.guard().last().copied();
             let clamped_before = session.counters.clamped;
-            session.reply(Some(&cmd), &mut reply);
+            // A late service: the driver answers with a hold (braking) in time instead.
+            session.reply(if late { None } else { Some(&cmd) }, &mut reply);
             let clamped = session.counters.clamped > clamped_before;
             if cmd.valid == 1
                 && let (Some(p), Some(before)) = (previous_command, before)
             {
                 let answer = *session.guard().last().unwrap();
                 let u: Vec<f64> = (0..n).map(|i| (cmd.position[i] - p[i]) / PERIOD).collect();
-                if on_path {
-                    let speed = (0..n).map(|i| u[i].abs() / limits[i].velocity).fold(0.0, f64::max);
-                    if speed > result.fastest.1 {
-                        result.fastest = (k, speed);
-                    }
+                let speed = (0..n).map(|i| u[i].abs() / limits[i].velocity).fold(0.0, f64::max);
+                if on_path && speed > result.fastest.1 {
+                    result.fastest = (k, speed);
                 }
-                if let Some((at, count)) = miss
+                if RunState::from_u32(s.run_state) == Some(RunState::Approaching) && speed > result.fastest_approach.1 {
+                    result.fastest_approach = (k, speed);
+                }
+                if let Some(Miss { at, count, .. }) = miss
                     && k == at + count
                 {
                     // The robot moves again, from rest where it held: the gap it has to close (as
@@ -184,7 +218,7 @@ fn run<P: RobotProtocol>(
                     }
                     watch = Some((k, sign));
                 }
-                let mut in_catch_up = miss.is_some_and(|(at, count)| (at..at + count).contains(&k));
+                let mut in_catch_up = missed;
                 if let Some((from, sign)) = watch
                     && result.catch_up_cycles.is_none()
                 {
@@ -225,7 +259,7 @@ fn run<P: RobotProtocol>(
                 break;
             }
         }
-        if missed {
+        if missed && !late {
             // The answer came after the robot's cycle: the robot keeps its previous target.
             session.answer_missed_its_cycle();
         } else if let Err(e) = fake.answer(k, &reply, &mut target) {
@@ -258,7 +292,9 @@ fn far_start(cfg: &Config) -> Vec<f64> {
 fn segments(cfg: &Config) -> Vec<ipc::Segment> {
     let dir = std::env::temp_dir().join(format!("strand-catch-up-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
-    let file = dir.join("squares.gcode");
+    // One file per call: the tests here run in parallel threads of one process.
+    static CALLS: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
+    let file = dir.join(format!("squares-{}.gcode", CALLS.fetch_add(1, std::sync::atomic::Ordering::Relaxed)));
     std::fs::write(&file, common::squares_gcode()).unwrap();
     let (all, _) = strand_job::load_segments(&file, &cfg.bed_transform().unwrap()).unwrap();
     strand_job::wire_job(&all).0
@@ -269,7 +305,7 @@ fn fake_for(protocol: &str, start: &[f64]) -> Box<dyn FakeProtocol> {
     if protocol == "egm" { Box::new(FakeEgm::new(25, 4)) } else { Box::new(FakeRsi::new(&deg, 4)) }
 }
 
-fn run_with(protocol: &str, cfg: &Config, start: &[f64], segments: &[ipc::Segment], miss: Option<(u64, u64)>) -> Run {
+fn run_with(protocol: &str, cfg: &Config, start: &[f64], segments: &[ipc::Segment], miss: Option<Miss>) -> Run {
     let mut fake = fake_for(protocol, start);
     if protocol == "egm" {
         run(cfg, Egm::new(), fake.as_mut(), start, segments, miss)
@@ -321,7 +357,7 @@ fn missed_cycles_at_full_speed_are_caught_up_without_overshoot_on_every_robot() 
             clean.fastest.0
         );
         for missed in [1u64, 3, 10] {
-            let r = run_with(protocol, &cfg, &start, &segments, Some((clean.fastest.0, missed)));
+            let r = run_with(protocol, &cfg, &start, &segments, Some(Miss { at: clean.fastest.0, count: missed, how: How::AnswerMissed }));
             let catch_up =
                 r.catch_up_cycles.map_or("never".to_string(), |c| format!("{:.0} ms ({:.0} ms)", c as f64 * PERIOD * 1e3, r.bound * 1e3));
             table += &format!(
@@ -354,6 +390,55 @@ fn missed_cycles_at_full_speed_are_caught_up_without_overshoot_on_every_robot() 
             }
             if !why.is_empty() {
                 failures.push(format!("{name}, {missed} missed: {}", why.join("; ")));
+            }
+        }
+    }
+    eprintln!("{table}");
+    assert!(failures.is_empty(), "{}\n{table}", failures.join("\n"));
+}
+
+/// On the approach (a joint-space move at `approach_speed_fraction` of the limits, with no path
+/// under it) the service is told of the hold (`JointState::HELD`, the robot's target and its
+/// velocity) and plans the rest of the move again from there: the answers are the service's
+/// command again at the first cycle the robot moves, nothing is clamped and nothing caught up.
+/// (Caught up instead, a miss at approach speed left the robot behind by v²/2a before it gained:
+/// 0.2 rad on the KR 6's A5 at 2 rad/s — the following-error limit — and 68 cycles of clamps.)
+/// Both ways of going without the command: an answer that missed the robot's cycle (1, 3 and 10
+/// in a row) and a late service answered with a braking hold (1 and 2, under `max_late_cycles`).
+#[test]
+fn a_miss_on_the_approach_is_planned_again_from_the_robot_not_caught_up() {
+    let mut failures = Vec::new();
+    let mut table = String::from("protocol robot      how            missed  clamped  catch-up  approach's fastest\n");
+    for (protocol, robot) in cells() {
+        let cfg = robot_config(robot);
+        let segments = segments(&cfg);
+        let start = far_start(&cfg);
+        let clean = run_with(protocol, &cfg, &start, &segments, None);
+        let at = clean.fastest_approach.0;
+        assert!(clean.fastest_approach.1 > 0.1, "{protocol} {robot}: the approach moves ({:?})", clean.fastest_approach);
+        for (how, counts) in [(How::AnswerMissed, &[1u64, 3, 10][..]), (How::ServiceLate, &[1, 2][..])] {
+            for &count in counts {
+                let r = run_with(protocol, &cfg, &start, &segments, Some(Miss { at, count, how }));
+                table += &format!(
+                    "{protocol:8} {robot:10} {:14} {count:>6}  {:>7}  {:>8?}  {:.0} % at cycle {at}\n",
+                    format!("{how:?}"),
+                    r.clamped,
+                    r.catch_up_cycles,
+                    clean.fastest_approach.1 * 100.0
+                );
+                let mut why = Vec::new();
+                if r.outcome != Some(JobOutcome::Finished) || !r.faults.is_empty() {
+                    why.push(format!("outcome {:?}, faults {:?}", r.outcome, r.faults));
+                }
+                if r.clamped > 0 {
+                    why.push(format!("{} answers clamped", r.clamped));
+                }
+                if r.catch_up_cycles != Some(1) {
+                    why.push(format!("the answers were the command again after {:?} cycles", r.catch_up_cycles));
+                }
+                if !why.is_empty() {
+                    failures.push(format!("{protocol} {robot}, {count} × {how:?}: {}", why.join("; ")));
+                }
             }
         }
     }

@@ -155,3 +155,46 @@ fn cycles_without_a_packet_are_counted_and_the_next_answer_starts_from_rest() {
     let step = s.guard().last().unwrap()[0] - held;
     assert!(step >= 0.0 && step / 0.004 <= 10.0 * 0.004 + 1e-12, "from rest, within the acceleration limit: {} rad/s", step / 0.004);
 }
+
+/// The JointState's report of what the robot was told: the target (the last answer) and its
+/// velocity always; `HELD` once after a cycle the robot kept its target (late, missed, lost);
+/// `CATCHING_UP` while the answers are not the command.
+#[test]
+fn the_report_says_what_the_robot_was_told_and_that_it_held() {
+    use strand_ipc::joint_state_flags::{CATCHING_UP, HELD, TARGET_KNOWN};
+    let mut s = session();
+    let robot: SocketAddr = "127.0.0.1:5000".parse().unwrap();
+    let mut out = Vec::new();
+    let (mut ipoc, mut a1, mut v) = (1000, 0.0, 0.0);
+    for _ in 0..40 {
+        // Up to 0.5 rad/s at 5 rad/s² (half the limit).
+        ipoc += 4;
+        let seq = s.on_packet(&rob(ipoc, 0.0), robot).unwrap().0;
+        v = (v + 5.0 * 0.004f64).min(0.5);
+        a1 += v * 0.004;
+        let mut c = command(seq, a1);
+        c.velocity[0] = v;
+        assert_eq!(s.reply(Some(&c), &mut out).0, ReplyKind::Command);
+    }
+    assert_eq!(s.counters.clamped, 0);
+    let r = s.robot_report();
+    assert_eq!(r.flags, TARGET_KNOWN);
+    assert_eq!(r.target[0], a1);
+    assert!((r.target_velocity[0] - v).abs() < 1e-9);
+    // A late service: the driver holds (braking at the acceleration limit).
+    ipoc += 4;
+    s.on_packet(&rob(ipoc, 0.0), robot).unwrap();
+    assert_eq!(s.reply(None, &mut out).0, ReplyKind::Late);
+    let r = s.robot_report();
+    assert_eq!(r.flags, TARGET_KNOWN | HELD | CATCHING_UP);
+    assert!((r.target_velocity[0] - (v - 10.0 * 0.004)).abs() < 1e-9, "{:?}", r.target_velocity);
+    assert!((r.target[0] - (a1 + r.target_velocity[0] * 0.004)).abs() < 1e-12);
+    // Told once.
+    assert_eq!(s.robot_report().flags & HELD, 0);
+    // A lost packet (IPOC skips a cycle): held again, at rest.
+    ipoc += 8;
+    s.on_packet(&rob(ipoc, 0.0), robot).unwrap();
+    let r = s.robot_report();
+    assert_eq!(r.flags & HELD, HELD);
+    assert_eq!(r.target_velocity[0], 0.0);
+}

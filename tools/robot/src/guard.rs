@@ -64,6 +64,8 @@ pub struct ReplyGuard {
     cycles_since_target: u32,
     /// The target's velocity at the last command (rad/s or m/s).
     target_velocity: [f64; MAX_JOINTS],
+    /// The last target sent was not the service's command (a hold, or a catch-up answer).
+    catching_up: bool,
     /// Targets clamped so far.
     pub clamps: u64,
     /// The joint clamped last, for the log line.
@@ -126,6 +128,7 @@ impl ReplyGuard {
             target: None,
             cycles_since_target: 1,
             target_velocity: [0.0; MAX_JOINTS],
+            catching_up: false,
             clamps: 0,
             last_clamped_joint: None,
         }
@@ -138,6 +141,7 @@ impl ReplyGuard {
         self.target = None;
         self.cycles_since_target = 1;
         self.target_velocity = [0.0; MAX_JOINTS];
+        self.catching_up = false;
     }
 
     /// Forgets the last target: the robot never got it (it came after the robot's cycle, and the
@@ -148,6 +152,7 @@ impl ReplyGuard {
             // The robot held its previous target this cycle: it is at rest there.
             self.last = Some(last);
             self.velocity = [0.0; MAX_JOINTS];
+            self.catching_up = true;
         }
     }
 
@@ -157,6 +162,7 @@ impl ReplyGuard {
     pub fn robot_stood_still(&mut self) {
         self.velocity = [0.0; MAX_JOINTS];
         self.before = None;
+        self.catching_up = self.last.is_some();
         // (The service was not clocked through those cycles either: its next command is one
         // step on from the last, so the target's bookkeeping stays as it is.)
     }
@@ -181,15 +187,27 @@ impl ReplyGuard {
         self.last.as_ref()
     }
 
+    /// Whether the last target sent was not the service's command: a hold, a cycle the robot
+    /// stood through, or an answer catching up.
+    pub fn catching_up(&self) -> bool {
+        self.catching_up
+    }
+
     /// The velocity of the last target sent (rad/s or m/s).
     pub fn velocity(&self) -> &[f64; MAX_JOINTS] {
         &self.velocity
     }
 
-    /// `target` (joint space), the service's command, within the limits from the last reply;
-    /// records it as sent. In step, it is `target` itself; behind it (after a hold), the
-    /// synchronised catch-up described in the module's documentation.
-    pub fn admit(&mut self, target: &[f64; MAX_JOINTS]) -> [f64; MAX_JOINTS] {
+    /// `target` (joint space), the service's command, moving at `velocity` (its own, rad/s or
+    /// m/s, as the command says), within the limits from the last reply; records it as sent. In
+    /// step, it is `target` itself; behind it (after a hold), the synchronised catch-up described
+    /// in the module's documentation.
+    ///
+    /// The target's velocity is measured between two commands, except when the command steps
+    /// from the last answer at its own velocity: a service told of a hold (`JointState::HELD`)
+    /// planned again from where the robot is, so the command is in step at once (its step from
+    /// the command before, which the robot never reached, is not its velocity).
+    pub fn admit(&mut self, target: &[f64; MAX_JOINTS], velocity: &[f64; MAX_JOINTS]) -> [f64; MAX_JOINTS] {
         let Some(prev) = self.last else {
             // Nothing sent yet: the caller resets to the measured position first.
             self.last = Some(*target);
@@ -204,6 +222,12 @@ impl ReplyGuard {
         // velocity), and the answers' velocity relative to it.
         let [mut x, mut u, mut gap, mut w, mut share, mut cap] = [[0.0; MAX_JOINTS]; 6];
         let mut slowest = 0.0f64;
+        let from_the_robot = self.bounds.iter().enumerate().all(|(k, b)| {
+            let step = velocity[k] * dt;
+            velocity[k].is_finite()
+                && velocity[k].abs() <= b.velocity
+                && (target[k] - prev[k] - step).abs() <= SAME * (1.0 + target[k].abs())
+        });
         for (k, b) in self.bounds.iter().enumerate() {
             let mut xk = target[k];
             if !xk.is_finite() {
@@ -211,7 +235,11 @@ impl ReplyGuard {
                 clamped = Some(k);
             }
             x[k] = xk.clamp(b.lower, b.upper);
-            u[k] = self.target.map_or(0.0, |t| (x[k] - t[k]) / (dt * f64::from(self.cycles_since_target))).clamp(-b.velocity, b.velocity);
+            u[k] = if from_the_robot {
+                velocity[k]
+            } else {
+                self.target.map_or(0.0, |t| (x[k] - t[k]) / (dt * f64::from(self.cycles_since_target))).clamp(-b.velocity, b.velocity)
+            };
             gap[k] = x[k] - u[k] * dt - prev[k];
             w[k] = self.velocity[k] - u[k];
             share[k] = CATCH_UP_SHARE * b.acceleration;
@@ -265,6 +293,7 @@ impl ReplyGuard {
             self.clamps += 1;
             self.last_clamped_joint = clamped;
         }
+        self.catching_up = clamped.is_some();
         self.target = Some(x);
         self.target_velocity = u;
         self.cycles_since_target = 1;
@@ -277,6 +306,7 @@ impl ReplyGuard {
     pub fn hold(&mut self) -> Option<[f64; MAX_JOINTS]> {
         let prev = self.last?;
         self.before = Some((prev, self.velocity));
+        self.catching_up = true;
         // The service's command did not come this cycle: its next one is a cycle further on.
         self.cycles_since_target = self.cycles_since_target.saturating_add(1);
         let dt = self.period;
@@ -335,6 +365,9 @@ fn synchronised(gap: f64, w: f64, a: f64, cap: f64, period: f64, time: f64) -> f
 mod tests {
     use super::*;
 
+    /// A command that does not say its velocity: the guard measures it between commands.
+    const UNSAID: [f64; MAX_JOINTS] = [f64::NAN; MAX_JOINTS];
+
     fn guard() -> ReplyGuard {
         let b = JointBounds { lower: -1.0, upper: 1.0, velocity: 1.0, acceleration: 10.0 };
         let mut g = ReplyGuard::new(vec![b; 2], 0.004);
@@ -352,7 +385,7 @@ mod tests {
         };
         let (mut prev, mut v_prev) = (0.0, 0.0);
         for _ in 0..400 {
-            let out = g.admit(&target);
+            let out = g.admit(&target, &UNSAID);
             let v = (out[0] - prev) / 0.004;
             assert!(v.abs() <= 1.0 + 1e-9, "speed {v}");
             assert!(((v - v_prev) / 0.004).abs() <= 10.0 + 1e-6, "acceleration {}", (v - v_prev) / 0.004);
@@ -370,7 +403,7 @@ mod tests {
         for k in 1..=100 {
             t[0] = (k as f64 * 0.004 * 0.5).min(0.9);
             before = g.last().unwrap()[0];
-            g.admit(&t);
+            g.admit(&t, &UNSAID);
         }
         let mut prev = g.last().unwrap()[0];
         let mut v_prev = (prev - before) / 0.004;
@@ -397,7 +430,7 @@ mod tests {
         });
         let (mut prev, mut v_prev) = (0.5, 0.0);
         for _ in 0..500 {
-            let x = g.admit(&t)[0];
+            let x = g.admit(&t, &UNSAID)[0];
             let v = (x - prev) / 0.004;
             assert!(x <= 1.0 + 1e-12, "past the limit: {x}");
             assert!(((v - v_prev) / 0.004).abs() <= 10.0 + 1e-6, "{} rad/s² at {x}", (v - v_prev) / 0.004);
@@ -412,11 +445,11 @@ mod tests {
         let mut t = [0.0; MAX_JOINTS];
         for k in 1..=50 {
             t[0] = k as f64 * 0.0001;
-            g.admit(&t);
+            g.admit(&t, &UNSAID);
         }
         let before = g.last().unwrap()[0];
         t[0] += 0.0001;
-        g.admit(&t);
+        g.admit(&t, &UNSAID);
         g.take_back();
         assert_eq!(g.last().unwrap()[0], before);
         assert!(g.at_rest(), "the robot held its previous target: at rest");
@@ -429,7 +462,7 @@ mod tests {
         t[0] = f64::NAN;
         t[1] = 5.0;
         for _ in 0..1000 {
-            let out = g.admit(&t);
+            let out = g.admit(&t, &UNSAID);
             assert!(out[0] == 0.0 && out[1] <= 1.0);
         }
         assert_eq!(g.clamps, 1000);
@@ -455,7 +488,7 @@ mod tests {
                 x[k] += v[k] * 0.004;
                 t[k] = x[k];
             }
-            let out = g.admit(&t);
+            let out = g.admit(&t, &UNSAID);
             if cycle < 300 {
                 assert_eq!(&out[..2], &t[..2], "in step, the answer is the command (cycle {cycle})");
                 continue;
@@ -555,11 +588,57 @@ mod tests {
                 g.hold();
                 continue;
             }
-            let out = g.admit(&t);
+            let out = g.admit(&t, &UNSAID);
             assert!(out[0] <= t[0] + 1e-12, "past the target at {cycle}: {} > {}", out[0], t[0]);
             if cycle > 300 {
                 assert_eq!(out[0], t[0], "caught up by {cycle}");
             }
         }
+    }
+
+    #[test]
+    fn a_command_planned_again_from_the_held_target_is_in_step_at_once() {
+        // In step at 0.5 rad/s on joint 0, then one hold: the robot brakes from there.
+        let mut g = guard();
+        let v = 0.5;
+        let (mut t, mut vt) = ([0.0; MAX_JOINTS], 0.0f64);
+        for _ in 0..50 {
+            // Up to speed at 5 rad/s² (half the limit), then on at it.
+            vt = (vt + 5.0 * 0.004).min(v);
+            t[0] += vt * 0.004;
+            let mut vel = [0.0; MAX_JOINTS];
+            vel[0] = vt;
+            assert_eq!(g.admit(&t, &vel), t);
+        }
+        let held = g.hold().unwrap();
+        assert!(g.catching_up());
+        let held_velocity = g.velocity()[0];
+        assert!((held_velocity - (v - 10.0 * 0.004)).abs() < 1e-12, "{held_velocity}");
+        // The service, told of the hold, plans again from the held target at its velocity: its
+        // command steps from there. The guard answers it unchanged (no catch-up, no clamp) ...
+        let clamps = g.clamps;
+        let mut q = held;
+        let mut qd = held_velocity;
+        for _ in 0..20 {
+            qd = (qd + 2.0 * 0.004).min(v);
+            q[0] += qd * 0.004;
+            let mut vel = [0.0; MAX_JOINTS];
+            vel[0] = qd;
+            assert_eq!(g.admit(&q, &vel), q);
+        }
+        assert_eq!(g.clamps, clamps);
+        assert!(!g.catching_up());
+        // ... where a command that went on from the old one is caught up with (clamped).
+        let mut g2 = guard();
+        let (mut t, mut vt) = ([0.0; MAX_JOINTS], 0.0f64);
+        for _ in 0..50 {
+            vt = (vt + 5.0 * 0.004).min(v);
+            t[0] += vt * 0.004;
+            assert_eq!(g2.admit(&t, &UNSAID), t);
+        }
+        g2.hold();
+        t[0] += 2.0 * v * 0.004;
+        let out = g2.admit(&t, &UNSAID);
+        assert!(out[0] < t[0] && g2.catching_up());
     }
 }

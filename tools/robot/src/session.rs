@@ -15,7 +15,7 @@
 use std::net::SocketAddr;
 
 use crate::RobotAddress;
-use strand_wire::{JointCommand, MAX_JOINTS};
+use strand_wire::{JointCommand, MAX_JOINTS, joint_state_flags};
 
 use crate::axes::AxisMap;
 use crate::guard::ReplyGuard;
@@ -156,8 +156,22 @@ pub struct Session<P: RobotProtocol> {
     late_run: u32,
     good_run: u32,
     current: Option<RobotPacket>,
+    /// The robot kept its target through a cycle or more since the last [`Session::robot_report`].
+    held: bool,
     /// Counters since start.
     pub counters: Counters,
+}
+
+/// What the driver last told the robot, for the JointState that clocks the service
+/// (`JointState::flags`, `robot_target`, `robot_target_velocity`).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct RobotReport {
+    /// `strand_wire::joint_state_flags` bits.
+    pub flags: u32,
+    /// The target the robot holds (joint space, rad or m).
+    pub target: [f64; MAX_JOINTS],
+    /// Its velocity (rad/s or m/s).
+    pub target_velocity: [f64; MAX_JOINTS],
 }
 
 impl<P: RobotProtocol> Session<P> {
@@ -174,6 +188,7 @@ impl<P: RobotProtocol> Session<P> {
             late_run: 0,
             good_run: 0,
             current: None,
+            held: false,
             counters: Counters::default(),
         }
     }
@@ -243,6 +258,7 @@ impl<P: RobotProtocol> Session<P> {
         self.protocol.encode_reply(&packet, &axes[..packet.dof], out);
         self.counters.held += 1;
         self.counters.replies += 1;
+        self.held = true;
         (ReplyKind::Hold, None)
     }
 
@@ -273,6 +289,26 @@ impl<P: RobotProtocol> Session<P> {
     pub fn answer_missed_its_cycle(&mut self) {
         self.counters.missed_cycle += 1;
         self.guard.take_back();
+        self.held = true;
+    }
+
+    /// What the robot was last told, and whether it kept its target through a cycle since the
+    /// last report (a late, held, missed or lost answer): the service, told, plans again from
+    /// there where it can (the approach). Takes the `HELD` bit.
+    pub fn robot_report(&mut self) -> RobotReport {
+        let mut r = RobotReport { flags: 0, target: [0.0; MAX_JOINTS], target_velocity: [0.0; MAX_JOINTS] };
+        if let Some(last) = self.guard.last() {
+            r.flags |= joint_state_flags::TARGET_KNOWN;
+            r.target = *last;
+            r.target_velocity = *self.guard.velocity();
+            if std::mem::take(&mut self.held) {
+                r.flags |= joint_state_flags::HELD;
+            }
+            if self.guard.catching_up() {
+                r.flags |= joint_state_flags::CATCHING_UP;
+            }
+        }
+        r
     }
 
     /// The guard (its clamp count and last clamped joint, for the log).
@@ -336,6 +372,7 @@ impl<P: RobotProtocol> Session<P> {
                 // it; the next answer must start from rest, not go on at the old speed.
                 self.counters.lost_cycles += cycles - 1;
                 self.guard.robot_stood_still();
+                self.held = true;
             }
         }
         self.sender.get_or_insert(from);
@@ -398,11 +435,13 @@ impl<P: RobotProtocol> Session<P> {
                         if self.state != DriverState::Following {
                             transition = self.enter(DriverState::Following);
                         }
-                        (ReplyKind::Command, self.guard.admit(&cmd.position))
+                        (ReplyKind::Command, self.guard.admit(&cmd.position, &cmd.velocity))
                     }
                 }
             }
         };
+        // A hold: the robot did not get the service's command this cycle.
+        self.held |= kind != ReplyKind::Command;
         match kind {
             ReplyKind::Command => self.counters.in_time += 1,
             ReplyKind::Late => self.counters.late += 1,

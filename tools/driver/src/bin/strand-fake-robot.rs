@@ -97,7 +97,7 @@ fn main() -> ExitCode {
             return ExitCode::from(1);
         }
     };
-    let (v, a) = report.max_rates(cli.period);
+    let (v, a) = report.max_rates(cli.period, cli.lag);
     eprintln!(
         "strand-fake-robot: {} cycles, {} answered in time ({:.3} %), {} late, {} missing, {} garbage{}",
         report.cycles,

@@ -102,14 +102,17 @@ impl FakeReport {
 
     /// The largest speed and acceleration of each axis over the run (deg/s, deg/s²), over the
     /// cycles that followed answers in time (a missed answer makes the axes step when answers
-    /// resume: that is the lateness, counted in `missing` and `late`, not the commands).
-    pub fn max_rates(&self, period: f64) -> (Vec<f64>, Vec<f64>) {
+    /// resume: that is the lateness, counted in `missing` and `late`, not the commands). `period`
+    /// is the robot's cycle and `lag` the drives' time constant (s).
+    pub fn max_rates(&self, period: f64, lag: f64) -> (Vec<f64>, Vec<f64>) {
         let n = self.axes.first().map_or(0, Vec::len);
         let (mut v_max, mut a_max) = (vec![0.0f64; n], vec![0.0f64; n]);
+        // Rows near a cycle without a fresh answer carry its step, spread by the drive lag over
+        // the next cycles (to 5 % of it after three time constants): they measure the lateness,
+        // not the commands.
+        let spread = 2 + (3.0 * lag / period).ceil() as usize;
         for (i, w) in self.axes.windows(3).enumerate() {
-            // Rows near a cycle without a fresh answer carry its step (spread by the drive lag
-            // over the next cycles): they measure the lateness, not the commands.
-            if (i.saturating_sub(2)..=i + 2).any(|r| !self.fresh.get(r).copied().unwrap_or(true)) {
+            if (i.saturating_sub(spread)..=i + spread).any(|r| !self.fresh.get(r).copied().unwrap_or(true)) {
                 continue;
             }
             for k in 0..n {
