@@ -1,4 +1,4 @@
-//! `[driver]`: how a robot driver bridge (`strand-egm`, `strand-rsi`) meets the robot controller —
+//! `[driver]`: how a robot driver bridge (`strand-egm`, `strand-rsi`, `strand-fri`) meets the robot controller —
 //! the UDP address it listens on, the sender it accepts, the reply deadline inside the robot's
 //! cycle, and the mapping between the controller's axis angles and the URDF joints. The drivers
 //! read it; the config owns the type so that a service config with a `[driver]` section loads.
@@ -17,14 +17,26 @@ pub enum DriverProtocol {
     Egm,
     /// KUKA Robot Sensor Interface (XML over UDP): `strand-rsi`.
     Rsi,
+    /// KUKA Sunrise Fast Robot Interface, LBR iiwa (protobuf over UDP): `strand-fri`.
+    Fri,
 }
 
 impl DriverProtocol {
-    /// The port the protocol's examples use (EGM 6510, RSI 49152).
+    /// The port the protocol's examples use (EGM 6510, RSI 49152, FRI 30200).
     pub fn default_port(self) -> u16 {
         match self {
             DriverProtocol::Egm => 6510,
             DriverProtocol::Rsi => 49152,
+            DriverProtocol::Fri => 30200,
+        }
+    }
+
+    /// Its name in a config (`egm`, `rsi`, `fri`) and in the driver's name (`strand-fri`).
+    pub fn name(self) -> &'static str {
+        match self {
+            DriverProtocol::Egm => "egm",
+            DriverProtocol::Rsi => "rsi",
+            DriverProtocol::Fri => "fri",
         }
     }
 }

@@ -181,6 +181,9 @@ pub fn run<P: RobotProtocol>(session: &mut Session<P>, opts: &BridgeOptions, sto
         if let Some(t) = transition {
             log_transition(name, t, &format!(" (robot at {from})"));
         }
+        if let Some(news) = session.take_news() {
+            eprintln!("strand-{name}: robot: {news}");
+        }
         // With what the robot was last told, and whether it held: the service plans again from
         // there where it can.
         let told = session.robot_report();

@@ -6,14 +6,15 @@
 //! - [`protocol`], [`session`], [`guard`], [`axes`] — what every driver shares, from the
 //!   `strand-robot` crate (re-exported here): the protocol trait, the sans-IO session, the limits
 //!   every answer keeps and the catch-up after a missed cycle, the axis mapping.
-//! - [`egm`] (ABB) and [`rsi`] (KUKA) implement the protocol trait. A new interface (FRI, b-CAP,
-//!   the Meca500's TCP API, UR RTDE) is one more module.
+//! - [`egm`] (ABB), [`rsi`] (KUKA KR C4) and [`fri`] (KUKA LBR iiwa) implement the protocol
+//!   trait. A new interface (b-CAP, the Meca500's TCP API, UR RTDE) is one more module.
 //! - [`bridge`] — the process loop: UDP socket, service ports, deadlines.
 //! - [`fake`] — fake robot controllers speaking the real wire formats, for tests and benchmarks.
 
 pub mod bridge;
 pub mod egm;
 pub mod fake;
+pub mod fri;
 pub mod rsi;
 
 pub use strand_robot::{axes, guard, protocol, session};
@@ -83,14 +84,25 @@ pub fn driver_config(cfg: &Config, protocol: DriverProtocol) -> Result<DriverCon
             ),
         });
     }
+    if protocol == DriverProtocol::Fri {
+        // The robot sends every send period, a whole number of ms from 1 to 5 set in the Sunrise
+        // application; the service runs at that rate.
+        let ms = 1000.0 / cfg.controller.rate_hz;
+        if !((1.0..=5.0).contains(&ms) && (ms - ms.round()).abs() < 1e-9) {
+            return Err(SetupError::Section {
+                file,
+                why: format!(
+                    "[controller] rate_hz = {} Hz: FRI's send period is a whole number of ms, 1 to 5, the one the Sunrise application sets (rate_hz 1000, 500, 333.333…, 250; 200 is below the controller's 250 Hz)",
+                    cfg.controller.rate_hz
+                ),
+            });
+        }
+    }
     Ok(d)
 }
 
 fn name(p: DriverProtocol) -> &'static str {
-    match p {
-        DriverProtocol::Egm => "egm",
-        DriverProtocol::Rsi => "rsi",
-    }
+    p.name()
 }
 
 /// A session for the robot of `cfg` with its `[driver]` section `d`: the axis mapping, and the
@@ -100,6 +112,7 @@ pub fn session<P: RobotProtocol>(cfg: &Config, d: &DriverConfig, mut protocol: P
     let model = cfg.robot.build_model()?;
     let linear: Vec<bool> = model.joints().iter().map(|j| !j.kind.rotates()).collect();
     protocol.set_linear_axes(&linear).map_err(|why| SetupError::Robot { file: cfg.file.display().to_string(), protocol: P::NAME, why })?;
+    protocol.set_period(1.0 / cfg.controller.rate_hz);
     let bounds = model
         .joints()
         .iter()

@@ -18,6 +18,7 @@ mod common;
 
 use strand::config::Config;
 use strand_driver::fake::egm::FakeEgm;
+use strand_driver::fake::fri::{FakeFri, FriOptions, FriWatch};
 use strand_driver::fake::rsi::FakeRsi;
 use strand_driver::fake::{FakeOptions, FakeProtocol, FakeReport, run};
 
@@ -93,6 +94,14 @@ struct Cell {
     driver: Kid,
     stop_fake: Arc<AtomicBool>,
     fake: Option<std::thread::JoinHandle<FakeReport>>,
+    /// The fake Sunrise cabinet's FRI session (FRI only).
+    fri: Option<FriWatch>,
+}
+
+/// Settings every process of a cell takes: FRI's iiwa runs at 1 ms in its config; the tests run
+/// every robot at the 4 ms cycle (a 4 ms FRI send period), as the other drivers'.
+fn cell_settings(protocol: &str) -> Vec<String> {
+    if protocol == "fri" { vec!["controller.rate_hz=250".to_string()] } else { Vec::new() }
 }
 
 impl Cell {
@@ -101,9 +110,11 @@ impl Cell {
         let dir = temp_dir(name);
         let config = root().join(format!("config/{robot}.toml"));
         let prefix = format!("strand/drvtest-{}-{name}", std::process::id());
+        let settings: Vec<String> = cell_settings(protocol).iter().flat_map(|s| ["--set".to_string(), s.clone()]).collect();
         let service = Kid(Command::new(bin("strand"))
             .args(["run", "--clock", "robot", "--no-log", "--prefix", &prefix, "--config"])
             .arg(&config)
+            .args(&settings)
             .env("RUST_LOG", "warn")
             .stdout(Stdio::null())
             .stderr(std::fs::File::create(dir.join("service.log")).unwrap())
@@ -115,7 +126,11 @@ impl Cell {
             // Unoptimised, the service's tick costs ten times more: a wider deadline, and more
             // late cycles before a fault, so that the tests check behaviour, not the build.
             driver.args(["--set", "driver.reply_deadline=0.003", "--set", "driver.max_late_cycles=10"]);
+        } else if protocol == "fri" {
+            // The iiwa's config answers within 0.6 ms of its 1 ms cycle; here the cycle is 4 ms.
+            driver.args(["--set", "driver.reply_deadline=0.002"]);
         }
+        driver.args(&settings);
         let driver = Kid(driver
             .args(["--prefix", &prefix, "--bind", &format!("127.0.0.1:{port}"), "--config"])
             .arg(&config)
@@ -130,11 +145,26 @@ impl Cell {
         let start_deg: Vec<f64> = cfg.service.initial_joints.iter().map(|q| q.to_degrees()).collect();
         let stop_fake = Arc::new(AtomicBool::new(false));
         let stop = stop_fake.clone();
+        let (mut fri, mut fri_watch) = (None, None);
+        if protocol == "fri" {
+            // The cabinet aborts the overlay on a step faster than the URDF's speed limits.
+            let model = cfg.robot.build_model().unwrap();
+            let mut velocity_limit = [0.0; 7];
+            for (v, j) in velocity_limit.iter_mut().zip(model.joints()) {
+                *v = j.limits.velocity;
+            }
+            let (fake, watch) =
+                FakeFri::new(FriOptions { send_period_ms: 4, velocity_limit, restart_after_abort: false, ..Default::default() });
+            (fri, fri_watch) = (Some(fake), Some(watch));
+        }
         let protocol = protocol.to_string();
         wait_for(&dir.join("driver.log"), "listening on", Duration::from_secs(20));
         let fake = std::thread::spawn(move || {
-            let mut p: Box<dyn FakeProtocol> =
-                if protocol == "egm" { Box::new(FakeEgm::new(25, 4)) } else { Box::new(FakeRsi::new(&start_deg, 4)) };
+            let mut p: Box<dyn FakeProtocol> = match (protocol.as_str(), fri) {
+                (_, Some(fri)) => Box::new(fri),
+                ("egm", _) => Box::new(FakeEgm::new(25, 4)),
+                _ => Box::new(FakeRsi::new(&start_deg, 4)),
+            };
             let opts = FakeOptions {
                 driver: SocketAddr::from(([127, 0, 0, 1], port)),
                 bind: SocketAddr::from(([127, 0, 0, 1], 0)),
@@ -148,12 +178,15 @@ impl Cell {
             run(p.as_mut(), &opts, &stop).unwrap()
         });
         wait_for(&dir.join("driver.log"), "Holding", Duration::from_secs(20));
-        Cell { _one: one, dir, config, prefix, service, driver, stop_fake, fake: Some(fake) }
+        Cell { _one: one, dir, config, prefix, service, driver, stop_fake, fake: Some(fake), fri: fri_watch }
     }
 
     fn feed(&self, job: &Path) -> Command {
         let mut c = Command::new(bin("strand-feed"));
         c.arg(job).args(["--prefix", &self.prefix, "--quiet", "--wait-service", "20", "--config"]).arg(&self.config);
+        for s in cell_settings(if self.fri.is_some() { "fri" } else { "" }) {
+            c.args(["--set", &s]);
+        }
         c
     }
 
@@ -232,7 +265,15 @@ fn a_job_streams_through(protocol: &str, robot: &str) {
     }
     let config = cell.config.clone();
     let feed_said = std::fs::read_to_string(&feed_log).unwrap_or_default();
+    let fri = cell.fri.clone();
     let (report, stats, log) = cell.finish();
+    if let Some(fri) = fri {
+        // The cabinet never aborted the overlay (no jump, no NaN, the link good), and the job ran
+        // in COMMANDING_ACTIVE.
+        assert_eq!(fri.aborts(), 0, "the FRI overlay was aborted: {}\n{log}", fri.last_abort());
+        assert!(fri.active_cycles() > 1000, "{} cycles in COMMANDING_ACTIVE", fri.active_cycles());
+        assert!(log.contains("FRI session MonitoringWait") && log.contains("CommandingActive"), "the session's states are logged:\n{log}");
+    }
     assert_eq!(code, Some(0), "strand-feed:\n{feed_said}\ndriver:\n{log}");
     eprintln!("{protocol}: {report:?}\ndriver: {stats}");
     assert!(report.cycles > 1000, "{report:?}");
@@ -262,6 +303,11 @@ fn a_job_streams_through(protocol: &str, robot: &str) {
 #[test]
 fn a_job_streams_through_strand_rsi_to_a_kuka_and_finishes() {
     a_job_streams_through("rsi", "kr6r900");
+}
+
+#[test]
+fn a_job_streams_through_strand_fri_to_an_iiwa_and_finishes() {
+    a_job_streams_through("fri", "iiwa7");
 }
 
 #[test]
@@ -360,5 +406,5 @@ fn every_bundled_robot_with_a_driver_maps_its_axes_both_ways() {
         checked.push(path.file_stem().unwrap().to_string_lossy().to_string());
     }
     checked.sort();
-    assert_eq!(checked, ["irb140", "kr6r900"]);
+    assert_eq!(checked, ["iiwa14", "iiwa7", "irb140", "kr6r900"]);
 }

@@ -1,6 +1,6 @@
 //! The one small trait every robot interface implements: decode the robot's packet into axis
 //! angles, and encode the answer to it. A protocol knows its wire format and its start-up rules
-//! (RSI's reference axes, EGM's motion-control state), nothing of sockets, the service or limits —
+//! (RSI's reference axes, EGM's motion-control state, FRI's session), nothing of sockets, the service or limits —
 //! so the next interface (UR RTDE, FANUC Stream Motion, Franka) is one new module.
 
 use strand_wire::MAX_JOINTS;
@@ -62,12 +62,26 @@ pub trait RobotProtocol {
     /// cannot carry as linear is refused with the reason.
     fn set_linear_axes(&mut self, linear: &[bool]) -> Result<(), String>;
 
+    /// The robot's cycle as the driver is configured for it (s; `[controller] rate_hz`). Called
+    /// once, before the first packet; a protocol whose robot says its own cycle (FRI's
+    /// `sendPeriod`) refuses packets that disagree. Ignored by default.
+    fn set_period(&mut self, period: f64) {
+        let _ = period;
+    }
+
     /// Decodes a packet from the robot.
     fn decode(&mut self, packet: &[u8]) -> Result<RobotPacket, PacketError>;
 
     /// Forgets the connection (the robot's interface session ended: RSI off, EGM stopped, a
     /// controller restart): the next packet starts a new one.
     fn reset(&mut self);
+
+    /// A change the robot reported that the driver's log should say (FRI's session state and
+    /// connection quality), once; None by default. Not on a protocol's hot path: called once per
+    /// packet, it allocates only when something changed.
+    fn take_news(&mut self) -> Option<String> {
+        None
+    }
 
     /// Encodes into `out` (cleared first) the answer to `to`: the robot's axes should go to `axes`
     /// (rad, or m for a linear axis; the robot's own axes, `to.dof` of them).

@@ -311,6 +311,11 @@ impl<P: RobotProtocol> Session<P> {
         r
     }
 
+    /// A change the robot reported, for the log ([`RobotProtocol::take_news`]).
+    pub fn take_news(&mut self) -> Option<String> {
+        self.protocol.take_news()
+    }
+
     /// The guard (its clamp count and last clamped joint, for the log).
     pub fn guard(&self) -> &ReplyGuard {
         &self.guard

@@ -1,9 +1,10 @@
-//! `strand-bench latency --driver egm|rsi`: a robot driver end to end, through the fake robot
+//! `strand-bench latency --driver egm|rsi|fri`: a robot driver end to end, through the fake robot
 //! controller of `strand_driver::fake`. The service runs on the robot clock (`strand run --clock
-//! robot`) printing the benchmark job, the driver (`strand-egm` or `strand-rsi`) bridges it to the
-//! fake, and the fake — in this process, sending a packet every 4 ms on absolute deadlines — times
-//! each packet to its answer. The driver's own receive → reply figure comes from its `--stats`;
-//! both are reported against the 4 ms cycle, with the share of cycles answered in time.
+//! robot`) printing the benchmark job, the driver (`strand-egm`, `strand-rsi` or `strand-fri`)
+//! bridges it to the fake, and the fake — in this process, sending a packet every cycle (4 ms; FRI
+//! the iiwa 7's 1 ms) on absolute deadlines — times each packet to its answer. The driver's own
+//! receive → reply figure comes from its `--stats`; both are reported against the cycle, with the
+//! share of cycles answered in time.
 
 use std::net::{SocketAddr, UdpSocket};
 use std::path::PathBuf;
@@ -15,6 +16,7 @@ use serde::Serialize;
 use strand::config::Config;
 use strand::io::histogram::Histogram;
 use strand_driver::fake::egm::FakeEgm;
+use strand_driver::fake::fri::{FakeFri, FriOptions};
 use strand_driver::fake::rsi::FakeRsi;
 use strand_driver::fake::{FakeOptions, FakeProtocol};
 
@@ -24,11 +26,11 @@ use crate::error::{Result, ToolError};
 /// What to run.
 #[derive(Clone, Debug)]
 pub struct DriverOptions {
-    /// `egm` or `rsi`.
+    /// `egm`, `rsi` or `fri`.
     pub protocol: String,
     /// Duration (s).
     pub seconds: f64,
-    /// Service config with the matching `[driver]` (irb140 for EGM, kr6r900 for RSI).
+    /// Service config with the matching `[driver]` (irb140 for EGM, kr6r900 for RSI, iiwa7 for FRI).
     pub config: PathBuf,
     /// Repository root (the job).
     pub root: PathBuf,
@@ -43,7 +45,7 @@ pub struct DriverOptions {
 pub struct DriverReport {
     /// "latency-driver".
     pub mode: &'static str,
-    /// `egm` or `rsi`.
+    /// `egm`, `rsi` or `fri`.
     pub protocol: String,
     /// The robot.
     pub robot: String,
@@ -107,7 +109,8 @@ pub fn run(opts: &DriverOptions) -> Result<DriverReport> {
     let mut protocol: Box<dyn FakeProtocol + Send> = match opts.protocol.as_str() {
         "egm" => Box::new(FakeEgm::new(25, period_ms as u32)),
         "rsi" => Box::new(FakeRsi::new(&start_deg, period_ms)),
-        other => return Err(ToolError::Usage(format!("--driver {other}: egm or rsi"))),
+        "fri" => Box::new(FakeFri::new(FriOptions { send_period_ms: period_ms as u32, ..Default::default() }).0),
+        other => return Err(ToolError::Usage(format!("--driver {other}: egm, rsi or fri"))),
     };
     let fake_opts = FakeOptions {
         driver: SocketAddr::from(([127, 0, 0, 1], port)),

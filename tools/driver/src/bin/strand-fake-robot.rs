@@ -1,5 +1,5 @@
-//! strand-fake-robot: a fake ABB IRC5 (EGM) or KUKA KR C4 (RSI) for testing strand-egm and
-//! strand-rsi where no robot is. It sends the controller's packets every 4 ms on absolute deadlines,
+//! strand-fake-robot: a fake ABB IRC5 (EGM), KUKA KR C4 (RSI) or KUKA Sunrise cabinet (FRI) for
+//! testing strand-egm, strand-rsi and strand-fri where no robot is. It sends the controller's packets every 4 ms on absolute deadlines,
 //! integrates the answers into its actual axes (with an optional drive lag), and reports the cycles
 //! answered in time, late and missing, and the actual axes' largest speed and acceleration. The
 //! protocols are `strand_driver::fake`.
@@ -11,6 +11,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 
 use clap::{Parser, ValueEnum};
 use strand_driver::fake::egm::FakeEgm;
+use strand_driver::fake::fri::{FakeFri, FriOptions};
 use strand_driver::fake::rsi::FakeRsi;
 use strand_driver::fake::{FakeOptions, FakeProtocol, run};
 
@@ -18,10 +19,11 @@ use strand_driver::fake::{FakeOptions, FakeProtocol, run};
 enum Protocol {
     Egm,
     Rsi,
+    Fri,
 }
 
 #[derive(Parser)]
-#[command(name = "strand-fake-robot", version, about = "A fake robot controller speaking EGM or RSI, for testing the drivers")]
+#[command(name = "strand-fake-robot", version, about = "A fake robot controller speaking EGM, RSI or FRI, for testing the drivers")]
 struct Cli {
     /// The interface to fake.
     #[arg(long, value_enum)]
@@ -29,8 +31,9 @@ struct Cli {
     /// The driver's address (IP:PORT).
     #[arg(long)]
     driver: SocketAddr,
-    /// Axes at the start (degrees, comma-separated, six).
-    #[arg(long, value_delimiter = ',', allow_negative_numbers = true, default_value = "0,-90,90,0,90,0")]
+    /// Axes at the start (degrees, comma-separated: six; seven for FRI). Default: KUKA's RSI start
+    /// pose (0,-90,90,0,90,0), or the LBR iiwa's start posture of config/iiwa7.toml for FRI.
+    #[arg(long, value_delimiter = ',', allow_negative_numbers = true)]
     start: Vec<f64>,
     /// The cycle (s).
     #[arg(long, default_value_t = 0.004)]
@@ -41,6 +44,10 @@ struct Cli {
     /// Cycles to run (0: until Ctrl-C).
     #[arg(long, default_value_t = 0)]
     cycles: u64,
+    /// FRI: cycles in MONITORING_READY before the Sunrise application starts its joint overlay,
+    /// and cycles of COMMANDING_WAIT before COMMANDING_ACTIVE.
+    #[arg(long, default_value_t = 10)]
+    overlay_after: u64,
     /// EGM: cycles in MCI_STOPPED before MCI_RUNNING.
     #[arg(long, default_value_t = 25)]
     stopped_cycles: u64,
@@ -65,15 +72,32 @@ extern "C" fn on_signal(_: libc::c_int) {
 }
 
 fn main() -> ExitCode {
-    let cli = Cli::parse();
-    if cli.start.len() != 6 || cli.start.iter().any(|x| !x.is_finite()) {
-        eprintln!("strand-fake-robot: --start needs six finite angles (degrees)");
+    let mut cli = Cli::parse();
+    let axes = if matches!(cli.protocol, Protocol::Fri) { 7 } else { 6 };
+    if cli.start.is_empty() {
+        cli.start = if axes == 7 {
+            [0.0f64, 0.4, 0.0, -1.5, 0.0, 1.2, 0.0].iter().map(|q| q.to_degrees()).collect()
+        } else {
+            vec![0.0, -90.0, 90.0, 0.0, 90.0, 0.0]
+        };
+    }
+    if cli.start.len() != axes || cli.start.iter().any(|x| !x.is_finite()) {
+        eprintln!("strand-fake-robot: --start needs {axes} finite angles (degrees)");
         return ExitCode::from(2);
     }
     let period_ms = (cli.period * 1e3).round() as u64;
     let mut protocol: Box<dyn FakeProtocol> = match cli.protocol {
         Protocol::Egm => Box::new(FakeEgm::new(cli.stopped_cycles, period_ms as u32)),
         Protocol::Rsi => Box::new(FakeRsi::new(&cli.start, period_ms)),
+        Protocol::Fri => {
+            let opts = FriOptions {
+                send_period_ms: period_ms as u32,
+                overlay_after: cli.overlay_after,
+                wait_cycles: cli.overlay_after,
+                ..Default::default()
+            };
+            Box::new(FakeFri::new(opts).0)
+        }
     };
     // SAFETY: the handler only stores to an atomic.
     unsafe {
@@ -116,7 +140,8 @@ fn main() -> ExitCode {
         }
     }
     if let Some(p) = &cli.axes_csv {
-        let mut text = String::from("cycle,a1,a2,a3,a4,a5,a6\n");
+        let header: Vec<String> = (1..=cli.start.len()).map(|k| format!("a{k}")).collect();
+        let mut text = format!("cycle,{}\n", header.join(","));
         for (k, row) in report.axes.iter().enumerate() {
             text += &format!("{k},{}\n", row.iter().map(|x| format!("{x:.6}")).collect::<Vec<_>>().join(","));
         }

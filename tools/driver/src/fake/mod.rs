@@ -2,6 +2,7 @@
 //! is: [`rsi`] a KUKA KR C4 with an RSI object, [`egm`] an ABB IRC5 with EGM. Written from the
 //! public descriptions (ros-industrial's kuka_rsi_simulator and abb_libegm), not from the drivers'
 //! code: the RSI fake builds and reads its XML itself, the EGM fake uses only the schema.
+//! [`fri`] is a KUKA Sunrise controller (LBR iiwa) with FRI, from `docs/protocols/fri.md`, its protobuf by hand.
 //!
 //! The loop is a controller's: a packet every `period` on absolute deadlines (`clock_nanosleep`
 //! with `TIMER_ABSTIME`), the answer taken as it arrives (its round trip measured) and accepted
@@ -11,6 +12,7 @@
 //! test can check their speed and acceleration against the robot's limits.
 
 pub mod egm;
+pub mod fri;
 pub mod rsi;
 
 use std::net::{SocketAddr, UdpSocket};

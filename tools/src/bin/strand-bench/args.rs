@@ -60,9 +60,10 @@ pub enum Mode {
         /// Draw the histograms (log-scale counts) into this PNG.
         #[arg(long)]
         png: Option<PathBuf>,
-        /// Through a robot driver instead: `egm` (strand-egm, irb140) or `rsi` (strand-rsi,
-        /// kr6r900) against the fake robot controller, at the robot's 4 ms cycle.
-        #[arg(long, value_parser = ["egm", "rsi"])]
+        /// Through a robot driver instead: `egm` (strand-egm, irb140), `rsi` (strand-rsi, kr6r900)
+        /// or `fri` (strand-fri, iiwa7) against the fake robot controller, at the robot's cycle
+        /// (4 ms; FRI 1 ms).
+        #[arg(long, value_parser = ["egm", "rsi", "fri"])]
         driver: Option<String>,
         /// With --driver: run the driver with SCHED_FIFO at this priority. Without: the service and
         /// the ping-pong at this priority (memory locked, PM QoS 0) and this driver one above.

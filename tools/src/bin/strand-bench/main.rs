@@ -80,7 +80,11 @@ fn main() -> ExitCode {
             }
             Mode::Latency { seconds, json, png, driver: Some(protocol), rt, .. } => {
                 let bin_dir = std::env::current_exe().ok().and_then(|p| p.parent().map(PathBuf::from)).unwrap_or_default();
-                let robot = if protocol == "egm" { "irb140" } else { "kr6r900" };
+                let robot = match protocol.as_str() {
+                    "egm" => "irb140",
+                    "fri" => "iiwa7",
+                    _ => "kr6r900",
+                };
                 let opts = driver::DriverOptions {
                     protocol,
                     seconds,
