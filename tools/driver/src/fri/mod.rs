@@ -58,11 +58,6 @@ impl Fri {
     pub fn new() -> Fri {
         Fri::default()
     }
-
-    /// The session state of the last message (None before the first).
-    pub fn session_state(&self) -> Option<SessionState> {
-        self.seen.map(|s| s.state)
-    }
 }
 
 fn seven(values: &Option<JointValues>, what: &str) -> Result<Option<[f64; JOINTS]>, PacketError> {
