@@ -1,6 +1,8 @@
-//! `[driver]`: how a robot driver bridge (`strand-egm`, `strand-rsi`, `strand-fri`) meets the robot controller —
-//! the UDP address it listens on, the sender it accepts, the reply deadline inside the robot's
-//! cycle, and the mapping between the controller's axis angles and the URDF joints. The drivers
+//! `[driver]`: how a robot driver bridge (`strand-egm`, `strand-rsi`, `strand-fri`, `strand-bcap`,
+//! `strand-meca`) meets the robot controller — the UDP address it listens on (the robot sends
+//! first) or the controller it connects to (the driver sends first), the sender it accepts, the
+//! reply deadline inside the robot's cycle, the mapping between the controller's axis angles and
+//! the URDF joints, and each interface's own settings. The drivers
 //! read it; the config owns the type so that a service config with a `[driver]` section loads.
 
 use std::net::{IpAddr, SocketAddr};
@@ -19,15 +21,22 @@ pub enum DriverProtocol {
     Rsi,
     /// KUKA Sunrise Fast Robot Interface, LBR iiwa (protobuf over UDP): `strand-fri`.
     Fri,
+    /// DENSO b-CAP slave mode, RC7/RC8 (binary request/reply over TCP): `strand-bcap`.
+    Bcap,
+    /// Mecademic Meca500 TCP API (text commands, monitoring stream): `strand-meca`.
+    Meca,
 }
 
 impl DriverProtocol {
-    /// The port the protocol's examples use (EGM 6510, RSI 49152, FRI 30200).
+    /// The port the protocol's examples use (EGM 6510, RSI 49152, FRI 30200; the controller's
+    /// b-CAP 5007 and Meca500 control 10000).
     pub fn default_port(self) -> u16 {
         match self {
             DriverProtocol::Egm => 6510,
             DriverProtocol::Rsi => 49152,
             DriverProtocol::Fri => 30200,
+            DriverProtocol::Bcap => 5007,
+            DriverProtocol::Meca => 10000,
         }
     }
 
@@ -37,7 +46,15 @@ impl DriverProtocol {
             DriverProtocol::Egm => "egm",
             DriverProtocol::Rsi => "rsi",
             DriverProtocol::Fri => "fri",
+            DriverProtocol::Bcap => "bcap",
+            DriverProtocol::Meca => "meca",
         }
+    }
+
+    /// Whether the driver connects to the robot controller (b-CAP, the Meca500: `[driver] robot`
+    /// is the controller's address) rather than listening for its packets (EGM, RSI, FRI: `bind`).
+    pub fn driver_connects(self) -> bool {
+        matches!(self, DriverProtocol::Bcap | DriverProtocol::Meca)
     }
 }
 
@@ -50,7 +67,9 @@ pub struct DriverConfig {
     /// Address and port the driver listens on (`IP:PORT`). 127.0.0.1 by default: a cell sets the
     /// address of the network card that faces the robot controller.
     pub bind: String,
-    /// The only sender accepted (`IP` or `IP:PORT`); empty: the first sender, and no other after it.
+    /// The robot sends first (EGM, RSI, FRI): the only sender accepted (`IP` or `IP:PORT`); empty:
+    /// the first sender, and no other after it. The driver connects (b-CAP, Meca500): the
+    /// controller's address (`IP` with the protocol's port, or `IP:PORT`); empty: 127.0.0.1.
     pub robot: String,
     /// Longest wait for the service's command after a robot packet arrives (s); then the driver
     /// answers with a hold (the last target, braked within the acceleration limits). At most
@@ -66,6 +85,22 @@ pub struct DriverConfig {
     pub axis_sign: Vec<f64>,
     /// Per joint in chain order: the controller's axis angle when the URDF joint is at 0 (rad or m).
     pub axis_offset: Vec<f64>,
+    /// b-CAP: the slave mode for `slvChangeMode` — 0x202 (joints, mode 2: the controller paces
+    /// each `slvMove` to its cycle, buffer of 3; DENSO's default) or 0x102 (joints, mode 1: the
+    /// driver paces, the newest command wins).
+    pub slave_mode: u32,
+    /// Longest wait for one setup or release call, and for the controller's answer to a cycle's
+    /// command beyond its cycle (s). Setup calls that take seconds (motor on) are kept alive by
+    /// the controller's watchdog packets.
+    pub call_timeout: f64,
+    /// Meca500: the monitoring port on the controller's address (10001).
+    pub monitor_port: u16,
+    /// Meca500: the gain on the position error in each velocity command (1/s): velocity =
+    /// the command's feed-forward velocity + gain × (commanded − measured position).
+    pub velocity_gain: f64,
+    /// Meca500: `SetVelTimeout` (s): the arm stops by itself this long after the last velocity
+    /// command (strand stopped, the link lost).
+    pub velocity_timeout: f64,
 }
 
 impl Default for DriverConfig {
@@ -79,6 +114,11 @@ impl Default for DriverConfig {
             recover_cycles: 25,
             axis_sign: Vec::new(),
             axis_offset: Vec::new(),
+            slave_mode: 0x202,
+            call_timeout: 5.0,
+            monitor_port: 10001,
+            velocity_gain: 20.0,
+            velocity_timeout: 0.05,
         }
     }
 }
@@ -90,6 +130,19 @@ impl DriverConfig {
             return Ok(SocketAddr::from(([127, 0, 0, 1], self.protocol.default_port())));
         }
         self.bind.parse().map_err(|_| InvalidSetting::new("driver", format!("[driver] bind = {:?}: not an IP:PORT address", self.bind)))
+    }
+
+    /// The controller to connect to (the driver sends first): `robot`, with the protocol's port if
+    /// it names none, or 127.0.0.1 with the protocol's port.
+    pub fn robot_address(&self) -> Result<SocketAddr, InvalidSetting> {
+        let port = self.protocol.default_port();
+        if self.robot.is_empty() {
+            return Ok(SocketAddr::from(([127, 0, 0, 1], port)));
+        }
+        self.robot
+            .parse::<SocketAddr>()
+            .or_else(|_| self.robot.parse::<IpAddr>().map(|ip| SocketAddr::new(ip, port)))
+            .map_err(|_| InvalidSetting::new("driver", format!("[driver] robot = {:?}: not an IP or IP:PORT address", self.robot)))
     }
 
     /// Checks every key; `dof` is the robot's joint count (for the per-joint lists).
@@ -120,6 +173,25 @@ impl DriverConfig {
         if let Some(o) = self.axis_offset.iter().find(|o| !o.is_finite()) {
             return bad(format!("[driver] axis_offset: {o} is not finite"));
         }
+        if ![0x202, 0x102].contains(&self.slave_mode) {
+            return bad(format!(
+                "[driver] slave_mode = {:#x}: strand drives joints in mode 2 (0x202, the controller paces) or mode 1 (0x102, the driver paces)",
+                self.slave_mode
+            ));
+        }
+        if !(self.call_timeout.is_finite() && (0.1..=600.0).contains(&self.call_timeout)) {
+            return bad(format!("[driver] call_timeout = {}: must lie in [0.1, 600] s", self.call_timeout));
+        }
+        if !(self.velocity_gain.is_finite() && (0.0..=500.0).contains(&self.velocity_gain)) {
+            return bad(format!("[driver] velocity_gain = {}: must lie in [0, 500] 1/s", self.velocity_gain));
+        }
+        if !(self.velocity_timeout.is_finite() && (0.001..=1.0).contains(&self.velocity_timeout)) {
+            return bad(format!("[driver] velocity_timeout = {}: must lie in [0.001, 1] s (SetVelTimeout's range)", self.velocity_timeout));
+        }
+        if self.monitor_port == 0 {
+            return bad("[driver] monitor_port = 0: not a port".to_string());
+        }
+        self.robot_address()?;
         Ok(())
     }
 }

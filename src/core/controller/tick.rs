@@ -89,8 +89,8 @@ impl ControllerConfig {
     /// Checks every key; the message names it and its allowed range.
     pub fn validate(&self) -> Result<(), InvalidSetting> {
         let k = "[controller]";
-        if !(self.rate_hz.is_finite() && (250.0..=8000.0).contains(&self.rate_hz)) {
-            return Err(InvalidSetting::new("controller", format!("{k} rate_hz = {}: must lie in [250, 8000] Hz", self.rate_hz)));
+        if !(self.rate_hz.is_finite() && (100.0..=8000.0).contains(&self.rate_hz)) {
+            return Err(InvalidSetting::new("controller", format!("{k} rate_hz = {}: must lie in [100, 8000] Hz", self.rate_hz)));
         }
         for (key, v, hi) in [
             ("joint_state_timeout", self.joint_state_timeout, 10.0),

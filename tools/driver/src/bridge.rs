@@ -71,7 +71,7 @@ pub enum BridgeError {
     Ports(#[from] strand_ipc::ports::PortError),
 }
 
-fn log_transition(name: &str, t: Transition, why: &str) {
+pub(crate) fn log_transition(name: &str, t: Transition, why: &str) {
     eprintln!("strand-{name}: {:?} → {:?}{why}", t.from, t.to);
 }
 
@@ -312,7 +312,7 @@ fn answer<P: RobotProtocol>(
 /// wait is a socket receive timeout, which the kernel counts in scheduler ticks (4 ms at HZ=250),
 /// so a late command would make the hold miss the robot's cycle. The service answers in tens of
 /// microseconds, so the polling is short.
-fn wait_command(ports: &ClientPorts, seq: u64, deadline_ns: u64) -> Option<JointCommand> {
+pub(crate) fn wait_command(ports: &ClientPorts, seq: u64, deadline_ns: u64) -> Option<JointCommand> {
     loop {
         while let Ok(Some(cmd)) = ports.receive_joint_command() {
             if cmd.state_seq == seq {

@@ -1,20 +1,27 @@
 //! strand's robot drivers: bridges between a robot controller's streaming interface and the
-//! service, on the robot's own clock. Each robot packet becomes the JointState that clocks the
-//! service; each answer carries the service's JointCommand for it, checked against the joint
-//! limits, or a hold when the command is late.
+//! service. Each robot state becomes the JointState that clocks the service; each answer carries
+//! the service's JointCommand for it, checked against the joint limits, or a hold when the command
+//! is late.
 //!
 //! - [`protocol`], [`session`], [`guard`], [`axes`] — what every driver shares, from the
 //!   `strand-robot` crate (re-exported here): the protocol trait, the sans-IO session, the limits
 //!   every answer keeps and the catch-up after a missed cycle, the axis mapping.
-//! - [`egm`] (ABB), [`rsi`] (KUKA KR C4) and [`fri`] (KUKA LBR iiwa) implement the protocol
-//!   trait. A new interface (b-CAP, the Meca500's TCP API, UR RTDE) is one more module.
-//! - [`bridge`] — the process loop: UDP socket, service ports, deadlines.
+//! - [`egm`] (ABB), [`rsi`] (KUKA KR C4), [`fri`] (KUKA LBR iiwa), [`bcap`] (DENSO RC7/RC8) and
+//!   [`meca`] (Mecademic Meca500) implement the protocol trait. A new interface is one more module.
+//! - [`bridge`] — the process loop where the robot sends first (EGM, RSI, FRI): UDP socket,
+//!   service ports, deadlines.
+//! - [`paced`] — the process loop where the driver connects and sends first (b-CAP, the
+//!   Meca500): a link carries the cycle's exchange, on the robot's clock (b-CAP mode 2) or the
+//!   driver's.
 //! - [`fake`] — fake robot controllers speaking the real wire formats, for tests and benchmarks.
 
+pub mod bcap;
 pub mod bridge;
 pub mod egm;
 pub mod fake;
 pub mod fri;
+pub mod meca;
+pub mod paced;
 pub mod rsi;
 
 pub use strand_robot::{axes, guard, protocol, session};
@@ -92,7 +99,21 @@ pub fn driver_config(cfg: &Config, protocol: DriverProtocol) -> Result<DriverCon
             return Err(SetupError::Section {
                 file,
                 why: format!(
-                    "[controller] rate_hz = {} Hz: FRI's send period is a whole number of ms, 1 to 5, the one the Sunrise application sets (rate_hz 1000, 500, 333.333…, 250; 200 is below the controller's 250 Hz)",
+                    "[controller] rate_hz = {} Hz: FRI's send period is a whole number of ms, 1 to 5, the one the Sunrise application sets (rate_hz 1000, 500, 333.333…, 250, 200)",
+                    cfg.controller.rate_hz
+                ),
+            });
+        }
+    }
+    if protocol == DriverProtocol::Bcap {
+        // The controller's cycle (8 ms on RC8; DENSO's own driver accepts nothing else): one
+        // slvMove a cycle, and the service ticks once per reply.
+        let ms = 1000.0 / cfg.controller.rate_hz;
+        if !((2.0..=16.0).contains(&ms) && (ms - ms.round()).abs() < 1e-9) {
+            return Err(SetupError::Section {
+                file,
+                why: format!(
+                    "[controller] rate_hz = {} Hz: b-CAP slave mode runs on the controller's cycle, a whole number of ms (RC8: 8 ms, rate_hz = 125); run the service and strand-bcap with --set controller.rate_hz=125",
                     cfg.controller.rate_hz
                 ),
             });

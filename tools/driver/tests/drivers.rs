@@ -9,65 +9,20 @@
 
 use std::net::{SocketAddr, UdpSocket};
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Stdio};
+use std::process::{Command, Stdio};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 mod common;
+
+use common::{Kid, bin, root, temp_dir, wait_for};
 
 use strand::config::Config;
 use strand_driver::fake::egm::FakeEgm;
 use strand_driver::fake::fri::{FakeFri, FriOptions, FriWatch};
 use strand_driver::fake::rsi::FakeRsi;
 use strand_driver::fake::{FakeOptions, FakeProtocol, FakeReport, run};
-
-fn root() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..")
-}
-
-fn bin(name: &str) -> PathBuf {
-    let p = Path::new(env!("CARGO_BIN_EXE_strand-rsi")).with_file_name(name);
-    assert!(p.exists(), "{} missing: build the workspace first (cargo build --workspace)", p.display());
-    p
-}
-
-fn temp_dir(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("strand-driver-test-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
-}
-
-/// A child process killed when dropped.
-struct Kid(Child);
-
-impl Drop for Kid {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
-}
-
-impl Kid {
-    fn signal(&mut self, sig: libc::c_int) {
-        // SAFETY: kill(2) on our own child.
-        unsafe {
-            libc::kill(self.0.id() as libc::pid_t, sig);
-        }
-    }
-
-    fn wait_exit(&mut self, within: Duration) -> Option<i32> {
-        let end = Instant::now() + within;
-        while Instant::now() < end {
-            if let Ok(Some(s)) = self.0.try_wait() {
-                return Some(s.code().unwrap_or(-1));
-            }
-            std::thread::sleep(Duration::from_millis(20));
-        }
-        None
-    }
-}
 
 fn free_udp_port() -> u16 {
     UdpSocket::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port()
@@ -226,17 +181,6 @@ impl Drop for Cell {
             let _ = fake.join();
         }
     }
-}
-
-fn wait_for(file: &Path, text: &str, within: Duration) {
-    let end = Instant::now() + within;
-    while Instant::now() < end {
-        if std::fs::read_to_string(file).is_ok_and(|t| t.contains(text)) {
-            return;
-        }
-        std::thread::sleep(Duration::from_millis(20));
-    }
-    panic!("{} never said {text:?}:\n{}", file.display(), std::fs::read_to_string(file).unwrap_or_default());
 }
 
 /// The robot's limits in degrees: (velocity deg/s, acceleration deg/s²) per joint.
@@ -433,5 +377,5 @@ fn every_bundled_robot_with_a_driver_maps_its_axes_both_ways() {
         checked.push(path.file_stem().unwrap().to_string_lossy().to_string());
     }
     checked.sort();
-    assert_eq!(checked, ["iiwa14", "iiwa7", "irb140", "kr6r900"]);
+    assert_eq!(checked, ["iiwa14", "iiwa7", "irb140", "kr6r900", "meca500", "vp6242"]);
 }

@@ -36,6 +36,10 @@ pub enum PacketError {
     /// A number that is not finite, or more axes than the robot has.
     #[error("bad value: {0}")]
     BadValue(String),
+    /// The robot answered with an error that stopped it (b-CAP's HRESULTs in slave mode): the
+    /// stream is over, the driver tells the service and gives the robot back.
+    #[error("the robot stopped: {0}")]
+    RobotError(String),
 }
 
 /// A robot controller's streaming interface.

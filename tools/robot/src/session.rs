@@ -111,6 +111,8 @@ pub struct Counters {
     pub duplicate: u64,
     /// Packets dropped: out of order.
     pub out_of_order: u64,
+    /// Errors the robot answered that stopped it (the stream ended).
+    pub robot_errors: u64,
 }
 
 /// What [`Session::reply`] decided.
@@ -316,6 +318,11 @@ impl<P: RobotProtocol> Session<P> {
         self.protocol.take_news()
     }
 
+    /// The protocol (a driver that connects sets it up: b-CAP's robot handle).
+    pub fn protocol_mut(&mut self) -> &mut P {
+        &mut self.protocol
+    }
+
     /// The guard (its clamp count and last clamped joint, for the log).
     pub fn guard(&self) -> &ReplyGuard {
         &self.guard
@@ -328,6 +335,7 @@ impl<P: RobotProtocol> Session<P> {
         match &r {
             Err(Dropped::Foreign(_)) => self.counters.foreign += 1,
             Err(Dropped::Packet(PacketError::Oversized(_))) => self.counters.oversized += 1,
+            Err(Dropped::Packet(PacketError::RobotError(_))) => self.counters.robot_errors += 1,
             Err(Dropped::Packet(_) | Dropped::Axes { .. }) => self.counters.malformed += 1,
             Err(Dropped::OutsideLimits { .. }) => self.counters.outside_limits += 1,
             Err(Dropped::Order { seq, last }) if seq == last => self.counters.duplicate += 1,

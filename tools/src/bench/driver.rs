@@ -1,10 +1,15 @@
-//! `strand-bench latency --driver egm|rsi|fri`: a robot driver end to end, through the fake robot
-//! controller of `strand_driver::fake`. The service runs on the robot clock (`strand run --clock
-//! robot`) printing the benchmark job, the driver (`strand-egm`, `strand-rsi` or `strand-fri`)
-//! bridges it to the fake, and the fake — in this process, sending a packet every cycle (4 ms; FRI
-//! the iiwa 7's 1 ms) on absolute deadlines — times each packet to its answer. The driver's own
-//! receive → reply figure comes from its `--stats`; both are reported against the cycle, with the
-//! share of cycles answered in time.
+//! `strand-bench latency --driver egm|rsi|fri|bcap|meca`: a robot driver end to end, through the
+//! fake robot controller of `strand_driver::fake`. The service runs on the robot clock (`strand run
+//! --clock robot`) printing the benchmark job, the driver bridges it to the fake, and the fake runs
+//! in this process on absolute deadlines.
+//!
+//! Where the robot sends first (EGM, RSI, FRI) the fake sends a packet every cycle (4 ms; FRI the
+//! iiwa 7's 1 ms) and times each to its answer. Where the driver connects (b-CAP: the RC8's 8 ms
+//! slave-mode cycle; the Meca500: a 4 ms driver tick) the driver's state receipt → answer is the
+//! round trip, an answer in time is one that left within the cycle, and the fake counts what the
+//! robot saw: cycles whose command buffer ran dry (b-CAP), velocity timeouts and errors. The
+//! driver's own receive → reply figure comes from its `--stats`; both are reported against the
+//! cycle, with the share of cycles answered in time.
 
 use std::net::{SocketAddr, UdpSocket};
 use std::path::PathBuf;
@@ -15,8 +20,10 @@ use std::time::Duration;
 use serde::Serialize;
 use strand::config::Config;
 use strand::io::histogram::Histogram;
+use strand_driver::fake::bcap::{BcapOptions, FakeBcap};
 use strand_driver::fake::egm::FakeEgm;
 use strand_driver::fake::fri::{FakeFri, FriOptions};
+use strand_driver::fake::meca::{FakeMeca, MecaOptions};
 use strand_driver::fake::rsi::FakeRsi;
 use strand_driver::fake::{FakeOptions, FakeProtocol};
 
@@ -26,11 +33,12 @@ use crate::error::{Result, ToolError};
 /// What to run.
 #[derive(Clone, Debug)]
 pub struct DriverOptions {
-    /// `egm`, `rsi` or `fri`.
+    /// `egm`, `rsi`, `fri`, `bcap` or `meca`.
     pub protocol: String,
     /// Duration (s).
     pub seconds: f64,
-    /// Service config with the matching `[driver]` (irb140 for EGM, kr6r900 for RSI, iiwa7 for FRI).
+    /// Service config with the matching `[driver]` (irb140 for EGM, kr6r900 for RSI, iiwa7 for FRI,
+    /// vp6242 for b-CAP, meca500 for the Meca500).
     pub config: PathBuf,
     /// Repository root (the job).
     pub root: PathBuf,
@@ -68,7 +76,8 @@ pub struct DriverReport {
     pub in_time_share: f64,
     /// Answers after their cycle.
     pub late: u64,
-    /// Cycles without an answer.
+    /// Cycles without an answer (the drivers that connect: cycles the robot ran without a command
+    /// — a b-CAP buffer run dry, a Meca500 velocity timeout — and errors it reported).
     pub missing: u64,
     /// Segments the job streamed.
     pub segments_sent: usize,
@@ -79,6 +88,9 @@ pub struct DriverReport {
 
 /// Runs the service, the driver and the fake for `opts.seconds` with the job printing.
 pub fn run(opts: &DriverOptions) -> Result<DriverReport> {
+    if matches!(opts.protocol.as_str(), "bcap" | "meca") {
+        return run_connecting(opts);
+    }
     let cfg = Config::load(&opts.config)?;
     let model = cfg.robot.build_model()?;
     let cycle = 1.0 / cfg.controller.rate_hz;
@@ -172,6 +184,124 @@ pub fn run(opts: &DriverOptions) -> Result<DriverReport> {
     })
 }
 
+/// The controller a connecting driver talks to.
+enum Controller {
+    Bcap(FakeBcap),
+    Meca(FakeMeca),
+}
+
+/// The drivers that connect (b-CAP, the Meca500): the fake is a server, the driver dials it.
+fn run_connecting(opts: &DriverOptions) -> Result<DriverReport> {
+    // The robot's cycle: the RC8's 8 ms; the Meca500's driver tick 4 ms.
+    let rate_hz = if opts.protocol == "bcap" { 125.0 } else { 250.0 };
+    let rate = format!("controller.rate_hz={rate_hz}");
+    let cfg = Config::load_with(&opts.config, std::slice::from_ref(&rate))?;
+    let model = cfg.robot.build_model()?;
+    let cycle = 1.0 / rate_hz;
+    let pid = std::process::id();
+    let prefix = format!("strand/bench-driver-{}-{pid}", opts.protocol);
+    let stats = std::env::temp_dir().join(format!("strand-bench-driver-{pid}.json"));
+    let start_deg: Vec<f64> = cfg.service.initial_joints.iter().map(|q| q.to_degrees()).collect();
+    let io = |e: std::io::Error| ToolError::Measurement(format!("the fake robot: {e}"));
+    let (fake, robot, extra) = if opts.protocol == "bcap" {
+        let fake = FakeBcap::spawn(BcapOptions { cycle, start_deg, rt_priority: Some(90), ..Default::default() }).map_err(io)?;
+        let a = fake.addr();
+        (Controller::Bcap(fake), a, Vec::new())
+    } else {
+        let mut start = [0.0; 6];
+        for (s, q) in start.iter_mut().zip(&start_deg) {
+            *s = *q;
+        }
+        let fake =
+            FakeMeca::spawn(MecaOptions { start_deg: start, home_time: 0.2, rt_priority: Some(90), ..Default::default() }).map_err(io)?;
+        let (c, m) = (fake.control_addr(), fake.monitor_addr());
+        (Controller::Meca(fake), c, vec!["--set".to_string(), format!("driver.monitor_port={}", m.port())])
+    };
+    let spawn = |mut c: Command, what: &str| -> Result<Reaped> {
+        c.stdin(Stdio::null()).stdout(Stdio::null()).stderr(Stdio::null());
+        c.spawn().map(Reaped).map_err(|e| ToolError::Process(format!("cannot start {what}: {e}")))
+    };
+    let mut service = Command::new(opts.bin_dir.join("strand"));
+    service
+        .args(["run", "--clock", "robot", "--no-log", "--prefix", &prefix, "--set", &rate, "--config"])
+        .arg(&opts.config)
+        .env("RUST_LOG", "error");
+    let service = spawn(service, "strand")?;
+    let driver_bin = opts.bin_dir.join(format!("strand-{}", opts.protocol));
+    let mut driver = Command::new(&driver_bin);
+    driver
+        .args(["--prefix", &prefix, "--set", &rate, "--robot", &robot.to_string(), "--config"])
+        .arg(&opts.config)
+        .args(&extra)
+        .arg("--stats")
+        .arg(&stats);
+    if let Some(p) = opts.rt_priority {
+        driver.args(["--rt", &p.to_string()]);
+    }
+    let driver = spawn(driver, &driver_bin.display().to_string())?;
+    let job = bench_job(&opts.root, &cfg)?;
+    let stop_feed = AtomicBool::new(false);
+    let sent = std::thread::scope(|scope| {
+        // The job once the driver has set the robot up (the service then ticks).
+        std::thread::sleep(Duration::from_millis(1000));
+        let feeder = scope.spawn(|| stream_job(&prefix, &job, &stop_feed));
+        std::thread::sleep(Duration::from_secs_f64(opts.seconds));
+        stop_feed.store(true, Ordering::Relaxed);
+        feeder.join()
+    });
+    let sent = sent.map_err(|_| ToolError::Measurement("the feeder panicked".into()))??;
+    driver.terminate(Duration::from_secs(20));
+    drop(service);
+    let (missing, errors) = match fake {
+        Controller::Bcap(f) => {
+            let r = f.stop();
+            (r.report.missing, r.errors.len() as u64)
+        }
+        Controller::Meca(f) => {
+            let r = f.stop();
+            (r.timeouts, r.errors.len() as u64)
+        }
+    };
+    let text = std::fs::read_to_string(&stats).map_err(ToolError::file(&stats))?;
+    let _ = std::fs::remove_file(&stats);
+    let json: serde_json::Value = serde_json::from_str(&text).map_err(|e| ToolError::Content(format!("{}: {e}", stats.display())))?;
+    if let Some(why) = json["robot_ended"].as_str() {
+        return Err(ToolError::Measurement(format!("strand-{}: the robot ended the stream: {why}", opts.protocol)));
+    }
+    let l = &json["latency"];
+    let field = |k: &str| l[k].as_u64().unwrap_or(0);
+    let driver_dist = Dist {
+        samples: field("samples"),
+        p50_ns: field("p50_ns"),
+        p99_ns: field("p99_ns"),
+        p999_ns: field("p999_ns"),
+        p9999_ns: field("max_ns"),
+        max_ns: field("max_ns"),
+    };
+    let c = &json["counters"];
+    let count = |k: &str| c[k].as_u64().unwrap_or(0);
+    let cycles = count("packets");
+    let late = count("missed_cycle");
+    let in_time = cycles.saturating_sub(late);
+    Ok(DriverReport {
+        mode: "latency-driver",
+        protocol: opts.protocol.clone(),
+        robot: model.name().to_string(),
+        seconds: opts.seconds,
+        cycle_s: cycle,
+        rt: opts.rt_priority.is_some(),
+        round_trip: driver_dist.clone(),
+        driver: driver_dist,
+        cycles,
+        in_time,
+        in_time_share: if cycles == 0 { 0.0 } else { in_time as f64 / cycles as f64 },
+        late,
+        missing: missing + errors,
+        segments_sent: sent,
+        histograms: Vec::new(),
+    })
+}
+
 /// Prints the report as a table.
 pub fn print(r: &DriverReport) {
     println!(
@@ -184,8 +314,13 @@ pub fn print(r: &DriverReport) {
         r.segments_sent
     );
     println!("{}", Dist::header("round trip"));
-    println!("{}", r.round_trip.row("packet → answer (fake robot)"));
-    println!("{}", r.driver.row("receive → reply (driver)"));
+    if r.histograms.is_empty() {
+        // A driver that connects: its own state → answer is the round trip.
+        println!("{}", r.driver.row("state → answer (driver)"));
+    } else {
+        println!("{}", r.round_trip.row("packet → answer (fake robot)"));
+        println!("{}", r.driver.row("receive → reply (driver)"));
+    }
     println!("cycles {}: {} in time ({:.3} %), {} late, {} missing", r.cycles, r.in_time, 100.0 * r.in_time_share, r.late, r.missing);
 }
 

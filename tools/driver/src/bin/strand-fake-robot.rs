@@ -1,8 +1,11 @@
-//! strand-fake-robot: a fake ABB IRC5 (EGM), KUKA KR C4 (RSI) or KUKA Sunrise cabinet (FRI) for
-//! testing strand-egm, strand-rsi and strand-fri where no robot is. It sends the controller's packets every 4 ms on absolute deadlines,
-//! integrates the answers into its actual axes (with an optional drive lag), and reports the cycles
-//! answered in time, late and missing, and the actual axes' largest speed and acceleration. The
-//! protocols are `strand_driver::fake`.
+//! strand-fake-robot: a fake ABB IRC5 (EGM), KUKA KR C4 (RSI), KUKA Sunrise cabinet (FRI), DENSO
+//! RC8 (b-CAP) or Mecademic Meca500 for testing the drivers where no robot is. For EGM, RSI and FRI
+//! it sends the controller's packets every 4 ms on absolute deadlines to `--driver`, integrates the
+//! answers into its actual axes (with an optional drive lag), and reports the cycles answered in
+//! time, late and missing, and the actual axes' largest speed and acceleration. For b-CAP and the
+//! Meca500 it listens (`--listen`; the Meca500's monitoring port is the next one) for the driver to
+//! connect, runs the controller's cycle, and reports at Ctrl-C what it saw: cycles, commands, the
+//! errors it raised. The protocols are `strand_driver::fake`.
 
 use std::net::SocketAddr;
 use std::path::PathBuf;
@@ -20,19 +23,30 @@ enum Protocol {
     Egm,
     Rsi,
     Fri,
+    Bcap,
+    Meca,
 }
 
 #[derive(Parser)]
-#[command(name = "strand-fake-robot", version, about = "A fake robot controller speaking EGM, RSI or FRI, for testing the drivers")]
+#[command(
+    name = "strand-fake-robot",
+    version,
+    about = "A fake robot controller speaking EGM, RSI, FRI, b-CAP or the Meca500's TCP API, for testing the drivers"
+)]
 struct Cli {
     /// The interface to fake.
     #[arg(long, value_enum)]
     protocol: Protocol,
-    /// The driver's address (IP:PORT).
-    #[arg(long)]
-    driver: SocketAddr,
+    /// The driver's address (IP:PORT): EGM, RSI and FRI, where the robot sends first.
+    #[arg(long, required_if_eq_any = [("protocol", "egm"), ("protocol", "rsi"), ("protocol", "fri")])]
+    driver: Option<SocketAddr>,
+    /// Where to listen for the driver (IP:PORT): b-CAP (5007 on an RC8) and the Meca500's control
+    /// port (10000; its monitoring port is the next one).
+    #[arg(long, default_value = "127.0.0.1:0")]
+    listen: SocketAddr,
     /// Axes at the start (degrees, comma-separated: six; seven for FRI). Default: KUKA's RSI start
-    /// pose (0,-90,90,0,90,0), or the LBR iiwa's start posture of config/iiwa7.toml for FRI.
+    /// pose (0,-90,90,0,90,0), or the LBR iiwa's start posture of config/iiwa7.toml for FRI, or
+    /// the start postures of config/vp6242.toml (b-CAP) and config/meca500.toml (the Meca500).
     #[arg(long, value_delimiter = ',', allow_negative_numbers = true)]
     start: Vec<f64>,
     /// The cycle (s).
@@ -71,24 +85,100 @@ extern "C" fn on_signal(_: libc::c_int) {
     STOP.store(true, Ordering::Relaxed);
 }
 
+/// b-CAP and the Meca500: the fake is a server; it runs until Ctrl-C.
+fn serve(cli: &Cli) -> ExitCode {
+    use strand_driver::fake::bcap::{BcapOptions, FakeBcap};
+    use strand_driver::fake::meca::{FakeMeca, MecaOptions};
+    let start = cli.start.clone();
+    let wait = || {
+        while !STOP.load(Ordering::Relaxed) {
+            std::thread::sleep(std::time::Duration::from_millis(50));
+        }
+    };
+    let (report, json) = if matches!(cli.protocol, Protocol::Bcap) {
+        let opts =
+            BcapOptions { bind: cli.listen, cycle: cli.period, start_deg: start, lag: cli.lag, rt_priority: cli.rt, ..Default::default() };
+        let fake = match FakeBcap::spawn(opts) {
+            Ok(f) => f,
+            Err(e) => {
+                eprintln!("strand-fake-robot: {}: {e}", cli.listen);
+                return ExitCode::from(1);
+            }
+        };
+        eprintln!("strand-fake-robot: a DENSO RC8 (b-CAP) listening on {}", fake.addr());
+        wait();
+        let r = fake.stop();
+        let errors: Vec<String> = r.errors.iter().map(|e| format!("{e:#010x}")).collect();
+        let json = serde_json::json!({ "report": &r.report, "errors": errors, "slv_moves": r.slv_moves, "released": r.released, "calls": r.calls });
+        (r.report, json)
+    } else {
+        let mut start_deg = [0.0; 6];
+        start_deg.copy_from_slice(&start[..6]);
+        let monitor = SocketAddr::new(cli.listen.ip(), if cli.listen.port() == 0 { 0 } else { cli.listen.port() + 1 });
+        let opts = MecaOptions { control: cli.listen, monitor, start_deg, rt_priority: cli.rt, ..Default::default() };
+        let fake = match FakeMeca::spawn(opts) {
+            Ok(f) => f,
+            Err(e) => {
+                eprintln!("strand-fake-robot: {}: {e}", cli.listen);
+                return ExitCode::from(1);
+            }
+        };
+        eprintln!("strand-fake-robot: a Meca500 listening on {} (monitoring {})", fake.control_addr(), fake.monitor_addr());
+        wait();
+        let r = fake.stop();
+        let json = serde_json::json!({ "report": &r.report, "errors": r.errors, "timeouts": r.timeouts, "move_joints_vel": r.move_joints_vel, "commands": r.commands });
+        (r.report, json)
+    };
+    eprintln!(
+        "strand-fake-robot: {} cycles, {} with a fresh command, {} without; {}",
+        report.cycles, report.in_time, report.missing, json["errors"]
+    );
+    if let Some(p) = &cli.stats
+        && let Err(e) = std::fs::write(p, format!("{json:#}\n"))
+    {
+        eprintln!("strand-fake-robot: {}: {e}", p.display());
+        return ExitCode::from(1);
+    }
+    ExitCode::SUCCESS
+}
+
 fn main() -> ExitCode {
     let mut cli = Cli::parse();
     let axes = if matches!(cli.protocol, Protocol::Fri) { 7 } else { 6 };
     if cli.start.is_empty() {
-        cli.start = if axes == 7 {
-            [0.0f64, 0.4, 0.0, -1.5, 0.0, 1.2, 0.0].iter().map(|q| q.to_degrees()).collect()
-        } else {
-            vec![0.0, -90.0, 90.0, 0.0, 90.0, 0.0]
+        let deg = |q: &[f64]| q.iter().map(|q| q.to_degrees()).collect();
+        cli.start = match cli.protocol {
+            Protocol::Fri => deg(&[0.0f64, 0.4, 0.0, -1.5, 0.0, 1.2, 0.0]),
+            Protocol::Bcap => deg(&[0.0, 0.649, 2.048, 0.0, 0.445, 0.0]),
+            Protocol::Meca => deg(&[0.0, 0.121, 0.459, 0.0, 0.991, 0.0]),
+            _ => vec![0.0, -90.0, 90.0, 0.0, 90.0, 0.0],
         };
     }
     if cli.start.len() != axes || cli.start.iter().any(|x| !x.is_finite()) {
         eprintln!("strand-fake-robot: --start needs {axes} finite angles (degrees)");
         return ExitCode::from(2);
     }
+    if matches!(cli.protocol, Protocol::Bcap | Protocol::Meca) {
+        // SAFETY: the handler only stores to an atomic.
+        unsafe {
+            libc::signal(libc::SIGINT, on_signal as *const () as libc::sighandler_t);
+            libc::signal(libc::SIGTERM, on_signal as *const () as libc::sighandler_t);
+        }
+        if matches!(cli.protocol, Protocol::Bcap) && cli.period == 0.004 {
+            // The RC8's slave-mode cycle, unless one is given.
+            cli.period = 0.008;
+        }
+        return serve(&cli);
+    }
+    let Some(driver) = cli.driver else {
+        eprintln!("strand-fake-robot: --driver IP:PORT is needed for EGM, RSI and FRI");
+        return ExitCode::from(2);
+    };
     let period_ms = (cli.period * 1e3).round() as u64;
     let mut protocol: Box<dyn FakeProtocol> = match cli.protocol {
         Protocol::Egm => Box::new(FakeEgm::new(cli.stopped_cycles, period_ms as u32)),
         Protocol::Rsi => Box::new(FakeRsi::new(&cli.start, period_ms)),
+        Protocol::Bcap | Protocol::Meca => unreachable!("served above"),
         Protocol::Fri => {
             let opts = FriOptions {
                 send_period_ms: period_ms as u32,
@@ -105,7 +195,7 @@ fn main() -> ExitCode {
         libc::signal(libc::SIGTERM, on_signal as *const () as libc::sighandler_t);
     }
     let opts = FakeOptions {
-        driver: cli.driver,
+        driver,
         bind: SocketAddr::from(([127, 0, 0, 1], 0)),
         period: cli.period,
         start_deg: cli.start.clone(),

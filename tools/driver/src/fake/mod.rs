@@ -3,6 +3,10 @@
 //! public descriptions (ros-industrial's kuka_rsi_simulator and abb_libegm), not from the drivers'
 //! code: the RSI fake builds and reads its XML itself, the EGM fake uses only the schema.
 //! [`fri`] is a KUKA Sunrise controller (LBR iiwa) with FRI, from `docs/protocols/fri.md`, its protobuf by hand.
+//! [`bcap`] is a DENSO RC8 in b-CAP slave mode (TCP), from `docs/protocols/bcap.md`, its packets and
+//! VARIANTs by hand; it is a TCP server with its own controller tick thread, not driven by [`run`].
+//! [`meca`] is a Mecademic Meca500 R3 with its TCP text API (control and monitoring ports, velocity
+//! mode), from `docs/protocols/meca500.md`; it runs its own trajectory cycle rather than [`run`].
 //!
 //! The loop is a controller's: a packet every `period` on absolute deadlines (`clock_nanosleep`
 //! with `TIMER_ABSTIME`), the answer taken as it arrives (its round trip measured) and accepted
@@ -11,8 +15,10 @@
 //! time, late (an answer to an older packet) or missing. The actual axes are recorded so that a
 //! test can check their speed and acceleration against the robot's limits.
 
+pub mod bcap;
 pub mod egm;
 pub mod fri;
+pub mod meca;
 pub mod rsi;
 
 use std::net::{SocketAddr, UdpSocket};

@@ -1,4 +1,10 @@
-//! What the driver tests share: the job every cell prints.
+//! What the driver tests share: the job every cell prints, the workspace's binaries, child
+//! processes killed when dropped, and waiting for a log line.
+#![allow(dead_code)]
+
+use std::path::{Path, PathBuf};
+use std::process::Child;
+use std::time::{Duration, Instant};
 
 /// Two layers of three 10 mm squares at 30 mm/s in the middle of the bundled robots' beds (G-code).
 pub fn squares_gcode() -> String {
@@ -11,4 +17,62 @@ pub fn squares_gcode() -> String {
         }
     }
     g
+}
+
+pub fn root() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..")
+}
+
+pub fn bin(name: &str) -> PathBuf {
+    let p = Path::new(env!("CARGO_BIN_EXE_strand-rsi")).with_file_name(name);
+    assert!(p.exists(), "{} missing: build the workspace first (cargo build --workspace)", p.display());
+    p
+}
+
+pub fn temp_dir(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("strand-driver-test-{}-{name}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+/// A child process killed when dropped.
+pub struct Kid(pub Child);
+
+impl Drop for Kid {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+impl Kid {
+    pub fn signal(&mut self, sig: libc::c_int) {
+        // SAFETY: kill(2) on our own child.
+        unsafe {
+            libc::kill(self.0.id() as libc::pid_t, sig);
+        }
+    }
+
+    pub fn wait_exit(&mut self, within: Duration) -> Option<i32> {
+        let end = Instant::now() + within;
+        while Instant::now() < end {
+            if let Ok(Some(s)) = self.0.try_wait() {
+                return Some(s.code().unwrap_or(-1));
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        None
+    }
+}
+
+pub fn wait_for(file: &Path, text: &str, within: Duration) {
+    let end = Instant::now() + within;
+    while Instant::now() < end {
+        if std::fs::read_to_string(file).is_ok_and(|t| t.contains(text)) {
+            return;
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    panic!("{} never said {text:?}:\n{}", file.display(), std::fs::read_to_string(file).unwrap_or_default());
 }

@@ -60,10 +60,11 @@ pub enum Mode {
         /// Draw the histograms (log-scale counts) into this PNG.
         #[arg(long)]
         png: Option<PathBuf>,
-        /// Through a robot driver instead: `egm` (strand-egm, irb140), `rsi` (strand-rsi, kr6r900)
-        /// or `fri` (strand-fri, iiwa7) against the fake robot controller, at the robot's cycle
-        /// (4 ms; FRI 1 ms).
-        #[arg(long, value_parser = ["egm", "rsi", "fri"])]
+        /// Through a robot driver instead: `egm` (strand-egm, irb140), `rsi` (strand-rsi, kr6r900),
+        /// `fri` (strand-fri, iiwa7), `bcap` (strand-bcap, vp6242) or `meca` (strand-meca,
+        /// meca500) against the fake robot controller, at the robot's cycle (4 ms; FRI 1 ms; b-CAP
+        /// the RC8's 8 ms).
+        #[arg(long, value_parser = ["egm", "rsi", "fri", "bcap", "meca"])]
         driver: Option<String>,
         /// With --driver: run the driver with SCHED_FIFO at this priority. Without: the service and
         /// the ping-pong at this priority (memory locked, PM QoS 0) and this driver one above.

@@ -83,6 +83,8 @@ fn main() -> ExitCode {
                 let robot = match protocol.as_str() {
                     "egm" => "irb140",
                     "fri" => "iiwa7",
+                    "bcap" => "vp6242",
+                    "meca" => "meca500",
                     _ => "kr6r900",
                 };
                 let opts = driver::DriverOptions {

@@ -1,0 +1,282 @@
+//! The driver process's loop for the interfaces the driver connects to and sends on first (b-CAP's
+//! slave mode, the Meca500): a [`DriverLink`] carries the cycle's exchange — the answer out, the
+//! robot's state back — and a [`Session`] decides, as in [`crate::bridge`] for the interfaces that
+//! send first. Each state the robot returns is stamped on receipt and published as the JointState
+//! that clocks the service; the answer is the service's command for it, or a hold if it is not
+//! there by the reply deadline. The robot is never left without an answer for its next cycle: a
+//! dropped packet is answered with a hold too. An error the robot reports (it stopped) ends the
+//! stream: the service is told (an emergency stop) and the caller gives the robot back. Ctrl-C holds
+//! the robot to rest first.
+
+use std::os::fd::AsRawFd;
+use std::sync::atomic::{AtomicBool, Ordering};
+
+use strand::io::clock::monotonic_ns;
+use strand::io::histogram::Histogram;
+use strand_ipc::ports::{ClientPorts, ClientRoles};
+use strand_ipc::{Command, Control, JointState, ServiceNames};
+
+use crate::bridge::{BridgeReport, log_transition, wait_command};
+use crate::protocol::{PacketError, RobotProtocol};
+use crate::session::{DriverState, Dropped, ReplyKind, Session};
+
+/// Why a link failed.
+#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
+pub enum LinkError {
+    /// The socket.
+    #[error("{0}")]
+    Io(String),
+    /// The robot closed the connection.
+    #[error("{0}")]
+    Closed(String),
+    /// The robot refused a call (the message names the call and the robot's code).
+    #[error("{0}")]
+    Refused(String),
+}
+
+/// The cycle's transport, for an interface the driver connects to.
+pub trait DriverLink {
+    /// The robot controller's address.
+    fn peer(&self) -> std::net::SocketAddr;
+    /// Sends the answer: at once, or at the driver's next tick where the driver clocks the cycle.
+    fn send(&mut self, answer: &[u8]) -> Result<(), LinkError>;
+    /// The robot's next state packet, waiting until `deadline_ns` (`CLOCK_MONOTONIC`) at most.
+    fn receive(&mut self, deadline_ns: u64) -> Result<Option<&[u8]>, LinkError>;
+    /// Gives the robot back (b-CAP: slave mode off, motor off, the arm given back; the Meca500: a
+    /// zero velocity) the moment the stream ends — a robot that runs on buffered commands stops
+    /// with an error when they run out. Returns what failed, named.
+    fn finish(&mut self) -> Vec<String>;
+}
+
+/// How the loop runs.
+#[derive(Clone, Debug)]
+pub struct PacedOptions {
+    /// The service prefix.
+    pub prefix: String,
+    /// Longest wait for the service's command after a state arrives (s).
+    pub reply_deadline: f64,
+    /// The robot's cycle (s).
+    pub period: f64,
+    /// Longest wait for the robot's state after an answer (s): beyond it the robot is gone.
+    pub state_timeout: f64,
+    /// Stop after this many states (0: never; tests and benchmarks).
+    pub max_packets: u64,
+}
+
+/// How the stream ended, and what giving the robot back said.
+#[derive(Debug)]
+pub struct Ended {
+    /// Why.
+    pub end: StreamEnd,
+    /// The steps of giving the robot back that failed (named).
+    pub release_failed: Vec<String>,
+}
+
+/// Why the stream ended.
+#[derive(Debug)]
+pub enum StreamEnd {
+    /// Stopped (Ctrl-C, `max_packets`) with the robot held to rest.
+    Stopped,
+    /// The robot reported an error (it stopped), went silent or closed the link.
+    Robot(String),
+}
+
+/// Whether `fd` has something to read within `timeout_ns` (ppoll on a high-resolution timer: a
+/// socket's receive timeout counts in scheduler ticks, 4 ms at HZ=250).
+pub fn readable(fd: &impl AsRawFd, timeout_ns: u64) -> bool {
+    let mut p = libc::pollfd { fd: fd.as_raw_fd(), events: libc::POLLIN, revents: 0 };
+    let ts = libc::timespec { tv_sec: (timeout_ns / 1_000_000_000) as libc::time_t, tv_nsec: (timeout_ns % 1_000_000_000) as libc::c_long };
+    // SAFETY: one valid pollfd, a valid timespec, no signal mask.
+    let n = unsafe { libc::ppoll(&mut p, 1, &ts, std::ptr::null()) };
+    n > 0 && p.revents & (libc::POLLIN | libc::POLLHUP | libc::POLLERR) != 0
+}
+
+/// Sleeps until `deadline_ns` (`CLOCK_MONOTONIC`, absolute: no drift from one tick to the next).
+pub fn sleep_until(deadline_ns: u64) {
+    let ts =
+        libc::timespec { tv_sec: (deadline_ns / 1_000_000_000) as libc::time_t, tv_nsec: (deadline_ns % 1_000_000_000) as libc::c_long };
+    // SAFETY: clock_nanosleep with a valid timespec and no remainder pointer (absolute time).
+    unsafe { while libc::clock_nanosleep(libc::CLOCK_MONOTONIC, libc::TIMER_ABSTIME, &ts, std::ptr::null_mut()) == libc::EINTR {} }
+}
+
+/// Runs the cycle until `stop` (then holds the robot to rest), `max_packets`, or the robot ends
+/// it; then gives the robot back ([`DriverLink::finish`]). `first` is the answer that starts the exchange where the robot answers commands (b-CAP's
+/// first `slvMove`, holding the arm where it is; empty if the robot streams by itself): it goes
+/// out once the service's ports are open, since from then on the robot needs one every cycle.
+pub fn run<P: RobotProtocol, L: DriverLink>(
+    session: &mut Session<P>,
+    link: &mut L,
+    first: &[u8],
+    opts: &PacedOptions,
+    stop: &AtomicBool,
+) -> Result<(BridgeReport, Ended), strand_ipc::ports::PortError> {
+    let name = P::NAME;
+    let ports = ClientPorts::open(
+        &ServiceNames::new(&opts.prefix),
+        &format!("strand-{name}"),
+        ClientRoles { driver: true, feeder: true, ..Default::default() },
+    )?;
+    let peer = link.peer();
+    eprintln!("strand-{name}: streaming to {peer}, service {}", opts.prefix);
+    let mut started = first.is_empty() || link.send(first).is_ok();
+    let mut reply = Vec::with_capacity(1024);
+    let mut latency = Histogram::new();
+    let deadline_ns = (opts.reply_deadline * 1e9) as u64;
+    let period_ns = (opts.period * 1e9) as u64;
+    let timeout_ns = (opts.state_timeout * 1e9) as u64;
+    let mut previous_q: Option<[f64; strand_ipc::MAX_JOINTS]> = None;
+    let mut control_seq = 0u64;
+    let mut last_state_seq = 0u64;
+    let mut stopping_since: Option<u64> = None;
+    let mut rest_cycles = 0u32;
+    let mut logged_drops = 0u64;
+    let mut clamps_logged = 0u64;
+    let estop = |ports: &ClientPorts, seq: &mut u64| {
+        *seq += 1;
+        let c = Control { seq: *seq, stamp_ns: monotonic_ns(), command: Command::EmergencyStop as u32, value: 0.0, _reserved: 0 };
+        let _ = ports.send_control(&c);
+    };
+    let end = loop {
+        if !std::mem::replace(&mut started, true) {
+            break StreamEnd::Robot("the first command did not go out".into());
+        }
+        if stop.load(Ordering::Relaxed) && stopping_since.is_none() {
+            eprintln!("strand-{name}: stop requested: holding the robot");
+            stopping_since = Some(monotonic_ns());
+        }
+        if let Some(t) = stopping_since {
+            let cap = ((session.guard().longest_stop() + 0.5) * 1e9) as u64;
+            rest_cycles = if session.guard().at_rest() { rest_cycles + 1 } else { 0 };
+            if rest_cycles > 5 || monotonic_ns().saturating_sub(t) > cap {
+                break StreamEnd::Stopped;
+            }
+        }
+        let waited = monotonic_ns();
+        let bytes = match link.receive(waited + timeout_ns) {
+            Ok(Some(b)) => b,
+            Ok(None) => break StreamEnd::Robot(format!("no state from the robot in {} s", opts.state_timeout)),
+            Err(e) => break StreamEnd::Robot(e.to_string()),
+        };
+        let received = monotonic_ns();
+        let (seq, q, transition) = match session.on_packet(bytes, peer) {
+            Ok(x) => x,
+            Err(Dropped::Packet(PacketError::RobotError(why))) => break StreamEnd::Robot(why),
+            Err(dropped) => {
+                logged_drops += 1;
+                if logged_drops <= 10 {
+                    eprintln!("strand-{name}: dropped a packet: {dropped}");
+                }
+                // The robot still needs its next command: the hold.
+                session.reply_hold(&mut reply);
+                if let Err(e) = link.send(&reply) {
+                    break StreamEnd::Robot(e.to_string());
+                }
+                continue;
+            }
+        };
+        if let Some(t) = transition {
+            log_transition(name, t, &format!(" (robot at {peer})"));
+        }
+        if let Some(news) = session.take_news() {
+            eprintln!("strand-{name}: robot: {news}");
+        }
+        let told = session.robot_report();
+        let mut state = JointState {
+            seq,
+            stamp_ns: received,
+            dof: session.dof() as u32,
+            flags: told.flags,
+            position: q,
+            robot_target: told.target,
+            robot_target_velocity: told.target_velocity,
+            ..Default::default()
+        };
+        if let Some(p) = previous_q {
+            for k in 0..state.dof as usize {
+                state.velocity[k] = (q[k] - p[k]) / opts.period;
+            }
+        }
+        previous_q = Some(q);
+        let held = stopping_since.is_some() || session.state() == DriverState::HeldAfterFault;
+        let (kind, transition) = if held {
+            let r = session.reply_hold(&mut reply);
+            let sent = link.send(&reply);
+            record(received, period_ns, &mut latency, session);
+            if let Err(e) = sent {
+                break StreamEnd::Robot(e.to_string());
+            }
+            let transition = if stopping_since.is_none() {
+                let mut answered = false;
+                while let Ok(Some(c)) = ports.receive_joint_command() {
+                    answered |= c.state_seq == last_state_seq && c.valid == 1;
+                }
+                let _ = ports.send_joint_state(&state);
+                last_state_seq = seq;
+                session.note_service(answered)
+            } else {
+                None
+            };
+            (r.0, transition)
+        } else {
+            let _ = ports.send_joint_state(&state);
+            last_state_seq = seq;
+            let command = wait_command(&ports, seq, received + deadline_ns);
+            let r = session.reply(command.as_ref(), &mut reply);
+            let sent = link.send(&reply);
+            record(received, period_ns, &mut latency, session);
+            if let Err(e) = sent {
+                break StreamEnd::Robot(e.to_string());
+            }
+            r
+        };
+        if let Some(t) = transition {
+            let why = match (t.from, t.to) {
+                (_, DriverState::HeldAfterFault) => format!(
+                    " ({} commands in a row missed the {} ms deadline: holding, and telling the service)",
+                    session.late_run(),
+                    opts.reply_deadline * 1e3
+                ),
+                (DriverState::HeldAfterFault, DriverState::Following) => " (the service answers in time again)".to_string(),
+                _ => String::new(),
+            };
+            log_transition(name, t, &why);
+            if t.to == DriverState::HeldAfterFault {
+                estop(&ports, &mut control_seq);
+            }
+        }
+        let clamped = session.counters.clamped;
+        if kind == ReplyKind::Command && clamped > clamps_logged && clamped.is_power_of_two() {
+            clamps_logged = clamped;
+            eprintln!(
+                "strand-{name}: warning: {} answers clamped to the joint limits so far (last: joint {})",
+                clamped,
+                session.guard().last_clamped_joint.map_or(0, |j| j + 1)
+            );
+        }
+        if opts.max_packets > 0 && session.counters.packets >= opts.max_packets {
+            break StreamEnd::Stopped;
+        }
+    };
+    // Give the robot back at once: the service's ports are closed after it.
+    let release_failed = link.finish();
+    if let StreamEnd::Robot(why) = &end {
+        // The robot stopped by itself: the service must stop too (it faults and stops extruding).
+        eprintln!("strand-{name}: the stream ended: {why}");
+        estop(&ports, &mut control_seq);
+    }
+    let report = BridgeReport { counters: session.counters, stale: 0, latency, final_state: format!("{:?}", session.state()) };
+    Ok((report, Ended { end, release_failed }))
+}
+
+/// Records how long after the state's receipt the answer left; one that left after the robot's
+/// cycle is counted (`missed_cycle`). Unlike a UDP robot that holds its target through a missed
+/// answer, these robots run every answer in order (b-CAP's buffer; the Meca500 keeps its last
+/// velocity until the next): a late answer delays the motion, it does not stop it, so the guard
+/// goes on from its last answer. A buffer that runs dry is an error the robot reports.
+fn record<P: RobotProtocol>(received: u64, period_ns: u64, latency: &mut Histogram, session: &mut Session<P>) {
+    let took = monotonic_ns() - received;
+    latency.record(took);
+    if took > period_ns {
+        session.counters.missed_cycle += 1;
+    }
+}
