@@ -25,11 +25,13 @@ pub enum DriverProtocol {
     Bcap,
     /// Mecademic Meca500 TCP API (text commands, monitoring stream): `strand-meca`.
     Meca,
+    /// Universal Robots RTDE and a URScript servo program over the reverse interface: `strand-ur`.
+    Ur,
 }
 
 impl DriverProtocol {
     /// The port the protocol's examples use (EGM 6510, RSI 49152, FRI 30200; the controller's
-    /// b-CAP 5007 and Meca500 control 10000).
+    /// b-CAP 5007, Meca500 control 10000, UR RTDE 30004).
     pub fn default_port(self) -> u16 {
         match self {
             DriverProtocol::Egm => 6510,
@@ -37,6 +39,7 @@ impl DriverProtocol {
             DriverProtocol::Fri => 30200,
             DriverProtocol::Bcap => 5007,
             DriverProtocol::Meca => 10000,
+            DriverProtocol::Ur => 30004,
         }
     }
 
@@ -48,13 +51,14 @@ impl DriverProtocol {
             DriverProtocol::Fri => "fri",
             DriverProtocol::Bcap => "bcap",
             DriverProtocol::Meca => "meca",
+            DriverProtocol::Ur => "ur",
         }
     }
 
-    /// Whether the driver connects to the robot controller (b-CAP, the Meca500: `[driver] robot`
+    /// Whether the driver connects to the robot controller (b-CAP, the Meca500, UR: `[driver] robot`
     /// is the controller's address) rather than listening for its packets (EGM, RSI, FRI: `bind`).
     pub fn driver_connects(self) -> bool {
-        matches!(self, DriverProtocol::Bcap | DriverProtocol::Meca)
+        matches!(self, DriverProtocol::Bcap | DriverProtocol::Meca | DriverProtocol::Ur)
     }
 }
 
@@ -101,6 +105,24 @@ pub struct DriverConfig {
     /// Meca500: `SetVelTimeout` (s): the arm stops by itself this long after the last velocity
     /// command (strand stopped, the link lost).
     pub velocity_timeout: f64,
+    /// UR: the controller's script port the program is sent to (30002 secondary, 30001 primary).
+    pub script_port: u16,
+    /// UR: the port the driver listens on for the program to connect back (50001; 0: any free).
+    pub reverse_port: u16,
+    /// UR: the address the program connects back to and the driver listens on; empty: the local
+    /// address of the RTDE connection (the card facing the robot).
+    pub reverse_host: String,
+    /// UR: `servoj`'s lookahead time (s, 0.03 to 0.2): longer smooths more and lags more.
+    pub lookahead_time: f64,
+    /// UR: `servoj`'s gain (100 to 2000, proportional; higher follows tighter).
+    pub servo_gain: f64,
+    /// UR: the standard analog output (0 or 1) the extruder's drive speed goes to; -1: none.
+    pub analog_output: i32,
+    /// UR: the analog output's ratio (0..1 of its range, voltage domain) = `analog_offset` +
+    /// `analog_scale` × the extruder's drive speed (s/rad), clamped.
+    pub analog_scale: f64,
+    /// UR: see `analog_scale` (a ratio, 0..1).
+    pub analog_offset: f64,
 }
 
 impl Default for DriverConfig {
@@ -119,6 +141,14 @@ impl Default for DriverConfig {
             monitor_port: 10001,
             velocity_gain: 20.0,
             velocity_timeout: 0.05,
+            script_port: 30002,
+            reverse_port: 50001,
+            reverse_host: String::new(),
+            lookahead_time: 0.03,
+            servo_gain: 2000.0,
+            analog_output: -1,
+            analog_scale: 0.0,
+            analog_offset: 0.0,
         }
     }
 }
@@ -190,6 +220,27 @@ impl DriverConfig {
         }
         if self.monitor_port == 0 {
             return bad("[driver] monitor_port = 0: not a port".to_string());
+        }
+        if self.script_port == 0 {
+            return bad("[driver] script_port = 0: not a port".to_string());
+        }
+        if !self.reverse_host.is_empty() && self.reverse_host.parse::<IpAddr>().is_err() {
+            return bad(format!("[driver] reverse_host = {:?}: not an IP address", self.reverse_host));
+        }
+        if !(self.lookahead_time.is_finite() && (0.03..=0.2).contains(&self.lookahead_time)) {
+            return bad(format!("[driver] lookahead_time = {}: servoj takes 0.03 to 0.2 s", self.lookahead_time));
+        }
+        if !(self.servo_gain.is_finite() && (100.0..=2000.0).contains(&self.servo_gain)) {
+            return bad(format!("[driver] servo_gain = {}: servoj takes 100 to 2000", self.servo_gain));
+        }
+        if !(-1..=1).contains(&self.analog_output) {
+            return bad(format!("[driver] analog_output = {}: 0 or 1 (a standard analog output), or -1 for none", self.analog_output));
+        }
+        if !(self.analog_scale.is_finite() && self.analog_offset.is_finite() && (0.0..=1.0).contains(&self.analog_offset)) {
+            return bad(format!(
+                "[driver] analog_scale = {}, analog_offset = {}: finite, the offset a ratio in [0, 1]",
+                self.analog_scale, self.analog_offset
+            ));
         }
         self.robot_address()?;
         Ok(())

@@ -6,8 +6,8 @@
 //! - [`protocol`], [`session`], [`guard`], [`axes`] — what every driver shares, from the
 //!   `strand-robot` crate (re-exported here): the protocol trait, the sans-IO session, the limits
 //!   every answer keeps and the catch-up after a missed cycle, the axis mapping.
-//! - [`egm`] (ABB), [`rsi`] (KUKA KR C4), [`fri`] (KUKA LBR iiwa), [`bcap`] (DENSO RC7/RC8) and
-//!   [`meca`] (Mecademic Meca500) implement the protocol trait. A new interface is one more module.
+//! - [`egm`] (ABB), [`rsi`] (KUKA KR C4), [`fri`] (KUKA LBR iiwa), [`bcap`] (DENSO RC7/RC8),
+//!   [`meca`] (Mecademic Meca500) and [`ur`] (Universal Robots) implement the protocol trait. A new interface is one more module.
 //! - [`bridge`] — the process loop where the robot sends first (EGM, RSI, FRI): UDP socket,
 //!   service ports, deadlines.
 //! - [`paced`] — the process loop where the driver connects and sends first (b-CAP, the
@@ -23,6 +23,7 @@ pub mod fri;
 pub mod meca;
 pub mod paced;
 pub mod rsi;
+pub mod ur;
 
 pub use strand_robot::{axes, guard, protocol, session};
 
@@ -118,6 +119,16 @@ pub fn driver_config(cfg: &Config, protocol: DriverProtocol) -> Result<DriverCon
                 ),
             });
         }
+    }
+    if protocol == DriverProtocol::Ur && !(100.0..=500.0).contains(&cfg.controller.rate_hz) {
+        // RTDE streams at the rate asked, at most 500 Hz (e-Series; CB3 125 Hz): one tick each.
+        return Err(SetupError::Section {
+            file,
+            why: format!(
+                "[controller] rate_hz = {} Hz: RTDE streams at most 500 Hz (e-Series; 125 Hz on a CB3); run the service and strand-ur with --set controller.rate_hz=500",
+                cfg.controller.rate_hz
+            ),
+        });
     }
     Ok(d)
 }

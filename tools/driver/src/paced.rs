@@ -1,5 +1,5 @@
-//! The driver process's loop for the interfaces the driver connects to and sends on first (b-CAP's
-//! slave mode, the Meca500): a [`DriverLink`] carries the cycle's exchange — the answer out, the
+//! The driver process's loop for the interfaces the driver connects to (b-CAP's slave mode, the
+//! Meca500, UR's RTDE and reverse interface): a [`DriverLink`] carries the cycle's exchange — the answer out, the
 //! robot's state back — and a [`Session`] decides, as in [`crate::bridge`] for the interfaces that
 //! send first. Each state the robot returns is stamped on receipt and published as the JointState
 //! that clocks the service; the answer is the service's command for it, or a hold if it is not
@@ -46,6 +46,15 @@ pub trait DriverLink {
     /// zero velocity) the moment the stream ends — a robot that runs on buffered commands stops
     /// with an error when they run out. Returns what failed, named.
     fn finish(&mut self) -> Vec<String>;
+    /// Whether the link carries the extruder's command (UR: a standard analog output).
+    fn wants_extruder(&self) -> bool {
+        false
+    }
+    /// The extruder's newest drive speed (rad/s), for a link that carries it.
+    fn extruder(&mut self, motor_speed: f64) -> Result<(), LinkError> {
+        let _ = motor_speed;
+        Ok(())
+    }
 }
 
 /// How the loop runs.
@@ -114,7 +123,7 @@ pub fn run<P: RobotProtocol, L: DriverLink>(
     let ports = ClientPorts::open(
         &ServiceNames::new(&opts.prefix),
         &format!("strand-{name}"),
-        ClientRoles { driver: true, feeder: true, ..Default::default() },
+        ClientRoles { driver: true, feeder: true, monitor: link.wants_extruder(), ..Default::default() },
     )?;
     let peer = link.peer();
     eprintln!("strand-{name}: streaming to {peer}, service {}", opts.prefix);
@@ -180,6 +189,30 @@ pub fn run<P: RobotProtocol, L: DriverLink>(
         if let Some(news) = session.take_news() {
             eprintln!("strand-{name}: robot: {news}");
         }
+        if let Some(scaling) = session.take_speed_scaling() {
+            // The robot slows its motion (its speed slider): the service slows the path to match.
+            eprintln!("strand-{name}: robot: speed scaling {:.0} %: the service's feed follows it", scaling * 100.0);
+            control_seq += 1;
+            let c = Control {
+                seq: control_seq,
+                stamp_ns: monotonic_ns(),
+                command: Command::FeedOverride as u32,
+                value: scaling.max(0.01),
+                _reserved: 0,
+            };
+            let _ = ports.send_control(&c);
+        }
+        if link.wants_extruder() {
+            let mut newest = None;
+            while let Ok(Some(e)) = ports.receive_extruder_command() {
+                newest = Some(e.motor_speed);
+            }
+            if let Some(speed) = newest
+                && let Err(e) = link.extruder(speed)
+            {
+                break StreamEnd::Robot(e.to_string());
+            }
+        }
         let told = session.robot_report();
         let mut state = JointState {
             seq,
@@ -198,7 +231,17 @@ pub fn run<P: RobotProtocol, L: DriverLink>(
         }
         previous_q = Some(q);
         let held = stopping_since.is_some() || session.state() == DriverState::HeldAfterFault;
-        let (kind, transition) = if held {
+        let (kind, transition) = if !session.robot_following() && !held {
+            // The robot does not follow yet (UR: strand's program not playing): hold it where it
+            // is, and do not clock the service.
+            let r = session.reply_hold(&mut reply);
+            let sent = link.send(&reply);
+            record(received, period_ns, &mut latency, session);
+            if let Err(e) = sent {
+                break StreamEnd::Robot(e.to_string());
+            }
+            r
+        } else if held {
             let r = session.reply_hold(&mut reply);
             let sent = link.send(&reply);
             record(received, period_ns, &mut latency, session);

@@ -87,6 +87,13 @@ pub trait RobotProtocol {
         None
     }
 
+    /// A speed scaling the robot applies to its motion now (0..1; UR's speed slider × its
+    /// trajectory limiter), once per change; None by default. The service is told to scale its
+    /// feed to it, so that the path slows instead of the robot falling behind its commands.
+    fn take_speed_scaling(&mut self) -> Option<f64> {
+        None
+    }
+
     /// Encodes into `out` (cleared first) the answer to `to`: the robot's axes should go to `axes`
     /// (rad, or m for a linear axis; the robot's own axes, `to.dof` of them).
     fn encode_reply(&mut self, to: &RobotPacket, axes: &[f64], out: &mut Vec<u8>);

@@ -313,6 +313,11 @@ impl<P: RobotProtocol> Session<P> {
         r
     }
 
+    /// A speed scaling the robot reported ([`RobotProtocol::take_speed_scaling`]).
+    pub fn take_speed_scaling(&mut self) -> Option<f64> {
+        self.protocol.take_speed_scaling()
+    }
+
     /// A change the robot reported, for the log ([`RobotProtocol::take_news`]).
     pub fn take_news(&mut self) -> Option<String> {
         self.protocol.take_news()
