@@ -16,7 +16,7 @@ use strand_ipc::ports::{ClientPorts, ClientRoles};
 use strand_ipc::{Command, Control, JointCommand, JointState, ServiceNames};
 
 use crate::protocol::RobotProtocol;
-use crate::session::{Counters, DriverState, ReplyKind, Session, Transition};
+use crate::session::{Counters, DriverState, Due, ReplyKind, Session, Transition};
 
 /// How the bridge runs.
 #[derive(Clone, Debug)]
@@ -36,10 +36,6 @@ pub struct BridgeOptions {
 
 /// Packets taken from the socket at most, per robot packet, to find the newest.
 const MAX_DRAIN: usize = 16;
-
-/// Cycles without an accepted packet after which the robot's session is over (RSI off, EGM
-/// stopped, a restart): the next packet starts a new one.
-const SILENT_CYCLES: f64 = 25.0;
 
 /// What a run did.
 #[derive(Clone, Debug, serde::Serialize)]
@@ -96,38 +92,21 @@ pub fn run<P: RobotProtocol>(session: &mut Session<P>, opts: &BridgeOptions, sto
     let period_ns = (opts.period * 1e9) as u64;
     let mut previous_q: Option<[f64; strand_ipc::MAX_JOINTS]> = None;
     let mut control_seq = 0u64;
-    let silent_ns = (SILENT_CYCLES * opts.period * 1e9) as u64;
-    let mut last_accepted = monotonic_ns();
     let mut last_state_seq = 0u64;
     let mut clamps_logged = 0u64;
-    let mut stopping_since: Option<u64> = None;
-    let mut rest_cycles = 0u32;
     let mut logged_drops = 0u64;
     loop {
-        if stop.load(Ordering::Relaxed) && stopping_since.is_none() {
+        if stop.load(Ordering::Relaxed) && session.request_stop(monotonic_ns()) {
             eprintln!("strand-{name}: stop requested: holding the robot");
-            stopping_since = Some(monotonic_ns());
         }
-        if let Some(t) = stopping_since {
-            // Hold until the robot is at rest (a few cycles), at most as long as the slowest
-            // joint takes to stop from full speed, plus a margin; a robot that stopped streaming
-            // needs no hold.
-            let cap = ((session.guard().longest_stop() + 0.5) * 1e9) as u64;
-            if session.guard().at_rest() {
-                rest_cycles += 1;
-            } else {
-                rest_cycles = 0;
-            }
-            if rest_cycles > 5 || monotonic_ns().saturating_sub(t) > cap || session.state() == DriverState::WaitingForRobot {
-                break;
-            }
-        }
-        // The robot went quiet: its session is over (a new one gets a new reference).
-        if session.state() != DriverState::WaitingForRobot && monotonic_ns().saturating_sub(last_accepted) > silent_ns {
-            if let Some(t) = session.reset() {
+        match session.poll(monotonic_ns()) {
+            Due::StopDone => break,
+            // The robot went quiet: its session is over (a new one gets a new reference).
+            Due::SessionEnded(t) => {
                 log_transition(name, t, " (no packet from the robot: its session ended)");
+                previous_q = None;
             }
-            previous_q = None;
+            Due::Nothing => {}
         }
         let (n, from) = match socket.recv_from(&mut buf) {
             Ok(x) => x,
@@ -167,7 +146,7 @@ pub fn run<P: RobotProtocol>(session: &mut Session<P>, opts: &BridgeOptions, sto
             let _ = socket.set_nonblocking(false);
         }
         let received = monotonic_ns();
-        let (seq, q, transition) = match session.on_packet(&buf[..n], from) {
+        let (seq, q, transition) = match session.on_packet_at(received, &buf[..n], from) {
             Ok(x) => x,
             Err(dropped) => {
                 logged_drops += 1;
@@ -177,7 +156,6 @@ pub fn run<P: RobotProtocol>(session: &mut Session<P>, opts: &BridgeOptions, sto
                 continue;
             }
         };
-        last_accepted = received;
         if let Some(t) = transition {
             log_transition(name, t, &format!(" (robot at {from})"));
         }
@@ -207,11 +185,11 @@ pub fn run<P: RobotProtocol>(session: &mut Session<P>, opts: &BridgeOptions, sto
         // Held (after a fault, or shutting down): answer the robot first, so that nothing the
         // service's side costs (a dead service's clean-up in iceoryx2 takes milliseconds) can
         // make the hold late; then see whether the service answers again.
-        let held = stopping_since.is_some() || session.state() == DriverState::HeldAfterFault;
+        let held = session.stopping() || session.state() == DriverState::HeldAfterFault;
         let (kind, transition) = if held {
             let r = session.reply_hold(&mut reply);
             answer(&socket, &reply, from, received, period_ns, &mut latency, session);
-            let transition = if stopping_since.is_none() {
+            let transition = if !session.stopping() {
                 // Did the service answer the last state within its cycle? (No waiting here: the
                 // robot's next packet must find the driver ready.)
                 let mut answered = false;

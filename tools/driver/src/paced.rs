@@ -18,7 +18,7 @@ use strand_ipc::{Command, Control, JointState, ServiceNames};
 
 use crate::bridge::{BridgeReport, log_transition, wait_command};
 use crate::protocol::{PacketError, RobotProtocol};
-use crate::session::{DriverState, Dropped, ReplyKind, Session};
+use crate::session::{DriverState, Dropped, Due, ReplyKind, Session};
 
 /// Why a link failed.
 #[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
@@ -136,8 +136,6 @@ pub fn run<P: RobotProtocol, L: DriverLink>(
     let mut previous_q: Option<[f64; strand_ipc::MAX_JOINTS]> = None;
     let mut control_seq = 0u64;
     let mut last_state_seq = 0u64;
-    let mut stopping_since: Option<u64> = None;
-    let mut rest_cycles = 0u32;
     let mut logged_drops = 0u64;
     let mut clamps_logged = 0u64;
     let estop = |ports: &ClientPorts, seq: &mut u64| {
@@ -149,16 +147,11 @@ pub fn run<P: RobotProtocol, L: DriverLink>(
         if !std::mem::replace(&mut started, true) {
             break StreamEnd::Robot("the first command did not go out".into());
         }
-        if stop.load(Ordering::Relaxed) && stopping_since.is_none() {
+        if stop.load(Ordering::Relaxed) && session.request_stop(monotonic_ns()) {
             eprintln!("strand-{name}: stop requested: holding the robot");
-            stopping_since = Some(monotonic_ns());
         }
-        if let Some(t) = stopping_since {
-            let cap = ((session.guard().longest_stop() + 0.5) * 1e9) as u64;
-            rest_cycles = if session.guard().at_rest() { rest_cycles + 1 } else { 0 };
-            if rest_cycles > 5 || monotonic_ns().saturating_sub(t) > cap {
-                break StreamEnd::Stopped;
-            }
+        if session.poll(monotonic_ns()) == Due::StopDone {
+            break StreamEnd::Stopped;
         }
         let waited = monotonic_ns();
         let bytes = match link.receive(waited + timeout_ns) {
@@ -167,7 +160,7 @@ pub fn run<P: RobotProtocol, L: DriverLink>(
             Err(e) => break StreamEnd::Robot(e.to_string()),
         };
         let received = monotonic_ns();
-        let (seq, q, transition) = match session.on_packet(bytes, peer) {
+        let (seq, q, transition) = match session.on_packet_at(received, bytes, peer) {
             Ok(x) => x,
             Err(Dropped::Packet(PacketError::RobotError(why))) => break StreamEnd::Robot(why),
             Err(dropped) => {
@@ -230,7 +223,7 @@ pub fn run<P: RobotProtocol, L: DriverLink>(
             }
         }
         previous_q = Some(q);
-        let held = stopping_since.is_some() || session.state() == DriverState::HeldAfterFault;
+        let held = session.stopping() || session.state() == DriverState::HeldAfterFault;
         let (kind, transition) = if !session.robot_following() && !held {
             // The robot does not follow yet (UR: strand's program not playing): hold it where it
             // is, and do not clock the service.
@@ -248,7 +241,7 @@ pub fn run<P: RobotProtocol, L: DriverLink>(
             if let Err(e) = sent {
                 break StreamEnd::Robot(e.to_string());
             }
-            let transition = if stopping_since.is_none() {
+            let transition = if !session.stopping() {
                 let mut answered = false;
                 while let Ok(Some(c)) = ports.receive_joint_command() {
                     answered |= c.state_seq == last_state_seq && c.valid == 1;

@@ -9,7 +9,7 @@ use strand_ipc::JointCommand;
 use strand_robot::axes::AxisMap;
 use strand_robot::guard::{JointBounds, ReplyGuard};
 use strand_robot::protocol::PacketError;
-use strand_robot::session::{DriverState, Dropped, ReplyKind, Session, SessionRules};
+use strand_robot::session::{DriverState, Dropped, Due, ReplyKind, Session, SessionRules};
 
 fn rob(ipoc: u64, a1: f64) -> Vec<u8> {
     format!(
@@ -197,4 +197,48 @@ fn the_report_says_what_the_robot_was_told_and_that_it_held() {
     let r = s.robot_report();
     assert_eq!(r.flags & HELD, HELD);
     assert_eq!(r.target_velocity[0], 0.0);
+}
+
+#[test]
+fn the_session_owns_the_silence_and_the_stop_deadlines() {
+    // 4 ms cycles: 25 silent cycles = 100 ms end the robot's session; a stop holds until at rest.
+    let mut s = session();
+    let robot: SocketAddr = "127.0.0.1:5000".parse().unwrap();
+    let ms = 1_000_000u64;
+    assert_eq!(s.poll_timeout(), None, "nothing pending before the robot");
+    s.on_packet_at(1000 * ms, &rob(100, 0.0), robot).unwrap();
+    assert_eq!(s.poll_timeout(), Some(1100 * ms));
+    assert_eq!(s.poll(1099 * ms), Due::Nothing);
+    match s.poll(1101 * ms) {
+        Due::SessionEnded(t) => assert_eq!(t.to, DriverState::WaitingForRobot),
+        other => panic!("{other:?}"),
+    }
+    // A new session; the service moves A1, then a stop: the answers hold, braking, and the stop is
+    // done once the target has been at rest for a few polls.
+    let mut out = Vec::new();
+    let mut t = 2000 * ms;
+    s.on_packet_at(t, &rob(200, 0.0), robot).unwrap();
+    for k in 1..=50u64 {
+        t += 4 * ms;
+        s.on_packet_at(t, &rob(200 + 4 * k, 0.0), robot).unwrap();
+        s.reply(Some(&command(k, 0.004 * k as f64)), &mut out);
+    }
+    assert!(s.request_stop(t) && !s.request_stop(t) && s.stopping());
+    let mut polls = 0;
+    loop {
+        t += 4 * ms;
+        polls += 1;
+        s.on_packet_at(t, &rob(400 + 4 * polls, 0.0), robot).unwrap();
+        s.reply_hold(&mut out);
+        if s.poll(t) == Due::StopDone {
+            break;
+        }
+        assert!(polls < 200, "the stop never ended");
+    }
+    // From 1 rad/s at 10 rad/s² the hold brakes in 0.1 s (25 cycles), then 5 polls at rest.
+    assert!((20..=40).contains(&polls), "{polls} polls");
+    // A stop with no robot streaming is done at once.
+    let mut quiet = session();
+    quiet.request_stop(0);
+    assert_eq!(quiet.poll(0), Due::StopDone);
 }

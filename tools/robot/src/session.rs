@@ -10,7 +10,10 @@
 //!   within the acceleration limit); `max_late_cycles` of them in a row latch the hold and raise a
 //!   fault for the service (the bridge sends an emergency stop); after `recover_cycles` in time the
 //!   driver follows again, from where it holds;
-//! - every answer passes the [`ReplyGuard`]: inside the joint limits, no jump.
+//! - every answer passes the [`ReplyGuard`]: inside the joint limits, no jump;
+//! - the deadlines that need no packet, given `now` ([`Session::poll`], [`Session::poll_timeout`]):
+//!   a robot silent for [`SILENT_CYCLES`] ends its session; a requested stop holds the robot until
+//!   it is at rest.
 
 use std::net::SocketAddr;
 
@@ -24,6 +27,25 @@ use crate::protocol::{PacketError, RobotPacket, RobotProtocol};
 /// How far outside its limits a joint may be at the start (rad): encoder noise and rounding, not a
 /// wrong mapping (0.5°).
 const START_LIMIT_TOLERANCE: f64 = 0.0087;
+
+/// Cycles without an accepted packet after which the robot's session is over (RSI off, EGM
+/// stopped, a restart): the next packet starts a new one.
+pub const SILENT_CYCLES: f64 = 25.0;
+
+/// Polls in a row with the guard at rest that end a stop's hold.
+const REST_POLLS_TO_STOP: u32 = 5;
+
+/// What [`Session::poll`] found due at `now`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Due {
+    /// Nothing.
+    Nothing,
+    /// The robot went quiet for [`SILENT_CYCLES`]: its session ended (the transition, for the log).
+    SessionEnded(Transition),
+    /// A requested stop is done: the robot is at rest (a few polls in a row), or the longest stop
+    /// from full speed plus 0.5 s went by, or no robot streams.
+    StopDone,
+}
 
 /// The driver's state, as its log lines name it.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -160,6 +182,10 @@ pub struct Session<P: RobotProtocol> {
     current: Option<RobotPacket>,
     /// The robot kept its target through a cycle or more since the last [`Session::robot_report`].
     held: bool,
+    /// When a packet was last accepted (ns, the caller's monotonic clock).
+    last_accepted_ns: Option<u64>,
+    /// A stop requested (when, ns) and the polls in a row at rest since.
+    stop: Option<(u64, u32)>,
     /// Counters since start.
     pub counters: Counters,
 }
@@ -191,7 +217,76 @@ impl<P: RobotProtocol> Session<P> {
             good_run: 0,
             current: None,
             held: false,
+            last_accepted_ns: None,
+            stop: None,
             counters: Counters::default(),
+        }
+    }
+
+    /// Takes a packet as [`Session::on_packet`] does, received at `now_ns` (monotonic): an
+    /// accepted one restarts the silence [`Session::poll`] watches.
+    pub fn on_packet_at(
+        &mut self,
+        now_ns: u64,
+        bytes: &[u8],
+        from: SocketAddr,
+    ) -> Result<(u64, [f64; MAX_JOINTS], Option<Transition>), Dropped> {
+        let r = self.on_packet(bytes, from);
+        if r.is_ok() {
+            self.last_accepted_ns = Some(now_ns);
+        }
+        r
+    }
+
+    /// A stop was asked for at `now_ns` (Ctrl-C): from now on every answer holds, until
+    /// [`Session::poll`] says [`Due::StopDone`]. True the first time.
+    pub fn request_stop(&mut self, now_ns: u64) -> bool {
+        if self.stop.is_some() {
+            return false;
+        }
+        self.stop = Some((now_ns, 0));
+        true
+    }
+
+    /// Whether a stop was asked for.
+    pub fn stopping(&self) -> bool {
+        self.stop.is_some()
+    }
+
+    /// The deadlines the session owns, at `now_ns`: the robot's silence (its session ends after
+    /// [`SILENT_CYCLES`]), and a requested stop's hold (done when the guard's target has been at
+    /// rest for a few polls — the loops poll once a cycle — or after the slowest joint's stop from
+    /// full speed plus 0.5 s). Call it once per cycle, and when a wait for the robot times out.
+    pub fn poll(&mut self, now_ns: u64) -> Due {
+        if let Some((since, rest)) = self.stop {
+            let rest = if self.guard.at_rest() { rest + 1 } else { 0 };
+            self.stop = Some((since, rest));
+            let cap = ((self.guard.longest_stop() + 0.5) * 1e9) as u64;
+            if rest > REST_POLLS_TO_STOP || now_ns.saturating_sub(since) > cap || self.state == DriverState::WaitingForRobot {
+                return Due::StopDone;
+            }
+        }
+        let silent_ns = (SILENT_CYCLES * self.guard.period() * 1e9) as u64;
+        if self.state != DriverState::WaitingForRobot
+            && self.last_accepted_ns.is_some_and(|t| now_ns.saturating_sub(t) > silent_ns)
+            && let Some(t) = self.reset()
+        {
+            return Due::SessionEnded(t);
+        }
+        Due::Nothing
+    }
+
+    /// The next instant (ns) [`Session::poll`] may have something due without a packet: the
+    /// robot's silence limit, or a stop's cap. None: nothing pending.
+    pub fn poll_timeout(&self) -> Option<u64> {
+        let silence = (self.state != DriverState::WaitingForRobot)
+            .then_some(self.last_accepted_ns)
+            .flatten()
+            .map(|t| t + (SILENT_CYCLES * self.guard.period() * 1e9) as u64);
+        let stop = self.stop.map(|(since, _)| since + ((self.guard.longest_stop() + 0.5) * 1e9) as u64);
+        match (silence, stop) {
+            (Some(a), Some(b)) => Some(a.min(b)),
+            (a, b) => a.or(b),
         }
     }
 
@@ -234,6 +329,7 @@ impl<P: RobotProtocol> Session<P> {
         self.sender = None;
         self.last_seq = None;
         self.current = None;
+        self.last_accepted_ns = None;
         self.late_run = 0;
         self.good_run = 0;
         self.enter(DriverState::WaitingForRobot)
