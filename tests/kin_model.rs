@@ -18,6 +18,7 @@ fn the_bundled_robots_load_with_their_chains() {
         ("meca500", 6, "meca_axis_1_joint"),
         ("irb140", 6, "joint_1"),
         ("kr6r900", 6, "joint_a1"),
+        ("ur5e", 6, "shoulder_pan_joint"),
     ];
     for ((name, dof, first), listed) in expect.iter().zip(ROBOTS) {
         assert_eq!(*name, listed);

@@ -116,13 +116,17 @@ pub struct DriverConfig {
     pub lookahead_time: f64,
     /// UR: `servoj`'s gain (100 to 2000, proportional; higher follows tighter).
     pub servo_gain: f64,
-    /// UR: the standard analog output (0 or 1) the extruder's drive speed goes to; -1: none.
+    /// UR: the standard analog output (0 or 1) the extruder's speed goes to; -1: none.
     pub analog_output: i32,
     /// UR: the analog output's ratio (0..1 of its range, voltage domain) = `analog_offset` +
-    /// `analog_scale` × the extruder's drive speed (s/rad), clamped.
+    /// `analog_scale` × the filament's speed into the hot end (`ExtruderCommand::filament_rate`,
+    /// m/s; so s/m), clamped: a retraction clamps to the offset.
     pub analog_scale: f64,
     /// UR: see `analog_scale` (a ratio, 0..1).
     pub analog_offset: f64,
+    /// UR: the read timeout every message announces to the program (s, 0.002 to 0.2): a driver
+    /// silent longer (stopped, hung, the link lost) makes it stop the arm (`stopj`) and end.
+    pub read_timeout: f64,
 }
 
 impl Default for DriverConfig {
@@ -149,6 +153,7 @@ impl Default for DriverConfig {
             analog_output: -1,
             analog_scale: 0.0,
             analog_offset: 0.0,
+            read_timeout: 0.02,
         }
     }
 }
@@ -226,6 +231,9 @@ impl DriverConfig {
         }
         if !self.reverse_host.is_empty() && self.reverse_host.parse::<IpAddr>().is_err() {
             return bad(format!("[driver] reverse_host = {:?}: not an IP address", self.reverse_host));
+        }
+        if !(self.read_timeout.is_finite() && (0.002..=0.2).contains(&self.read_timeout)) {
+            return bad(format!("[driver] read_timeout = {}: the program takes 0.002 to 0.2 s", self.read_timeout));
         }
         if !(self.lookahead_time.is_finite() && (0.03..=0.2).contains(&self.lookahead_time)) {
             return bad(format!("[driver] lookahead_time = {}: servoj takes 0.03 to 0.2 s", self.lookahead_time));

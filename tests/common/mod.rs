@@ -8,7 +8,7 @@ use std::path::PathBuf;
 use strand::config::RobotConfig;
 use strand::core::kin::{ClikStep, JointVector, RobotModel};
 
-pub const ROBOTS: [&str; 6] = ["iiwa7", "iiwa14", "vp6242", "meca500", "irb140", "kr6r900"];
+pub const ROBOTS: [&str; 7] = ["iiwa7", "iiwa14", "vp6242", "meca500", "irb140", "kr6r900", "ur5e"];
 
 /// A fresh, empty folder for one test's files (named after the process and the test).
 pub fn temp_dir(name: &str) -> PathBuf {

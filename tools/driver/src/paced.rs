@@ -50,9 +50,10 @@ pub trait DriverLink {
     fn wants_extruder(&self) -> bool {
         false
     }
-    /// The extruder's newest drive speed (rad/s), for a link that carries it.
-    fn extruder(&mut self, motor_speed: f64) -> Result<(), LinkError> {
-        let _ = motor_speed;
+    /// The extruder's newest command: the filament's speed into the hot end (m/s), for a link
+    /// that carries it.
+    fn extruder(&mut self, filament_rate: f64) -> Result<(), LinkError> {
+        let _ = filament_rate;
         Ok(())
     }
 }
@@ -198,7 +199,7 @@ pub fn run<P: RobotProtocol, L: DriverLink>(
         if link.wants_extruder() {
             let mut newest = None;
             while let Ok(Some(e)) = ports.receive_extruder_command() {
-                newest = Some(e.motor_speed);
+                newest = Some(e.filament_rate);
             }
             if let Some(speed) = newest
                 && let Err(e) = link.extruder(speed)

@@ -1,7 +1,8 @@
 //! The drivers that connect to the robot controller, end to end: the service on the robot clock,
-//! strand-bcap (a DENSO RC8's b-CAP slave mode, the VP6242) or strand-meca (a Meca500's TCP API),
-//! a fake controller written from the public description only (`tools/driver/src/fake/bcap.rs`,
-//! `fake/meca.rs`, in this process on their own threads, absolute deadlines), and strand-feed
+//! strand-bcap (a DENSO RC8's b-CAP slave mode, the VP6242), strand-meca (a Meca500's TCP API) or
+//! strand-ur (a UR5e's RTDE and reverse interface), a fake controller written from the public
+//! description only (`tools/driver/src/fake/bcap.rs`, `fake/meca.rs`, `fake/ur.rs`, in this process
+//! on their own threads, absolute deadlines), and strand-feed
 //! streaming the shared job. The job must finish with the controller never stopping the arm (no
 //! b-CAP HRESULT: no empty command buffer, no command too fast; no Meca500 error and no velocity
 //! timeout while streaming), the arm within its limits, and the robot given back cleanly at the
@@ -21,6 +22,7 @@ use strand::config::Config;
 use strand_driver::fake::FakeReport;
 use strand_driver::fake::bcap::{BcapOptions, BcapReport, BcapWatch, FakeBcap};
 use strand_driver::fake::meca::{FakeMeca, MecaOptions, MecaReport, MecaWatch};
+use strand_driver::fake::ur::{FakeUr, UrOptions, UrReport, UrWatch};
 
 /// One cell at a time (a real-time loop in three processes on a 2-core machine).
 static ONE_CELL: std::sync::Mutex<()> = std::sync::Mutex::new(());
@@ -29,12 +31,14 @@ static ONE_CELL: std::sync::Mutex<()> = std::sync::Mutex::new(());
 enum Fake {
     Bcap(FakeBcap),
     Meca(FakeMeca),
+    Ur(FakeUr),
 }
 
 /// What the fake saw.
 enum Seen {
     Bcap(BcapReport),
     Meca(MecaReport),
+    Ur(UrReport),
 }
 
 impl Seen {
@@ -42,15 +46,17 @@ impl Seen {
         match self {
             Seen::Bcap(r) => &r.report,
             Seen::Meca(r) => &r.report,
+            Seen::Ur(r) => &r.report,
         }
     }
 }
 
 /// The robot and its cycle for a protocol: the VP6242 on the RC8's 8 ms; the Meca500 on a 4 ms
-/// driver tick.
+/// driver tick; the UR5e on RTDE's 2 ms.
 fn robot_of(protocol: &str) -> (&'static str, f64) {
     match protocol {
         "bcap" => ("vp6242", 125.0),
+        "ur" => ("ur5e", 500.0),
         _ => ("meca500", 250.0),
     }
 }
@@ -116,6 +122,24 @@ impl Cell {
                 let addr = fake.addr();
                 (Fake::Bcap(fake), addr, Vec::new())
             }
+            "ur" => {
+                let fake = FakeUr::spawn(UrOptions {
+                    start_q: std::array::from_fn(|k| cfg.service.initial_joints[k]),
+                    speed_limit: std::array::from_fn(|k| limits[k][2].to_radians()),
+                    rt_priority: Some(90),
+                    ..Default::default()
+                })
+                .unwrap();
+                let (r, p) = (fake.rtde_addr(), fake.primary_addr());
+                // The program connects back to any free port; a shared machine's stall is not the
+                // driver stopping: the read timeout the program gets is 0.2 s (a cell's: 0.02).
+                let extra = [
+                    "driver.reverse_port=0".to_string(),
+                    format!("driver.script_port={}", p.port()),
+                    "driver.read_timeout=0.2".to_string(),
+                ];
+                (Fake::Ur(fake), r, extra.iter().flat_map(|e| ["--set".to_string(), e.clone()]).collect())
+            }
             _ => {
                 let mut start = [0.0; 6];
                 start.copy_from_slice(&start_deg);
@@ -165,6 +189,10 @@ impl Cell {
         let fake = match &self.fake {
             Some(Fake::Bcap(f)) => format!("--- the controller latched {:x?}", f.watch().errors()),
             Some(Fake::Meca(f)) => format!("--- the robot's status {:?}", f.watch().status()),
+            Some(Fake::Ur(f)) => {
+                let w = f.watch();
+                format!("--- the robot: mode {}, safety {}, runtime {}", w.robot_mode(), w.safety_mode(), w.runtime_state())
+            }
             None => String::new(),
         };
         ["service.log", "driver.log", "feed.log"]
@@ -189,6 +217,13 @@ impl Cell {
         }
     }
 
+    fn ur(&self) -> UrWatch {
+        match &self.fake {
+            Some(Fake::Ur(f)) => f.watch(),
+            _ => panic!("not a UR cell"),
+        }
+    }
+
     /// SIGTERM to the driver (it holds the arm to rest, gives the robot back and exits); its exit
     /// code, its stats and log, and what the fake saw.
     fn finish(mut self) -> (Option<i32>, serde_json::Value, String, Seen) {
@@ -206,6 +241,7 @@ impl Cell {
         let seen = match self.fake.take().unwrap() {
             Fake::Bcap(f) => Seen::Bcap(f.stop()),
             Fake::Meca(f) => Seen::Meca(f.stop()),
+            Fake::Ur(f) => Seen::Ur(f.stop()),
         };
         let _ = strand_ipc::ports::cleanup_dead_nodes();
         (code, stats, log, seen)
@@ -282,7 +318,19 @@ fn a_job_streams_through(protocol: &str) {
             assert!(r.move_joints_vel > 1000, "{r:?}");
             assert_within_limits(protocol, &config, &r.report, 0.002);
         }
+        Seen::Ur(r) => ur_ran_cleanly(r, &log, &config),
     }
+}
+
+/// A UR run: one program, never stopped by its read timeout, no setpoint too fast, ended by the
+/// driver's STOPPED message, the arm within its limits.
+fn ur_ran_cleanly(r: &UrReport, log: &str, config: &Path) {
+    assert_eq!(r.scripts.len(), 1, "{:?}", r.scripts);
+    assert_eq!(r.timeouts, 0, "the program timed out: {:?}\n{log}", r.report);
+    assert_eq!(r.violations, 0, "{:?}", r.report);
+    assert_eq!(r.clean_stops, 1, "the driver ended the program cleanly: {:?}\n{log}", r.report);
+    assert!(r.report.cycles > 1000, "{:?}", r.report);
+    assert_within_limits("ur", config, &r.report, 0.002);
 }
 
 #[test]
@@ -293,6 +341,34 @@ fn a_job_streams_through_strand_bcap_to_a_denso_and_finishes() {
 #[test]
 fn a_job_streams_through_strand_meca_to_a_meca500_and_finishes() {
     a_job_streams_through("meca");
+}
+
+#[test]
+fn a_job_streams_through_strand_ur_to_a_ur5e_and_finishes() {
+    a_job_streams_through("ur");
+}
+
+/// The robot's speed slider at 40 % mid-job: the driver tells the service, whose path slows (the
+/// job still finishes, with the arm never asked for more than the robot gives).
+#[test]
+fn the_ur_speed_slider_slows_the_services_path() {
+    let cell = Cell::start("ur", "slider-ur");
+    let job = job(&cell.dir);
+    let feed_log = cell.dir.join("feed.log");
+    let mut feed = Kid(cell.feed(&job).stdout(Stdio::null()).stderr(std::fs::File::create(&feed_log).unwrap()).spawn().unwrap());
+    wait_for(&cell.dir.join("driver.log"), "Holding → Following", Duration::from_secs(30));
+    std::thread::sleep(Duration::from_millis(1500));
+    cell.ur().set_speed_scaling(0.4);
+    let code = feed.wait_exit(Duration::from_secs(240));
+    let logs = cell.logs();
+    assert_eq!(code, Some(0), "the job finishes at 40 %:\n{logs}");
+    assert!(logs.contains("speed scaling 40 %"), "the driver told the service:\n{logs}");
+    let config = cell.config.clone();
+    let (code, _, log, seen) = cell.finish();
+    assert_eq!(code, Some(0), "{log}");
+    if let Seen::Ur(r) = &seen {
+        ur_ran_cleanly(r, &log, &config);
+    }
 }
 
 /// Kills the service once the job runs: the driver must go on commanding the arm (a b-CAP buffer
@@ -324,7 +400,13 @@ fn killed_service(protocol: &str) {
             assert_eq!(r.timeouts, 0, "{r:?}");
             assert_within_limits(protocol, &config, &r.report, 0.002);
         }
+        Seen::Ur(r) => ur_ran_cleanly(r, &log, &config),
     }
+}
+
+#[test]
+fn a_killed_service_leaves_the_ur5e_held_without_a_jump() {
+    killed_service("ur");
 }
 
 #[test]
@@ -348,6 +430,7 @@ fn robot_error(protocol: &str, code: u32, named: &[&str]) {
     std::thread::sleep(Duration::from_millis(2000));
     match protocol {
         "bcap" => cell.bcap().inject_error(code),
+        "ur" => cell.ur().protective_stop(),
         _ => cell.meca().inject_error(code),
     }
     let exit = cell.driver.wait_exit(Duration::from_secs(20));
@@ -371,6 +454,11 @@ fn a_denso_that_stops_with_an_error_ends_the_stream_named() {
     // The controller answers the error itself to a slvMove it held when the error came, and
     // "slave mode off" to the next one otherwise: either is named.
     robot_error("bcap", 0x8420_4051, &["0x84204051 (command speed too large, J1)", "0x83500121 (slvMove while slave mode is off"]);
+}
+
+#[test]
+fn a_ur5e_in_a_protective_stop_ends_the_stream_named() {
+    robot_error("ur", 0, &["PROTECTIVE_STOP (3)"]);
 }
 
 #[test]

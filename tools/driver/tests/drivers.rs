@@ -377,5 +377,5 @@ fn every_bundled_robot_with_a_driver_maps_its_axes_both_ways() {
         checked.push(path.file_stem().unwrap().to_string_lossy().to_string());
     }
     checked.sort();
-    assert_eq!(checked, ["iiwa14", "iiwa7", "irb140", "kr6r900", "meca500", "vp6242"]);
+    assert_eq!(checked, ["iiwa14", "iiwa7", "irb140", "kr6r900", "meca500", "ur5e", "vp6242"]);
 }

@@ -5,9 +5,10 @@
 //!
 //! Where the robot sends first (EGM, RSI, FRI) the fake sends a packet every cycle (4 ms; FRI the
 //! iiwa 7's 1 ms) and times each to its answer. Where the driver connects (b-CAP: the RC8's 8 ms
-//! slave-mode cycle; the Meca500: a 4 ms driver tick) the driver's state receipt → answer is the
-//! round trip, an answer in time is one that left within the cycle, and the fake counts what the
-//! robot saw: cycles whose command buffer ran dry (b-CAP), velocity timeouts and errors. The
+//! slave-mode cycle; the Meca500: a 4 ms driver tick; UR: RTDE's 2 ms) the driver's state receipt →
+//! answer is the round trip, an answer in time is one that left within the cycle, and the fake
+//! counts what the robot saw: cycles whose command buffer ran dry (b-CAP), velocity or read
+//! timeouts, errors and setpoints refused (UR). The
 //! driver's own receive → reply figure comes from its `--stats`; both are reported against the
 //! cycle, with the share of cycles answered in time.
 
@@ -25,6 +26,7 @@ use strand_driver::fake::egm::FakeEgm;
 use strand_driver::fake::fri::{FakeFri, FriOptions};
 use strand_driver::fake::meca::{FakeMeca, MecaOptions};
 use strand_driver::fake::rsi::FakeRsi;
+use strand_driver::fake::ur::{FakeUr, UrOptions};
 use strand_driver::fake::{FakeOptions, FakeProtocol};
 
 use super::{Dist, Reaped, bench_job, stream_job};
@@ -33,12 +35,12 @@ use crate::error::{Result, ToolError};
 /// What to run.
 #[derive(Clone, Debug)]
 pub struct DriverOptions {
-    /// `egm`, `rsi`, `fri`, `bcap` or `meca`.
+    /// `egm`, `rsi`, `fri`, `bcap`, `meca` or `ur`.
     pub protocol: String,
     /// Duration (s).
     pub seconds: f64,
     /// Service config with the matching `[driver]` (irb140 for EGM, kr6r900 for RSI, iiwa7 for FRI,
-    /// vp6242 for b-CAP, meca500 for the Meca500).
+    /// vp6242 for b-CAP, meca500 for the Meca500, ur5e for UR).
     pub config: PathBuf,
     /// Repository root (the job).
     pub root: PathBuf,
@@ -88,7 +90,7 @@ pub struct DriverReport {
 
 /// Runs the service, the driver and the fake for `opts.seconds` with the job printing.
 pub fn run(opts: &DriverOptions) -> Result<DriverReport> {
-    if matches!(opts.protocol.as_str(), "bcap" | "meca") {
+    if matches!(opts.protocol.as_str(), "bcap" | "meca" | "ur") {
         return run_connecting(opts);
     }
     let cfg = Config::load(&opts.config)?;
@@ -188,12 +190,17 @@ pub fn run(opts: &DriverOptions) -> Result<DriverReport> {
 enum Controller {
     Bcap(FakeBcap),
     Meca(FakeMeca),
+    Ur(FakeUr),
 }
 
 /// The drivers that connect (b-CAP, the Meca500): the fake is a server, the driver dials it.
 fn run_connecting(opts: &DriverOptions) -> Result<DriverReport> {
-    // The robot's cycle: the RC8's 8 ms; the Meca500's driver tick 4 ms.
-    let rate_hz = if opts.protocol == "bcap" { 125.0 } else { 250.0 };
+    // The robot's cycle: the RC8's 8 ms; the Meca500's driver tick 4 ms; RTDE's 2 ms.
+    let rate_hz = match opts.protocol.as_str() {
+        "bcap" => 125.0,
+        "ur" => 500.0,
+        _ => 250.0,
+    };
     let rate = format!("controller.rate_hz={rate_hz}");
     let cfg = Config::load_with(&opts.config, std::slice::from_ref(&rate))?;
     let model = cfg.robot.build_model()?;
@@ -207,6 +214,12 @@ fn run_connecting(opts: &DriverOptions) -> Result<DriverReport> {
         let fake = FakeBcap::spawn(BcapOptions { cycle, start_deg, rt_priority: Some(90), ..Default::default() }).map_err(io)?;
         let a = fake.addr();
         (Controller::Bcap(fake), a, Vec::new())
+    } else if opts.protocol == "ur" {
+        let start_q = std::array::from_fn(|k| cfg.service.initial_joints.get(k).copied().unwrap_or(0.0));
+        let fake = FakeUr::spawn(UrOptions { start_q, rt_priority: Some(90), ..Default::default() }).map_err(io)?;
+        let (r, p) = (fake.rtde_addr(), fake.primary_addr());
+        let extra = ["driver.reverse_port=0".to_string(), format!("driver.script_port={}", p.port())];
+        (Controller::Ur(fake), r, extra.iter().flat_map(|e| ["--set".to_string(), e.clone()]).collect())
     } else {
         let mut start = [0.0; 6];
         for (s, q) in start.iter_mut().zip(&start_deg) {
@@ -260,6 +273,10 @@ fn run_connecting(opts: &DriverOptions) -> Result<DriverReport> {
         Controller::Meca(f) => {
             let r = f.stop();
             (r.timeouts, r.errors.len() as u64)
+        }
+        Controller::Ur(f) => {
+            let r = f.stop();
+            (r.timeouts, r.violations)
         }
     };
     let text = std::fs::read_to_string(&stats).map_err(ToolError::file(&stats))?;

@@ -1,5 +1,5 @@
 //! strand-fake-robot: a fake ABB IRC5 (EGM), KUKA KR C4 (RSI), KUKA Sunrise cabinet (FRI), DENSO
-//! RC8 (b-CAP) or Mecademic Meca500 for testing the drivers where no robot is. For EGM, RSI and FRI
+//! RC8 (b-CAP), Mecademic Meca500 or Universal Robots e-Series for testing the drivers where no robot is. For EGM, RSI and FRI
 //! it sends the controller's packets every 4 ms on absolute deadlines to `--driver`, integrates the
 //! answers into its actual axes (with an optional drive lag), and reports the cycles answered in
 //! time, late and missing, and the actual axes' largest speed and acceleration. For b-CAP and the
@@ -25,13 +25,14 @@ enum Protocol {
     Fri,
     Bcap,
     Meca,
+    Ur,
 }
 
 #[derive(Parser)]
 #[command(
     name = "strand-fake-robot",
     version,
-    about = "A fake robot controller speaking EGM, RSI, FRI, b-CAP or the Meca500's TCP API, for testing the drivers"
+    about = "A fake robot controller speaking EGM, RSI, FRI, b-CAP, the Meca500's TCP API or UR's RTDE, for testing the drivers"
 )]
 struct Cli {
     /// The interface to fake.
@@ -40,8 +41,9 @@ struct Cli {
     /// The driver's address (IP:PORT): EGM, RSI and FRI, where the robot sends first.
     #[arg(long, required_if_eq_any = [("protocol", "egm"), ("protocol", "rsi"), ("protocol", "fri")])]
     driver: Option<SocketAddr>,
-    /// Where to listen for the driver (IP:PORT): b-CAP (5007 on an RC8) and the Meca500's control
-    /// port (10000; its monitoring port is the next one).
+    /// Where to listen for the driver (IP:PORT): b-CAP (5007 on an RC8), the Meca500's control
+    /// port (10000; its monitoring port is the next one), UR's RTDE port (30004; the script port
+    /// is the next one).
     #[arg(long, default_value = "127.0.0.1:0")]
     listen: SocketAddr,
     /// Axes at the start (degrees, comma-separated: six; seven for FRI). Default: KUKA's RSI start
@@ -95,7 +97,7 @@ fn serve(cli: &Cli) -> ExitCode {
             std::thread::sleep(std::time::Duration::from_millis(50));
         }
     };
-    let (report, json) = if matches!(cli.protocol, Protocol::Bcap) {
+    let (report, json): (strand_driver::fake::FakeReport, serde_json::Value) = if matches!(cli.protocol, Protocol::Bcap) {
         let opts =
             BcapOptions { bind: cli.listen, cycle: cli.period, start_deg: start, lag: cli.lag, rt_priority: cli.rt, ..Default::default() };
         let fake = match FakeBcap::spawn(opts) {
@@ -110,6 +112,23 @@ fn serve(cli: &Cli) -> ExitCode {
         let r = fake.stop();
         let errors: Vec<String> = r.errors.iter().map(|e| format!("{e:#010x}")).collect();
         let json = serde_json::json!({ "report": &r.report, "errors": errors, "slv_moves": r.slv_moves, "released": r.released, "calls": r.calls });
+        (r.report, json)
+    } else if matches!(cli.protocol, Protocol::Ur) {
+        use strand_driver::fake::ur::{FakeUr, UrOptions};
+        let primary = SocketAddr::new(cli.listen.ip(), if cli.listen.port() == 0 { 0 } else { cli.listen.port() + 1 });
+        let start_q = std::array::from_fn(|k| start[k].to_radians());
+        let opts = UrOptions { rtde: cli.listen, primary, start_q, rt_priority: cli.rt, ..Default::default() };
+        let fake = match FakeUr::spawn(opts) {
+            Ok(f) => f,
+            Err(e) => {
+                eprintln!("strand-fake-robot: {}: {e}", cli.listen);
+                return ExitCode::from(1);
+            }
+        };
+        eprintln!("strand-fake-robot: a UR e-Series controller: RTDE on {}, script port {}", fake.rtde_addr(), fake.primary_addr());
+        wait();
+        let r = fake.stop();
+        let json = serde_json::json!({ "report": &r.report, "errors": [], "timeouts": r.timeouts, "violations": r.violations, "clean_stops": r.clean_stops, "scripts": r.scripts.len() });
         (r.report, json)
     } else {
         let mut start_deg = [0.0; 6];
@@ -151,6 +170,7 @@ fn main() -> ExitCode {
             Protocol::Fri => deg(&[0.0f64, 0.4, 0.0, -1.5, 0.0, 1.2, 0.0]),
             Protocol::Bcap => deg(&[0.0, 0.649, 2.048, 0.0, 0.445, 0.0]),
             Protocol::Meca => deg(&[0.0, 0.121, 0.459, 0.0, 0.991, 0.0]),
+            Protocol::Ur => deg(&[0.0, -1.5707963267948966, 0.0, -1.5707963267948966, 0.0, 0.0]),
             _ => vec![0.0, -90.0, 90.0, 0.0, 90.0, 0.0],
         };
     }
@@ -158,7 +178,7 @@ fn main() -> ExitCode {
         eprintln!("strand-fake-robot: --start needs {axes} finite angles (degrees)");
         return ExitCode::from(2);
     }
-    if matches!(cli.protocol, Protocol::Bcap | Protocol::Meca) {
+    if matches!(cli.protocol, Protocol::Bcap | Protocol::Meca | Protocol::Ur) {
         // SAFETY: the handler only stores to an atomic.
         unsafe {
             libc::signal(libc::SIGINT, on_signal as *const () as libc::sighandler_t);
@@ -178,7 +198,7 @@ fn main() -> ExitCode {
     let mut protocol: Box<dyn FakeProtocol> = match cli.protocol {
         Protocol::Egm => Box::new(FakeEgm::new(cli.stopped_cycles, period_ms as u32)),
         Protocol::Rsi => Box::new(FakeRsi::new(&cli.start, period_ms)),
-        Protocol::Bcap | Protocol::Meca => unreachable!("served above"),
+        Protocol::Bcap | Protocol::Meca | Protocol::Ur => unreachable!("served above"),
         Protocol::Fri => {
             let opts = FriOptions {
                 send_period_ms: period_ms as u32,

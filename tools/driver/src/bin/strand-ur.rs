@@ -37,6 +37,7 @@ fn open(cfg: &Config, d: &DriverConfig, session: &mut Session<Ur>) -> Result<(Ur
         v[0], v[1], v[2], v[3], cfg.controller.rate_hz, started.reverse
     );
     session.protocol_mut().set_recipe(started.recipe);
+    session.protocol_mut().set_read_timeout(d.read_timeout);
     Ok((link, Vec::new()))
 }
 

@@ -7,6 +7,10 @@
 //! VARIANTs by hand; it is a TCP server with its own controller tick thread, not driven by [`run`].
 //! [`meca`] is a Mecademic Meca500 R3 with its TCP text API (control and monitoring ports, velocity
 //! mode), from `docs/protocols/meca500.md`; it runs its own trajectory cycle rather than [`run`].
+//! [`ur`] is a Universal Robots e-Series controller (RTDE, the primary port a URScript program
+//! arrives on, and the reverse interface that program connects back with), from
+//! `docs/protocols/ur.md`, its RTDE packages and 8 × int32 messages by hand; it runs its own
+//! controller step thread rather than [`run`].
 //!
 //! The loop is a controller's: a packet every `period` on absolute deadlines (`clock_nanosleep`
 //! with `TIMER_ABSTIME`), the answer taken as it arrives (its round trip measured) and accepted
@@ -20,6 +24,7 @@ pub mod egm;
 pub mod fri;
 pub mod meca;
 pub mod rsi;
+pub mod ur;
 
 use std::net::{SocketAddr, UdpSocket};
 use std::sync::atomic::{AtomicBool, Ordering};

@@ -33,7 +33,7 @@ pub struct UrSettings {
     pub frequency: f64,
     /// The standard analog output the extruder's speed goes to (0 or 1; None: none).
     pub analog_output: Option<u8>,
-    /// ratio = offset + scale × the extruder's drive speed (rad/s), clamped to 0..1.
+    /// ratio = offset + scale × the filament's speed (m/s; so s/m), clamped to 0..1.
     pub analog_scale: f64,
     /// See `analog_scale`.
     pub analog_offset: f64,
@@ -347,10 +347,10 @@ impl DriverLink for UrLink {
         self.input_recipe.is_some()
     }
 
-    /// The extruder's drive speed onto the standard analog output (only when the ratio changes).
-    fn extruder(&mut self, motor_speed: f64) -> Result<(), LinkError> {
+    /// The filament's speed onto the standard analog output (only when the ratio changes).
+    fn extruder(&mut self, filament_rate: f64) -> Result<(), LinkError> {
         let (Some(id), Some(pin)) = (self.input_recipe, self.settings.analog_output) else { return Ok(()) };
-        let ratio = (self.settings.analog_offset + self.settings.analog_scale * motor_speed).clamp(0.0, 1.0);
+        let ratio = (self.settings.analog_offset + self.settings.analog_scale * filament_rate).clamp(0.0, 1.0);
         let ratio = if ratio.is_finite() { ratio } else { 0.0 };
         if self.last_ratio.is_some_and(|r| (r - ratio).abs() < 1e-4) {
             return Ok(());

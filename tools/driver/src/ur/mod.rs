@@ -6,7 +6,7 @@
 //! (`[driver] lookahead_time`, `servo_gain`). The robot clocks the cycle: each RTDE data package is
 //! the JointState that clocks the service, and the answer is the guarded command for it.
 //!
-//! Every message carries a read timeout ([`READ_TIMEOUT_MS`]): a driver that stops, hangs or loses
+//! Every message carries a read timeout (`[driver] read_timeout`, [`READ_TIMEOUT_MS`] by default): a driver that stops, hangs or loses
 //! the link leaves the program without a message, and it stops the arm (`stopj`) by itself. On
 //! stop the driver sends the STOPPED mode and the program ends cleanly. A protective or emergency
 //! stop (any safety mode but NORMAL and REDUCED), the program stopping, or the robot leaving
@@ -29,8 +29,8 @@ use strand_ipc::MAX_JOINTS;
 pub const JOINTS: usize = 6;
 /// The joints' fixed-point factor on the reverse interface (µrad).
 pub const MULT_JOINTSTATE: f64 = 1_000_000.0;
-/// The robot's read timeout announced in each message (ms): 10 cycles at 500 Hz. Longer
-/// silences stop the program and the arm.
+/// The robot's read timeout announced in each message by default (ms; `[driver] read_timeout`):
+/// 10 cycles at 500 Hz. Longer silences stop the program and the arm.
 pub const READ_TIMEOUT_MS: i32 = 20;
 /// Control modes of the reverse interface.
 pub mod mode {
@@ -68,6 +68,8 @@ pub struct Ur {
     /// The speed scaling told to the service last, and one not yet told.
     scaling_told: f64,
     scaling_new: Option<f64>,
+    /// The read timeout each message announces (ms).
+    read_timeout_ms: i32,
 }
 
 impl Default for Ur {
@@ -79,12 +81,27 @@ impl Default for Ur {
 impl Ur {
     /// A client whose output recipe is not set up yet.
     pub fn new() -> Ur {
-        Ur { recipe: 1, packages: 0, last_timestamp: None, playing: false, modes: None, news: None, scaling_told: 1.0, scaling_new: None }
+        Ur {
+            recipe: 1,
+            packages: 0,
+            last_timestamp: None,
+            playing: false,
+            modes: None,
+            news: None,
+            scaling_told: 1.0,
+            scaling_new: None,
+            read_timeout_ms: READ_TIMEOUT_MS,
+        }
     }
 
     /// The output recipe's id.
     pub fn set_recipe(&mut self, id: u8) {
         self.recipe = id;
+    }
+
+    /// The read timeout each message announces (s; rounded to whole ms, at least 1).
+    pub fn set_read_timeout(&mut self, seconds: f64) {
+        self.read_timeout_ms = ((seconds * 1e3).round() as i32).max(1);
     }
 }
 
@@ -167,7 +184,7 @@ impl RobotProtocol for Ur {
 
     /// The servo target: `axes` (rad), with the read timeout for the robot's next read.
     fn encode_reply(&mut self, _to: &RobotPacket, axes: &[f64], out: &mut Vec<u8>) {
-        message(out, READ_TIMEOUT_MS, axes, mode::SERVOJ);
+        message(out, self.read_timeout_ms, axes, mode::SERVOJ);
     }
 }
 

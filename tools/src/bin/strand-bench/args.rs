@@ -61,10 +61,10 @@ pub enum Mode {
         #[arg(long)]
         png: Option<PathBuf>,
         /// Through a robot driver instead: `egm` (strand-egm, irb140), `rsi` (strand-rsi, kr6r900),
-        /// `fri` (strand-fri, iiwa7), `bcap` (strand-bcap, vp6242) or `meca` (strand-meca,
-        /// meca500) against the fake robot controller, at the robot's cycle (4 ms; FRI 1 ms; b-CAP
-        /// the RC8's 8 ms).
-        #[arg(long, value_parser = ["egm", "rsi", "fri", "bcap", "meca"])]
+        /// `fri` (strand-fri, iiwa7), `bcap` (strand-bcap, vp6242), `meca` (strand-meca, meca500)
+        /// or `ur` (strand-ur, ur5e) against the fake robot controller, at the robot's cycle (4 ms;
+        /// FRI 1 ms; b-CAP the RC8's 8 ms; UR RTDE's 2 ms).
+        #[arg(long, value_parser = ["egm", "rsi", "fri", "bcap", "meca", "ur"])]
         driver: Option<String>,
         /// With --driver: run the driver with SCHED_FIFO at this priority. Without: the service and
         /// the ping-pong at this priority (memory locked, PM QoS 0) and this driver one above.

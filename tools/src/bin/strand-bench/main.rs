@@ -85,6 +85,7 @@ fn main() -> ExitCode {
                     "fri" => "iiwa7",
                     "bcap" => "vp6242",
                     "meca" => "meca500",
+                    "ur" => "ur5e",
                     _ => "kr6r900",
                 };
                 let opts = driver::DriverOptions {

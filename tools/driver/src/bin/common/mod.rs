@@ -190,7 +190,7 @@ pub(crate) fn main_connecting<P: RobotProtocol, L: DriverLink>(
             prefix: cli.prefix.clone().unwrap_or_else(|| cfg.service.prefix.clone()),
             reply_deadline: d.reply_deadline,
             period,
-            state_timeout: (4.0 * period).max(0.05),
+            state_timeout: (8.0 * period).max(0.2),
             max_packets: 0,
         };
         Ok((cfg, d, session, opts))
