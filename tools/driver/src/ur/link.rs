@@ -131,12 +131,12 @@ impl UrLink {
         let mut out = Vec::new();
         rtde::setup_outputs(&mut out, settings.frequency);
         let answer = link.ask_raw(&out, kind::SETUP_OUTPUTS, "the output recipe")?;
-        let recipe = rtde::recipe(&answer, &rtde::OUTPUTS, &rtde::OUTPUT_TYPES).map_err(LinkError::Refused)?;
+        let recipe = rtde::recipe(&answer, &rtde::OUTPUTS, &rtde::OUTPUT_TYPES).map_err(|e| LinkError::Refused(e.0))?;
         // 4. The inputs: the extruder's analog output.
         if settings.analog_output.is_some() {
             rtde::setup_inputs(&mut out);
             let answer = link.ask_raw(&out, kind::SETUP_INPUTS, "the input recipe")?;
-            link.input_recipe = Some(rtde::recipe(&answer, &rtde::INPUTS, &rtde::INPUT_TYPES).map_err(LinkError::Refused)?);
+            link.input_recipe = Some(rtde::recipe(&answer, &rtde::INPUTS, &rtde::INPUT_TYPES).map_err(|e| LinkError::Refused(e.0))?);
         }
         // 5. The reverse interface: listen where the robot reaches this PC.
         let host: std::net::IpAddr = if settings.reverse_host.is_empty() {
@@ -244,7 +244,7 @@ impl UrLink {
     /// The next whole package's length (left at the front), by `deadline_ns`.
     fn next_package(&mut self, deadline_ns: u64) -> Result<Option<usize>, LinkError> {
         loop {
-            if let Some(n) = self.framer.next_len().map_err(LinkError::Io)? {
+            if let Some(n) = self.framer.next_len().map_err(|e| LinkError::Io(e.0))? {
                 return Ok(Some(n));
             }
             if !self.fill(deadline_ns)? && monotonic_ns() >= deadline_ns {

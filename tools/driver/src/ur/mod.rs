@@ -121,7 +121,7 @@ impl RobotProtocol for Ur {
 
     /// An RTDE data package: the joints, and whether the robot runs strand's program now.
     fn decode(&mut self, packet: &[u8]) -> Result<RobotPacket, PacketError> {
-        let d = rtde::read_data(packet, self.recipe).map_err(PacketError::Malformed)?;
+        let d = rtde::read_data(packet, self.recipe).map_err(|e| PacketError::Malformed(e.0))?;
         let finite = d.actual_q.iter().all(|q| q.is_finite()) && d.timestamp.is_finite();
         if !finite {
             return Err(PacketError::BadValue(format!("actual_q {:?} at {}", d.actual_q, d.timestamp)));

@@ -35,6 +35,11 @@ pub const INPUTS: [&str; 4] =
 /// Their types.
 pub const INPUT_TYPES: [&str; 4] = ["UINT8", "UINT8", "DOUBLE", "DOUBLE"];
 
+/// A package that is not RTDE, or not what the recipe says; a recipe the controller refused.
+#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
+#[error("{0}")]
+pub struct RtdeError(pub String);
+
 /// Encodes a package into `out` (cleared first).
 pub fn encode(out: &mut Vec<u8>, kind: u8, payload: &[u8]) {
     out.clear();
@@ -83,13 +88,13 @@ impl Framer {
 
     /// The next whole package's length at the front, if one is whole; a size below 3 is no
     /// package (the stream is lost: `Err`).
-    pub fn next_len(&self) -> Result<Option<usize>, String> {
+    pub fn next_len(&self) -> Result<Option<usize>, RtdeError> {
         if self.buf.len() < 3 {
             return Ok(None);
         }
         let size = u16::from_be_bytes([self.buf[0], self.buf[1]]) as usize;
         if size < 3 {
-            return Err(format!("an RTDE package of size {size}: the stream is lost"));
+            return Err(RtdeError(format!("an RTDE package of size {size}: the stream is lost")));
         }
         Ok((self.buf.len() >= size).then_some(size))
     }
@@ -112,25 +117,26 @@ pub fn split(package: &[u8]) -> (u8, &[u8]) {
 
 /// A recipe setup's answer: its id, and the types (checked against `want`, a name that is
 /// `NOT_FOUND` or `IN_USE` named).
-pub fn recipe(payload: &[u8], names: &[&str], want: &[&str]) -> Result<u8, String> {
+pub fn recipe(payload: &[u8], names: &[&str], want: &[&str]) -> Result<u8, RtdeError> {
+    let fail = |why: String| Err(RtdeError(why));
     let Some((&id, types)) = payload.split_first() else {
-        return Err("an empty recipe answer".into());
+        return fail("an empty recipe answer".into());
     };
     let types = String::from_utf8_lossy(types);
     let got: Vec<&str> = types.split(',').collect();
     if got.len() != names.len() {
-        return Err(format!("{} types for {} names: {types}", got.len(), names.len()));
+        return fail(format!("{} types for {} names: {types}", got.len(), names.len()));
     }
     for ((name, t), w) in names.iter().zip(&got).zip(want) {
         match *t {
-            "NOT_FOUND" => return Err(format!("the controller does not know {name} (NOT_FOUND): too old a software version?")),
-            "IN_USE" => return Err(format!("{name} is IN_USE: another RTDE client, a fieldbus or a URCap writes it")),
-            t if t != *w => return Err(format!("{name} is {t}, not {w}")),
+            "NOT_FOUND" => return fail(format!("the controller does not know {name} (NOT_FOUND): too old a software version?")),
+            "IN_USE" => return fail(format!("{name} is IN_USE: another RTDE client, a fieldbus or a URCap writes it")),
+            t if t != *w => return fail(format!("{name} is {t}, not {w}")),
             _ => {}
         }
     }
     if id == 0 {
-        return Err(format!("recipe id 0: the controller refused the recipe ({types})"));
+        return fail(format!("recipe id 0: the controller refused the recipe ({types})"));
     }
     Ok(id)
 }
@@ -160,16 +166,16 @@ pub struct RobotData {
 pub const DATA_LEN: usize = 3 + 1 + 132;
 
 /// Reads a data package of output recipe `id`.
-pub fn read_data(package: &[u8], id: u8) -> Result<RobotData, String> {
+pub fn read_data(package: &[u8], id: u8) -> Result<RobotData, RtdeError> {
     let (k, p) = split(package);
     if k != kind::DATA {
-        return Err(format!("package type {:?}, not a data package", k as char));
+        return Err(RtdeError(format!("package type {:?}, not a data package", k as char)));
     }
     if package.len() != DATA_LEN {
-        return Err(format!("a data package of {} bytes; the recipe's are {DATA_LEN}", package.len()));
+        return Err(RtdeError(format!("a data package of {} bytes; the recipe's are {DATA_LEN}", package.len())));
     }
     if p[0] != id {
-        return Err(format!("recipe {} in a data package; the output recipe is {id}", p[0]));
+        return Err(RtdeError(format!("recipe {} in a data package; the output recipe is {id}", p[0])));
     }
     let f = |at: usize| f64::from_be_bytes(p[at..at + 8].try_into().unwrap_or_default());
     let i = |at: usize| i32::from_be_bytes(p[at..at + 4].try_into().unwrap_or_default());
@@ -273,7 +279,7 @@ mod tests {
         assert_eq!(recipe(&answer, &OUTPUTS, &OUTPUT_TYPES), Ok(1));
         let mut bad = vec![1u8];
         bad.extend_from_slice(b"DOUBLE,VECTOR6D,VECTOR6D,INT32,INT32,UINT32,NOT_FOUND,DOUBLE");
-        assert!(recipe(&bad, &OUTPUTS, &OUTPUT_TYPES).unwrap_err().contains("speed_scaling"));
+        assert!(recipe(&bad, &OUTPUTS, &OUTPUT_TYPES).unwrap_err().0.contains("speed_scaling"));
         assert_eq!(safety_mode_name(3), "PROTECTIVE_STOP (3)");
     }
 
