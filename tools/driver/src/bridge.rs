@@ -164,24 +164,7 @@ pub fn run<P: RobotProtocol>(session: &mut Session<P>, opts: &BridgeOptions, sto
         }
         // With what the robot was last told, and whether it held: the service plans again from
         // there where it can.
-        let told = session.robot_report();
-        let mut state = JointState {
-            seq,
-            stamp_ns: received,
-            dof: session.dof() as u32,
-            flags: told.flags,
-            position: q,
-            robot_target: told.target,
-            robot_target_velocity: told.target_velocity,
-            ..Default::default()
-        };
-        // Velocity over the robot's own period (the receive times carry the network's jitter).
-        if let Some(p) = previous_q {
-            for k in 0..state.dof as usize {
-                state.velocity[k] = (q[k] - p[k]) / opts.period;
-            }
-        }
-        previous_q = Some(q);
+        let state = joint_state(session, seq, received, q, &mut previous_q, opts.period);
         // Held (after a fault, or shutting down): answer the robot first, so that nothing the
         // service's side costs (a dead service's clean-up in iceoryx2 takes milliseconds) can
         // make the hold late; then see whether the service answers again.
@@ -260,6 +243,37 @@ pub fn run<P: RobotProtocol>(session: &mut Session<P>, opts: &BridgeOptions, sto
         }
     }
     Ok(BridgeReport { counters: session.counters, stale, latency, final_state: format!("{:?}", session.state()) })
+}
+
+/// The JointState for an accepted packet: the measured joints stamped on receipt, with what the
+/// robot was last told and whether it held (the service plans again from there where it can), and
+/// the velocity over the robot's own period (the receive times carry the network's jitter).
+pub(crate) fn joint_state<P: RobotProtocol>(
+    session: &mut Session<P>,
+    seq: u64,
+    received: u64,
+    q: [f64; strand_ipc::MAX_JOINTS],
+    previous_q: &mut Option<[f64; strand_ipc::MAX_JOINTS]>,
+    period: f64,
+) -> JointState {
+    let told = session.robot_report();
+    let mut state = JointState {
+        seq,
+        stamp_ns: received,
+        dof: session.dof() as u32,
+        flags: told.flags,
+        position: q,
+        robot_target: told.target,
+        robot_target_velocity: told.target_velocity,
+        ..Default::default()
+    };
+    if let Some(p) = previous_q {
+        for k in 0..state.dof as usize {
+            state.velocity[k] = (q[k] - p[k]) / period;
+        }
+    }
+    *previous_q = Some(q);
+    state
 }
 
 /// Sends `reply` to the robot at `from` and records how long after the packet's receipt it left;

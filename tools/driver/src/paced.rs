@@ -14,9 +14,9 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use strand::io::clock::monotonic_ns;
 use strand::io::histogram::Histogram;
 use strand_ipc::ports::{ClientPorts, ClientRoles};
-use strand_ipc::{Command, Control, JointState, ServiceNames};
+use strand_ipc::{Command, Control, ServiceNames};
 
-use crate::bridge::{BridgeReport, log_transition, wait_command};
+use crate::bridge::{BridgeReport, joint_state, log_transition, wait_command};
 use crate::protocol::{PacketError, RobotProtocol};
 use crate::session::{DriverState, Dropped, Due, ReplyKind, Session};
 
@@ -207,23 +207,7 @@ pub fn run<P: RobotProtocol, L: DriverLink>(
                 break StreamEnd::Robot(e.to_string());
             }
         }
-        let told = session.robot_report();
-        let mut state = JointState {
-            seq,
-            stamp_ns: received,
-            dof: session.dof() as u32,
-            flags: told.flags,
-            position: q,
-            robot_target: told.target,
-            robot_target_velocity: told.target_velocity,
-            ..Default::default()
-        };
-        if let Some(p) = previous_q {
-            for k in 0..state.dof as usize {
-                state.velocity[k] = (q[k] - p[k]) / opts.period;
-            }
-        }
-        previous_q = Some(q);
+        let state = joint_state(session, seq, received, q, &mut previous_q, opts.period);
         let held = session.stopping() || session.state() == DriverState::HeldAfterFault;
         let (kind, transition) = if !session.robot_following() && !held {
             // The robot does not follow yet (UR: strand's program not playing): hold it where it
