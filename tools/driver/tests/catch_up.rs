@@ -10,7 +10,10 @@
 //! prints two layers of three 10 mm squares. A clean run finds the cycle of the highest joint speed
 //! on the path (relative to each joint's limit); then 1, 3 and 10 answers in a row miss the robot's
 //! cycle there (the robot keeps its previous target; the session is told, as the bridge tells it
-//! when an answer left too late). Every job must finish without a fault; the answers must never
+//! when an answer left too late). UR's reverse interface is one of these (servoj keeps its last
+//! target; the program's read timeout is the fake's). b-CAP's slave mode is clocked by the driver
+//! instead: the fake RC8 runs the commands it has buffered each tick ([`misses`] says what a miss
+//! is there). Every job must finish without a fault; the answers must never
 //! pass the service's command (overshoot 0); the catch-up must end within the bound the guard
 //! derives ([`catch_up_bound`]); and answers may differ from the command only in the catch-up.
 
@@ -22,21 +25,30 @@ use std::path::PathBuf;
 use strand::config::Config;
 use strand::config::driver::{DriverConfig, DriverProtocol};
 use strand::core::{Controller, Event, MAX_SEGMENTS_PER_TICK, TickInput};
+use strand_driver::bcap::Bcap;
 use strand_driver::egm::Egm;
 use strand_driver::fake::FakeProtocol;
+use strand_driver::fake::bcap::BcapOptions;
+use strand_driver::fake::bcap::virtual_time::VirtualRc8;
 use strand_driver::fake::egm::FakeEgm;
 use strand_driver::fake::fri::{FakeFri, FriOptions};
 use strand_driver::fake::rsi::FakeRsi;
+use strand_driver::fake::ur::UrOptions;
+use strand_driver::fake::ur::virtual_time::VirtualUr;
 use strand_driver::fri::Fri;
 use strand_driver::guard::{CATCH_UP_SHARE, catch_up_bound};
+use strand_driver::protocol::PacketError;
 use strand_driver::protocol::RobotProtocol;
 use strand_driver::rsi::Rsi;
-use strand_driver::session::Session;
+use strand_driver::session::{Dropped, Session};
+use strand_driver::ur::Ur;
 use strand_ipc as ipc;
 use strand_ipc::{Command, JobOutcome, MAX_JOINTS, RunState};
 
 /// The drivers' cycle (s): EGM's and RSI's 4 ms.
 const PERIOD: f64 = 0.004;
+/// The robot's address in these runs (no socket is opened).
+const ROBOT: &str = "127.0.0.1:6510";
 /// The drives' first-order lag (s), as the driver end-to-end tests give the fakes.
 const DRIVE_LAG: f64 = 0.008;
 /// What an answer may pass the command by (rad or m) beyond what the command's own acceleration
@@ -76,6 +88,8 @@ struct Run {
     tcp_error: f64,
     /// The command's largest acceleration in the catch-up, as a share of the joint's limit.
     target_acceleration: f64,
+    /// The robot stopped the stream (UR: strand's program ended on a read timeout): why.
+    robot_stopped: Option<String>,
     /// The largest overshoot the command's acceleration beyond what the catch-up leaves it
     /// (1 − `CATCH_UP_SHARE` of the limit) can cause in one cycle: that excess × dt² (rad or m).
     overshoot_allowed: f64,
@@ -90,6 +104,10 @@ enum How {
     /// The service's command came after the reply deadline: the driver answered in time with a
     /// hold, braking.
     ServiceLate,
+    /// The driver's loop did not run (its process stalled) where the driver clocks the cycle
+    /// (b-CAP): the robot's controller ticks on through what it has buffered; the service, which
+    /// runs on the driver's loop, is not ticked either.
+    DriverStalled,
 }
 
 /// `count` cycles in a row from cycle `at` without the service's command reaching the robot.
@@ -115,13 +133,22 @@ fn run<P: RobotProtocol>(
     let protocol_kind = match P::NAME {
         "egm" => DriverProtocol::Egm,
         "fri" => DriverProtocol::Fri,
+        "ur" => DriverProtocol::Ur,
+        "bcap" => DriverProtocol::Bcap,
         _ => DriverProtocol::Rsi,
     };
-    let d = DriverConfig { protocol: protocol_kind, ..Default::default() };
+    // The config's own [driver] where it is this protocol's (the UR5e's read timeout), else the
+    // defaults (the robots' axes are then the driver's joints: no sign or offset).
+    let d = match &cfg.driver {
+        Some(d) if d.protocol == protocol_kind => {
+            DriverConfig { axis_sign: Vec::new(), axis_offset: Vec::new(), robot: ROBOT.to_string(), ..d.clone() }
+        }
+        _ => DriverConfig { protocol: protocol_kind, ..Default::default() },
+    };
     let mut session: Session<P> = strand_driver::session(cfg, &d, protocol).unwrap();
     let mut ctl = Controller::new(&cfg.controller_settings(), model.clone()).unwrap();
     let limits: Vec<_> = (0..n).map(|i| *model.limits(i)).collect();
-    let robot: SocketAddr = "127.0.0.1:6510".parse().unwrap();
+    let robot: SocketAddr = ROBOT.parse().unwrap();
     let dt_ns = (PERIOD * 1e9).round() as u64;
     let alpha = 1.0 - (-PERIOD / DRIVE_LAG).exp();
     // The robot's axes are the driver's joints here ([driver] has no sign or offset): degrees.
@@ -140,10 +167,27 @@ fn run<P: RobotProtocol>(
     let mut watch: Option<(u64, [f64; MAX_JOINTS])> = None;
     for k in 0..(120.0 / PERIOD) as u64 {
         result.cycles = k + 1;
+        if miss.is_some_and(|m| m.how == How::DriverStalled && (m.at..m.at + m.count).contains(&k)) {
+            fake.tick(k, &mut target);
+            for (a, t) in actual.iter_mut().zip(&target) {
+                *a += alpha * (t - *a);
+            }
+            continue;
+        }
         fake.packet(k, &actual, &mut packet);
-        let (seq, q, _) = session.on_packet(&packet, robot).unwrap_or_else(|e| panic!("cycle {k}: the session dropped the packet: {e}"));
+        let (seq, q, _) = match session.on_packet(&packet, robot) {
+            Ok(x) => x,
+            Err(Dropped::Packet(PacketError::RobotError(why))) => {
+                // The robot ended the stream (the connecting drivers' loop ends it there and
+                // stops the service): the run ends with the reason.
+                result.robot_stopped = Some(format!("cycle {k}: {why}"));
+                break;
+            }
+            Err(e) => panic!("cycle {k}: the session dropped the packet: {e}"),
+        };
         let missed = miss.is_some_and(|m| (m.at..m.at + m.count).contains(&k));
         let late = missed && miss.is_some_and(|m| m.how == How::ServiceLate);
+        let missed = missed && !miss.is_some_and(|m| m.how == How::DriverStalled);
         if !session.robot_following() {
             // EGM before MCI_RUNNING: held, the service not clocked (as the bridge does).
             session.reply_hold(&mut reply);
@@ -272,6 +316,7 @@ fn run<P: RobotProtocol>(
         } else if let Err(e) = fake.answer(k, &reply, &mut target) {
             panic!("cycle {k}: the fake refused the answer ({e:?})");
         }
+        fake.tick(k, &mut target);
         for (a, t) in actual.iter_mut().zip(&target) {
             *a += alpha * (t - *a);
         }
@@ -321,6 +366,28 @@ fn fake_for(protocol: &str, cfg: &Config, start: &[f64]) -> Box<dyn FakeProtocol
             }
             Box::new(FakeFri::new(FriOptions { send_period_ms: 4, velocity_limit, restart_after_abort: false, ..Default::default() }).0)
         }
+        "bcap" => {
+            // The RC8 in the driver's slave mode, checking each command against the URDF's
+            // speeds and the robot file's accelerations (as the controller checks its own).
+            let model = cfg.robot.build_model().unwrap();
+            let opts = BcapOptions {
+                cycle: PERIOD,
+                start_deg: deg.clone(),
+                speed_limit_deg: model.joints().iter().map(|j| j.limits.velocity.to_degrees()).collect(),
+                accel_limit_deg: model.joints().iter().map(|j| j.limits.acceleration.to_degrees()).collect(),
+                ..Default::default()
+            };
+            let mode = cfg.driver.as_ref().map_or(0x202, |d| d.slave_mode);
+            Box::new(VirtualRc8::new(opts, mode).unwrap())
+        }
+        "ur" => {
+            // strand's program playing, its RTDE output recipe the driver's; the drives are the
+            // run's (the 8 ms lag), the read timeout and the 20 rad/s rule the fake's.
+            let mut start_q = [0.0; 6];
+            start_q.copy_from_slice(&start[..6]);
+            let opts = UrOptions { step: PERIOD, start_q, ..Default::default() };
+            Box::new(VirtualUr::new(opts, &strand_driver::ur::rtde::OUTPUTS.join(",")).unwrap())
+        }
         _ => Box::new(FakeRsi::new(&deg, 4)),
     }
 }
@@ -330,6 +397,16 @@ fn run_with(protocol: &str, cfg: &Config, start: &[f64], segments: &[ipc::Segmen
     match protocol {
         "egm" => run(cfg, Egm::new(), fake.as_mut(), start, segments, miss),
         "fri" => run(cfg, Fri::new(), fake.as_mut(), start, segments, miss),
+        "bcap" => {
+            let mut bcap = Bcap::new();
+            bcap.set_robot(1, start.len());
+            run(cfg, bcap, fake.as_mut(), start, segments, miss)
+        }
+        "ur" => {
+            let mut ur = Ur::new();
+            ur.set_read_timeout(cfg.driver.as_ref().map_or(0.02, |d| d.read_timeout));
+            run(cfg, ur, fake.as_mut(), start, segments, miss)
+        }
         _ => run(cfg, Rsi::new(), fake.as_mut(), start, segments, miss),
     }
 }
@@ -341,10 +418,34 @@ fn missed_in_a_row(protocol: &str) -> &'static [u64] {
     if protocol == "fri" { &[1, 3] } else { &[1, 3, 10] }
 }
 
+/// How a protocol goes without the service's command at full speed, and how many cycles in a
+/// row. Where the robot clocks (EGM, RSI, FRI, UR), the answer misses the robot's cycle. Where the
+/// driver clocks (b-CAP), a driver that keeps up cannot miss the robot's cycle; its loop can
+/// stall (1 and 2 cycles: the RC8 runs on through the two commands mode 2 keeps buffered ahead;
+/// 3 or more run the buffer dry, which the RC8 answers with an error:
+/// `a_b_cap_driver_stalled_past_its_buffer_stops_the_rc8_named`), or the service can be late (the
+/// driver answers with a braking hold, then catches up: 1 and 2, under `max_late_cycles`).
+fn misses(protocol: &str) -> Vec<(How, u64)> {
+    if protocol == "bcap" {
+        vec![(How::DriverStalled, 1), (How::DriverStalled, 2), (How::ServiceLate, 1), (How::ServiceLate, 2)]
+    } else {
+        missed_in_a_row(protocol).iter().map(|&n| (How::AnswerMissed, n)).collect()
+    }
+}
+
 fn robot_config(name: &str) -> Config {
     // Every robot on the drivers' 4 ms cycle (the service runs on the robot clock at its rate).
-    Config::load_with(&root().join(format!("config/{name}.toml")), &["controller.rate_hz=250".to_string()]).unwrap()
+    let mut sets = vec!["controller.rate_hz=250".to_string()];
+    if name == "ur5e" {
+        // The read timeout a cell sets to ride out ten missed 4 ms answers (the default 20 ms
+        // ends the program after four: `the_ur_programs_read_timeout_ends_the_job_named`).
+        sets.push(format!("driver.read_timeout={UR_READ_TIMEOUT}"));
+    }
+    Config::load_with(&root().join(format!("config/{name}.toml")), &sets).unwrap()
 }
+
+/// The UR5e's read timeout in these runs (s): ten missed 4 ms answers and one more in time.
+const UR_READ_TIMEOUT: f64 = 0.05;
 
 /// Every bundled robot with a fixed base, through each protocol that carries it: RSI streams six
 /// rotary axes; EGM six and external axes (the iiwa's seventh joint); FRI an LBR's seven.
@@ -358,12 +459,18 @@ fn cells() -> Vec<(&'static str, &'static str)> {
         cells.push(("egm", robot));
         cells.push(("fri", robot));
     }
+    // UR's reverse interface: the robot clocks; a missed message leaves servoj on its last target.
+    cells.push(("ur", "ur5e"));
+    // b-CAP's slave mode: the driver clocks; the RC8 runs the commands it has buffered.
+    cells.push(("bcap", "vp6242"));
     cells
 }
 
 #[test]
 fn missed_cycles_at_full_speed_are_caught_up_without_overshoot_on_every_robot() {
-    let mut table = String::from("protocol robot      missed  clamped  catch-up (bound)      overshoot  command's acc.  max TCP error\n");
+    let mut table = String::from(
+        "protocol robot      how            missed  clamped  catch-up (bound)      overshoot  command's acc.  max TCP error\n",
+    );
     let mut failures = Vec::new();
     for (protocol, robot) in cells() {
         let cfg = robot_config(robot);
@@ -376,7 +483,8 @@ fn missed_cycles_at_full_speed_are_caught_up_without_overshoot_on_every_robot() 
             continue;
         }
         table += &format!(
-            "{protocol:8} {robot:10} {:>6}  {:>7}  {:>18}  {:>9}  {:.3} mm (fastest {:.0} % of a joint's limit at cycle {})\n",
+            "{protocol:8} {robot:10} {:14} {:>6}  {:>7}  {:>18}  {:>9}  {:.3} mm (fastest {:.0} % of a joint's limit at cycle {})\n",
+            "-",
             0,
             0,
             "-",
@@ -385,12 +493,13 @@ fn missed_cycles_at_full_speed_are_caught_up_without_overshoot_on_every_robot() 
             clean.fastest.1 * 100.0,
             clean.fastest.0
         );
-        for &missed in missed_in_a_row(protocol) {
-            let r = run_with(protocol, &cfg, &start, &segments, Some(Miss { at: clean.fastest.0, count: missed, how: How::AnswerMissed }));
+        for (how, missed) in misses(protocol) {
+            let r = run_with(protocol, &cfg, &start, &segments, Some(Miss { at: clean.fastest.0, count: missed, how }));
             let catch_up =
                 r.catch_up_cycles.map_or("never".to_string(), |c| format!("{:.0} ms ({:.0} ms)", c as f64 * PERIOD * 1e3, r.bound * 1e3));
             table += &format!(
-                "{protocol:8} {robot:10} {missed:>6}  {:>7}  {catch_up:>18}  {:>9.1e}  {:>12.0} %  {:.3} mm\n",
+                "{protocol:8} {robot:10} {:14} {missed:>6}  {:>7}  {catch_up:>18}  {:>9.1e}  {:>12.0} %  {:.3} mm\n",
+                format!("{how:?}"),
                 r.clamped,
                 r.overshoot,
                 r.target_acceleration * 100.0,
@@ -398,7 +507,7 @@ fn missed_cycles_at_full_speed_are_caught_up_without_overshoot_on_every_robot() 
             );
             let mut why = Vec::new();
             if r.outcome != Some(JobOutcome::Finished) || !r.faults.is_empty() {
-                why.push(format!("outcome {:?}, faults {:?}", r.outcome, r.faults));
+                why.push(format!("outcome {:?}, faults {:?}, robot stopped {:?}", r.outcome, r.faults, r.robot_stopped));
             }
             // Zero, unless the command itself accelerated beyond what the catch-up leaves it in
             // that cycle (then at most that excess × dt²: it cannot be foreseen).
@@ -445,32 +554,77 @@ fn a_miss_on_the_approach_is_planned_again_from_the_robot_not_caught_up() {
         let clean = run_with(protocol, &cfg, &start, &segments, None);
         let at = clean.fastest_approach.0;
         assert!(clean.fastest_approach.1 > 0.1, "{protocol} {robot}: the approach moves ({:?})", clean.fastest_approach);
-        for (how, counts) in [(How::AnswerMissed, missed_in_a_row(protocol)), (How::ServiceLate, &[1, 2][..])] {
-            for &count in counts {
-                let r = run_with(protocol, &cfg, &start, &segments, Some(Miss { at, count, how }));
-                table += &format!(
-                    "{protocol:8} {robot:10} {:14} {count:>6}  {:>7}  {:>8?}  {:.0} % at cycle {at}\n",
-                    format!("{how:?}"),
-                    r.clamped,
-                    r.catch_up_cycles,
-                    clean.fastest_approach.1 * 100.0
-                );
-                let mut why = Vec::new();
-                if r.outcome != Some(JobOutcome::Finished) || !r.faults.is_empty() {
-                    why.push(format!("outcome {:?}, faults {:?}", r.outcome, r.faults));
-                }
-                if r.clamped > 0 {
-                    why.push(format!("{} answers clamped", r.clamped));
-                }
-                if r.catch_up_cycles != Some(1) {
-                    why.push(format!("the answers were the command again after {:?} cycles", r.catch_up_cycles));
-                }
-                if !why.is_empty() {
-                    failures.push(format!("{protocol} {robot}, {count} × {how:?}: {}", why.join("; ")));
-                }
+        let mut ways: Vec<(How, u64)> = misses(protocol).into_iter().filter(|(how, _)| *how != How::ServiceLate).collect();
+        ways.extend([(How::ServiceLate, 1), (How::ServiceLate, 2)]);
+        for (how, count) in ways {
+            let r = run_with(protocol, &cfg, &start, &segments, Some(Miss { at, count, how }));
+            table += &format!(
+                "{protocol:8} {robot:10} {:14} {count:>6}  {:>7}  {:>8?}  {:.0} % at cycle {at}\n",
+                format!("{how:?}"),
+                r.clamped,
+                r.catch_up_cycles,
+                clean.fastest_approach.1 * 100.0
+            );
+            let mut why = Vec::new();
+            if r.outcome != Some(JobOutcome::Finished) || !r.faults.is_empty() {
+                why.push(format!("outcome {:?}, faults {:?}", r.outcome, r.faults));
+            }
+            if r.clamped > 0 {
+                why.push(format!("{} answers clamped", r.clamped));
+            }
+            if r.catch_up_cycles != Some(1) {
+                why.push(format!("the answers were the command again after {:?} cycles", r.catch_up_cycles));
+            }
+            if !why.is_empty() {
+                failures.push(format!("{protocol} {robot}, {count} × {how:?}: {}", why.join("; ")));
             }
         }
     }
     eprintln!("{table}");
     assert!(failures.is_empty(), "{}\n{table}", failures.join("\n"));
+}
+
+/// UR's program stops the arm when a message comes later than the read timeout the last one
+/// announced (`[driver] read_timeout`, 20 ms by default: four missed 4 ms answers in a row ride
+/// through, five do not). Then the job must not pass for finished: the stream ends with the read
+/// timeout named, which the connecting drivers' loop turns into the service's emergency stop.
+#[test]
+fn the_ur_programs_read_timeout_ends_the_job_named() {
+    let cfg = Config::load_with(&root().join("config/ur5e.toml"), &["controller.rate_hz=250".to_string()]).unwrap();
+    assert_eq!(cfg.driver.as_ref().map(|d| d.read_timeout), Some(0.02), "the bundled default");
+    let segments = segments(&cfg);
+    let start = far_start(&cfg);
+    let clean = run_with("ur", &cfg, &start, &segments, None);
+    assert_eq!((clean.outcome, clean.robot_stopped.as_deref()), (Some(JobOutcome::Finished), None), "{clean:?}");
+    let at = clean.fastest.0;
+    let four = run_with("ur", &cfg, &start, &segments, Some(Miss { at, count: 4, how: How::AnswerMissed }));
+    assert_eq!((four.outcome, four.robot_stopped.as_deref()), (Some(JobOutcome::Finished), None), "{four:?}");
+    assert!(four.faults.is_empty(), "{:?}", four.faults);
+    let five = run_with("ur", &cfg, &start, &segments, Some(Miss { at, count: 5, how: How::AnswerMissed }));
+    let why = five.robot_stopped.clone().unwrap_or_default();
+    assert!(why.contains("strand's program stopped on the robot"), "{five:?}");
+    assert_ne!(five.outcome, Some(JobOutcome::Finished));
+    assert!(five.cycles <= at + 6, "the stream ended at cycle {} (misses from {at})", five.cycles);
+}
+
+/// b-CAP's slave mode 2 keeps two commands buffered ahead of the arm: a driver whose loop stalls
+/// for three cycles or more leaves the RC8 a tick with nothing to take, and the RC8 stops the arm
+/// with `0x84201482` and leaves slave mode (its rule; there is no catching up through it). The
+/// stream must end there with the error named, which the driver's loop turns into the service's
+/// emergency stop and the release of the arm; the job must not pass for finished.
+#[test]
+fn a_b_cap_driver_stalled_past_its_buffer_stops_the_rc8_named() {
+    let cfg = robot_config("vp6242");
+    let segments = segments(&cfg);
+    let start = far_start(&cfg);
+    let clean = run_with("bcap", &cfg, &start, &segments, None);
+    assert_eq!((clean.outcome, clean.robot_stopped.as_deref(), clean.clamped), (Some(JobOutcome::Finished), None, 0), "{clean:?}");
+    let at = clean.fastest.0;
+    for count in [3, 10] {
+        let r = run_with("bcap", &cfg, &start, &segments, Some(Miss { at, count, how: How::DriverStalled }));
+        let why = r.robot_stopped.clone().unwrap_or_default();
+        assert!(why.contains("0x84201482"), "{count} stalled: {r:?}");
+        assert_ne!(r.outcome, Some(JobOutcome::Finished));
+        assert!(r.cycles <= at + count + 1, "{count} stalled: the stream ended at cycle {} (stall from {at})", r.cycles);
+    }
 }

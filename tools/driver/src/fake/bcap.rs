@@ -78,6 +78,8 @@ use std::time::Duration;
 
 use strand::io::clock::monotonic_ns;
 
+pub mod virtual_time;
+
 use super::{FakeReport, sleep_until};
 
 /// Start of a packet.
@@ -595,6 +597,37 @@ struct Ctrl {
 }
 
 impl Ctrl {
+    /// A controller at `start` (degrees), disconnected, the motor off.
+    fn new(start: &[f64]) -> Ctrl {
+        Ctrl {
+            joints: start.len(),
+            actual: start.to_vec(),
+            target: start.to_vec(),
+            prev: start.to_vec(),
+            prev2: start.to_vec(),
+            arm_taken: false,
+            motor_on: false,
+            motor_on_at: None,
+            send_fmt: 0,
+            recv_fmt: 0x0002,
+            ts_us: false,
+            slave_mode: 0,
+            buffer: VecDeque::with_capacity(4),
+            streaming: false,
+            pops: 0,
+            latched: None,
+            errors: Vec::new(),
+            connected: false,
+            released: false,
+            slave_ticks: 0,
+            next_handle: 1,
+            report: FakeReport::default(),
+            calls: Vec::new(),
+            slv_moves: 0,
+            buffer_full: 0,
+        }
+    }
+
     fn latch(&mut self, code: u32) {
         self.errors.push(code);
         self.latched = Some(code);
@@ -760,34 +793,7 @@ impl FakeBcap {
         let listener = TcpListener::bind(opts.bind)?;
         listener.set_nonblocking(true)?;
         let addr = listener.local_addr()?;
-        let start = opts.start_deg.clone();
-        let ctrl = Ctrl {
-            joints,
-            actual: start.clone(),
-            target: start.clone(),
-            prev: start.clone(),
-            prev2: start,
-            arm_taken: false,
-            motor_on: false,
-            motor_on_at: None,
-            send_fmt: 0,
-            recv_fmt: 0x0002,
-            ts_us: false,
-            slave_mode: 0,
-            buffer: VecDeque::with_capacity(4),
-            streaming: false,
-            pops: 0,
-            latched: None,
-            errors: Vec::new(),
-            connected: false,
-            released: false,
-            slave_ticks: 0,
-            next_handle: 1,
-            report: FakeReport::default(),
-            calls: Vec::new(),
-            slv_moves: 0,
-            buffer_full: 0,
-        };
+        let ctrl = Ctrl::new(&opts.start_deg);
         let inner =
             Arc::new(Inner { ctrl: Mutex::new(ctrl), cv: Condvar::new(), stop: AtomicBool::new(false), opts, epoch_ns: monotonic_ns() });
         let tick = {
@@ -1508,29 +1514,39 @@ fn position(inner: &Inner, c: &Ctrl) -> Variant {
     Variant::Array(vt::VARIANT, v)
 }
 
-fn slv_move(inner: &Inner, param: &Variant) -> Answer {
-    let mut c = inner.lock();
-    if c.latched.is_some() || c.slave_mode == 0 {
-        return error(hr::E_SLAVE_OFF);
-    }
-    let pose = match (c.send_fmt, param) {
+/// The 8 joint values (degrees) of a `slvMove` parameter under `slvSendFormat` `send_fmt`, or the
+/// HRESULT that refuses it.
+fn slv_pose(send_fmt: u32, param: &Variant) -> Result<[f64; MAX_JOINTS], u32> {
+    let pose = match (send_fmt, param) {
         (0, Variant::Array(vt::R8, q)) => q,
         (f, Variant::Array(vt::VARIANT, items)) if f != 0 => match items.first() {
             Some(Variant::Array(vt::R8, q)) => q,
-            _ => return error(hr::DISP_E_TYPEMISMATCH),
+            _ => return Err(hr::DISP_E_TYPEMISMATCH),
         },
-        _ => return error(hr::DISP_E_TYPEMISMATCH),
+        _ => return Err(hr::DISP_E_TYPEMISMATCH),
     };
     if pose.len() != MAX_JOINTS && pose.len() != MAX_JOINTS + 1 {
-        return error(hr::E_INVALIDARG);
+        return Err(hr::E_INVALIDARG);
     }
     let mut cmd = [0.0; MAX_JOINTS];
     for (x, v) in cmd.iter_mut().zip(pose) {
         match v {
             Variant::R8(v) if v.is_finite() => *x = *v,
-            _ => return error(hr::E_INVALIDARG),
+            _ => return Err(hr::E_INVALIDARG),
         }
     }
+    Ok(cmd)
+}
+
+fn slv_move(inner: &Inner, param: &Variant) -> Answer {
+    let mut c = inner.lock();
+    if c.latched.is_some() || c.slave_mode == 0 {
+        return error(hr::E_SLAVE_OFF);
+    }
+    let cmd = match slv_pose(c.send_fmt, param) {
+        Ok(cmd) => cmd,
+        Err(code) => return error(code),
+    };
     let code = match (c.slave_mode >> 8) & 0xF {
         1 => {
             c.buffer.clear();

@@ -39,6 +39,12 @@ pub trait FakeProtocol {
     /// The axes (degrees, absolute) an answer commands if it answers the packet of cycle `k`;
     /// `Err(Some(j))` if it answers the older cycle `j` (late), `Err(None)` if it is not an answer.
     fn answer(&mut self, k: u64, bytes: &[u8], axes_deg: &mut [f64]) -> Result<(), Option<u64>>;
+    /// The controller's own step at the end of cycle `k`, after the answer or without one: a
+    /// robot that runs buffered commands (b-CAP's slave mode) takes its next one into `axes_deg`
+    /// (degrees) here. A robot whose answer is its target (RSI, EGM, FRI, UR) has none.
+    fn tick(&mut self, k: u64, axes_deg: &mut [f64]) {
+        let _ = (k, axes_deg);
+    }
 }
 
 /// How the fake runs.

@@ -34,6 +34,8 @@ use strand::io::clock::monotonic_ns;
 
 use super::{FakeReport, sleep_until};
 
+pub mod virtual_time;
+
 /// The arm's joints.
 pub const JOINTS: usize = 6;
 /// The only RTDE protocol version the fake accepts (§1.3).
