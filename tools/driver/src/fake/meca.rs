@@ -31,6 +31,8 @@ use std::time::Duration;
 
 use strand::io::clock::monotonic_ns;
 
+pub mod virtual_time;
+
 use super::{FakeReport, sleep_until};
 
 /// The Meca500's joints.
@@ -127,16 +129,28 @@ pub struct MecaReport {
 }
 
 /// A client's socket and what it has not yet taken: writes never block the robot (a client that
-/// leaves more than [`OUT_LIMIT`] unread is dropped).
+/// leaves more than [`OUT_LIMIT`] unread is dropped). Without a socket (virtual time) the bytes
+/// wait in `pending` for the caller to take.
 struct Out {
-    stream: TcpStream,
+    stream: Option<TcpStream>,
     pending: Vec<u8>,
     dead: bool,
 }
 
 impl Out {
     fn new(stream: TcpStream) -> Out {
-        Out { stream, pending: Vec::new(), dead: false }
+        Out { stream: Some(stream), pending: Vec::new(), dead: false }
+    }
+
+    /// A client in virtual time: what is sent to it waits in `pending`.
+    fn sink() -> Out {
+        Out { stream: None, pending: Vec::new(), dead: false }
+    }
+
+    fn shutdown(&self) {
+        if let Some(s) = &self.stream {
+            let _ = s.shutdown(Shutdown::Both);
+        }
     }
 
     fn push(&mut self, bytes: &[u8]) {
@@ -147,16 +161,12 @@ impl Out {
     }
 
     fn flush(&mut self) {
+        let Some(stream) = &self.stream else { return };
         while !self.dead && !self.pending.is_empty() {
             // SAFETY: a valid socket and buffer; MSG_DONTWAIT makes this one call non-blocking
             // without touching the descriptor's flags (the reader shares them).
             let n = unsafe {
-                libc::send(
-                    self.stream.as_raw_fd(),
-                    self.pending.as_ptr().cast(),
-                    self.pending.len(),
-                    libc::MSG_DONTWAIT | libc::MSG_NOSIGNAL,
-                )
+                libc::send(stream.as_raw_fd(), self.pending.as_ptr().cast(), self.pending.len(), libc::MSG_DONTWAIT | libc::MSG_NOSIGNAL)
             };
             if n > 0 {
                 self.pending.drain(..n as usize);
@@ -173,7 +183,7 @@ impl Out {
         }
         if self.dead {
             self.pending = Vec::new();
-            let _ = self.stream.shutdown(Shutdown::Both);
+            self.shutdown();
         }
     }
 }
@@ -814,7 +824,7 @@ impl State {
             self.to_control(&msg(3086, "Connection watchdog expired."));
             if let Some(c) = self.control.as_mut() {
                 c.flush();
-                let _ = c.stream.shutdown(Shutdown::Both);
+                c.shutdown();
             }
             self.drop_velocity();
             if self.activated {
@@ -1102,10 +1112,10 @@ impl FakeMeca {
         self.halt();
         let mut st = self.shared.lock();
         if let Some(c) = st.control.take() {
-            let _ = c.stream.shutdown(Shutdown::Both);
+            c.shutdown();
         }
         for m in st.monitors.drain(..) {
-            let _ = m.stream.shutdown(Shutdown::Both);
+            m.shutdown();
         }
         let mut report = std::mem::take(&mut st.report);
         report.report.garbage = report.garbage;
@@ -1226,7 +1236,7 @@ fn read_control(s: &Shared, mut stream: TcpStream, generation: u64) {
     let mut st = s.lock();
     if st.control_gen == generation && st.control.is_some() {
         if let Some(c) = st.control.as_ref() {
-            let _ = c.stream.shutdown(Shutdown::Both);
+            c.shutdown();
         }
         st.disconnected();
     }
