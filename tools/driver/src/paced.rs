@@ -11,13 +11,15 @@
 use std::os::fd::AsRawFd;
 use std::sync::atomic::{AtomicBool, Ordering};
 
+use strand::config::Config;
+use strand::config::driver::DriverConfig;
 use strand::io::clock::monotonic_ns;
 use strand::io::histogram::Histogram;
 use strand_ipc::ports::{ClientPorts, ClientRoles};
 use strand_ipc::{Command, Control, ServiceNames};
 
 use crate::bridge::{BridgeReport, joint_state, log_transition, wait_command};
-use crate::protocol::{PacketError, RobotProtocol};
+use crate::protocol::{Clock, PacketError, RobotProtocol};
 use crate::session::{DriverState, Dropped, Due, ReplyKind, Session};
 
 /// Why a link failed.
@@ -32,6 +34,9 @@ pub enum LinkError {
     /// The robot refused a call (the message names the call and the robot's code).
     #[error("{0}")]
     Refused(String),
+    /// Setting the robot up for streaming failed (the message names the step).
+    #[error("setting the robot up: {0}")]
+    Setup(String),
 }
 
 /// The cycle's transport, for an interface the driver connects to.
@@ -56,6 +61,18 @@ pub trait DriverLink {
         let _ = filament_rate;
         Ok(())
     }
+}
+
+/// Everything before an interface's first cycle, done by the link that then carries the cycles —
+/// b-CAP: the service, the arm, motor on and slave mode; the Meca500: activation, homing, velocity
+/// mode and monitoring; UR: the RTDE recipes, strand's servo program sent, and its connection back.
+pub trait Handshake<P: RobotProtocol>: DriverLink + Sized {
+    /// Connects to the robot `driver` names and sets it up for streaming as `cfg` says; tells the
+    /// session's protocol what the set-up learnt (b-CAP's robot handle, UR's recipe, the
+    /// Meca500's speed limits and gain). Returns the link and the first answer, which starts the
+    /// exchange where the robot answers commands (b-CAP: a hold where the arm is), or nothing. If
+    /// it fails part-way, the robot is given back first.
+    fn handshake(cfg: &Config, driver: &DriverConfig, session: &mut Session<P>) -> Result<(Self, Vec<u8>), LinkError>;
 }
 
 /// How the loop runs.
@@ -213,17 +230,13 @@ pub fn run<P: RobotProtocol, L: DriverLink>(
             // The robot does not follow yet (UR: strand's program not playing): hold it where it
             // is, and do not clock the service.
             let r = session.reply_hold(&mut reply);
-            let sent = link.send(&reply);
-            record(received, period_ns, &mut latency, session);
-            if let Err(e) = sent {
+            if let Err(e) = answer(link, &reply, received, period_ns, &mut latency, session) {
                 break StreamEnd::Robot(e.to_string());
             }
             r
         } else if held {
             let r = session.reply_hold(&mut reply);
-            let sent = link.send(&reply);
-            record(received, period_ns, &mut latency, session);
-            if let Err(e) = sent {
+            if let Err(e) = answer(link, &reply, received, period_ns, &mut latency, session) {
                 break StreamEnd::Robot(e.to_string());
             }
             let transition = if !session.stopping() {
@@ -243,9 +256,7 @@ pub fn run<P: RobotProtocol, L: DriverLink>(
             last_state_seq = seq;
             let command = wait_command(&ports, seq, received + deadline_ns);
             let r = session.reply(command.as_ref(), &mut reply);
-            let sent = link.send(&reply);
-            record(received, period_ns, &mut latency, session);
-            if let Err(e) = sent {
+            if let Err(e) = answer(link, &reply, received, period_ns, &mut latency, session) {
                 break StreamEnd::Robot(e.to_string());
             }
             r
@@ -289,15 +300,36 @@ pub fn run<P: RobotProtocol, L: DriverLink>(
     Ok((report, Ended { end, release_failed }))
 }
 
-/// Records how long after the state's receipt the answer left; one that left after the robot's
-/// cycle is counted (`missed_cycle`). Unlike a UDP robot that holds its target through a missed
-/// answer, these robots run every answer in order (b-CAP's buffer; the Meca500 keeps its last
-/// velocity until the next): a late answer delays the motion, it does not stop it, so the guard
-/// goes on from its last answer. A buffer that runs dry is an error the robot reports.
-fn record<P: RobotProtocol>(received: u64, period_ns: u64, latency: &mut Histogram, session: &mut Session<P>) {
+/// Sends the answer to the state received at `received` (ns) and records how long after it the
+/// answer left. Where the robot clocks the cycle ([`Clock::Robot`], UR), an answer not ready
+/// within the robot's cycle is not sent: the robot held its previous target that cycle and its
+/// next state is already out, so the session takes the answer back and the next one catches up
+/// from the hold (sent late over a stream, it would be run a cycle late and the next answer,
+/// stepping from the hold, would step back). Where the driver clocks ([`Clock::Driver`]: b-CAP's
+/// buffer, the Meca500's velocity), the robot runs every answer in order: a late one delays the
+/// motion, it does not stop it, so it is sent and counted (`missed_cycle`); a buffer that runs dry
+/// is an error the robot reports.
+fn answer<P: RobotProtocol, L: DriverLink>(
+    link: &mut L,
+    reply: &[u8],
+    received: u64,
+    period_ns: u64,
+    latency: &mut Histogram,
+    session: &mut Session<P>,
+) -> Result<(), LinkError> {
+    if P::CLOCK == Clock::Robot && monotonic_ns() - received > period_ns {
+        latency.record(monotonic_ns() - received);
+        session.answer_missed_its_cycle();
+        return Ok(());
+    }
+    link.send(reply)?;
     let took = monotonic_ns() - received;
     latency.record(took);
     if took > period_ns {
-        session.counters.missed_cycle += 1;
+        match P::CLOCK {
+            Clock::Robot => session.answer_missed_its_cycle(),
+            Clock::Driver => session.counters.missed_cycle += 1,
+        }
     }
+    Ok(())
 }

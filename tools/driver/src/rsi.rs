@@ -26,7 +26,7 @@ use quick_xml::Reader;
 use quick_xml::events::{BytesStart, Event};
 use strand_ipc::MAX_JOINTS;
 
-use crate::protocol::{PacketError, RobotPacket, RobotProtocol};
+use crate::protocol::{Clock, PacketError, RobotPacket, RobotProtocol};
 
 /// Axes RSI streams for the robot arm (A1..A6).
 pub const AXES: usize = 6;
@@ -68,6 +68,7 @@ fn attr_axes(e: &BytesStart, axes: &mut [Option<f64>; AXES]) -> Result<(), Packe
 
 impl RobotProtocol for Rsi {
     const NAME: &'static str = "rsi";
+    const CLOCK: Clock = Clock::Robot;
     /// A KR C4 packet with every element is about 600 bytes; 4 KiB leaves room for extra sensor
     /// elements the RSI XML may add.
     const MAX_PACKET: usize = 4096;

@@ -42,10 +42,30 @@ pub enum PacketError {
     RobotError(String),
 }
 
+/// Who clocks the cycle: what a state arriving means, and what an answer that comes late does.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Clock {
+    /// The robot sends its state every cycle and servos to the newest answer (EGM, RSI, FRI, UR's
+    /// reverse interface): a state arriving is the tick. An answer later than the robot's cycle
+    /// was not its target that cycle — the robot held the previous one — so the guard takes it
+    /// back ([`crate::session::Session::answer_missed_its_cycle`]) and the next answer catches up
+    /// from the hold; over a stream (UR) such an answer is not sent at all, lest the robot run it a
+    /// cycle late and then step back to the next one.
+    Robot,
+    /// The driver sends on its own clock and the robot's answer is its state (b-CAP's slave mode,
+    /// the Meca500's velocity mode), at the period the driver is configured for
+    /// ([`RobotProtocol::set_period`]): the robot runs every command in order (b-CAP's buffer; the
+    /// Meca500 keeps its last velocity), so a late command delays the motion; it is counted, not
+    /// taken back.
+    Driver,
+}
+
 /// A robot controller's streaming interface.
 pub trait RobotProtocol {
     /// Its name in messages (`egm`, `rsi`).
     const NAME: &'static str;
+    /// Who clocks the cycle.
+    const CLOCK: Clock;
     /// The longest packet it sends (bytes); longer ones are dropped as oversized.
     const MAX_PACKET: usize;
 

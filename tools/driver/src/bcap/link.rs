@@ -11,7 +11,12 @@ use std::time::Duration;
 use strand::io::clock::monotonic_ns;
 
 use super::wire::{self, Framer, Variant, func};
-use crate::paced::{DriverLink, LinkError, readable, sleep_until};
+use strand::config::Config;
+use strand::config::driver::DriverConfig;
+
+use super::Bcap;
+use crate::paced::{DriverLink, Handshake, LinkError, readable, sleep_until};
+use crate::session::Session;
 
 /// Controller_Connect's provider for RC8 / RC8A / COBOTTA (RC9: `CaoProv.DENSO.VRC9`).
 pub const PROVIDER: &str = "CaoProv.DENSO.VRC";
@@ -326,5 +331,31 @@ impl DriverLink for BcapLink {
                 return Ok(None);
             }
         }
+    }
+}
+
+impl Handshake<Bcap> for BcapLink {
+    /// Connects, takes the arm into slave mode (`[driver] slave_mode`, the cycle from
+    /// `[controller] rate_hz`), and gives the session the robot's handle; the first answer holds
+    /// the arm where `CurJnt` says it is, to the bit (its reply starts the session).
+    fn handshake(cfg: &Config, d: &DriverConfig, session: &mut Session<Bcap>) -> Result<(BcapLink, Vec<u8>), LinkError> {
+        let addr = d.robot_address().map_err(|e| LinkError::Setup(e.to_string()))?;
+        let mut link = BcapLink::connect(addr, d.call_timeout)?;
+        let q0 = match link.start(d.slave_mode, 1.0 / cfg.controller.rate_hz) {
+            Ok(q) => q,
+            Err(e) => {
+                for problem in link.release() {
+                    eprintln!("strand-bcap: giving the robot back: {problem}");
+                }
+                return Err(LinkError::Setup(e.to_string()));
+            }
+        };
+        eprintln!("strand-bcap: slave mode {:#x}, the arm at {:?} deg", d.slave_mode, &q0[..session.dof()]);
+        let dof = session.dof();
+        let bcap = session.protocol_mut();
+        bcap.set_robot(link.robot().unwrap_or(0), dof);
+        let mut first = Vec::with_capacity(256);
+        bcap.encode_wire(&q0, &mut first);
+        Ok((link, first))
     }
 }

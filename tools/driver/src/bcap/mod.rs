@@ -22,7 +22,7 @@
 pub mod link;
 pub mod wire;
 
-use crate::protocol::{PacketError, RobotPacket, RobotProtocol};
+use crate::protocol::{Clock, PacketError, RobotPacket, RobotProtocol};
 use strand_ipc::MAX_JOINTS;
 
 /// Values in a J-type `slvMove` (unused joints 0).
@@ -85,6 +85,7 @@ impl Bcap {
 
 impl RobotProtocol for Bcap {
     const NAME: &'static str = "bcap";
+    const CLOCK: Clock = Clock::Driver;
     const MAX_PACKET: usize = wire::MAX_PACKET;
 
     fn set_linear_axes(&mut self, linear: &[bool]) -> Result<(), String> {

@@ -9,24 +9,9 @@
 #[path = "common/mod.rs"]
 mod driver_main;
 
-use strand::config::Config;
-use strand::config::driver::{DriverConfig, DriverProtocol};
+use strand::config::driver::DriverProtocol;
 use strand_driver::meca::Meca;
 use strand_driver::meca::link::MecaLink;
-use strand_driver::session::Session;
-
-fn open(cfg: &Config, d: &DriverConfig, session: &mut Session<Meca>) -> Result<(MecaLink, Vec<u8>), String> {
-    let addr = d.robot_address().map_err(|e| e.to_string())?;
-    let mut link = MecaLink::connect(addr, d.monitor_port, d.call_timeout).map_err(|e| e.to_string())?;
-    let started = link.start(1.0 / cfg.controller.rate_hz, d.velocity_timeout).map_err(|e| format!("setting the robot up: {e}"))?;
-    eprintln!("strand-meca: {}; {}", started.banner, if started.steps.is_empty() { "ready".to_string() } else { started.steps.join(", ") });
-    let model = cfg.robot.build_model().map_err(|e| e.to_string())?;
-    let speed: Vec<f64> = model.joints().iter().map(|j| j.limits.velocity).collect();
-    let meca = session.protocol_mut();
-    meca.set_speed_limits(&speed);
-    meca.set_gain(d.velocity_gain);
-    Ok((link, Vec::new()))
-}
 
 fn make() -> Meca {
     // The cycle and gain are set from the config before the first tick (session, open).
@@ -34,5 +19,5 @@ fn make() -> Meca {
 }
 
 fn main() -> std::process::ExitCode {
-    driver_main::main_connecting(DriverProtocol::Meca, make, open)
+    driver_main::main_connecting::<_, MecaLink>(DriverProtocol::Meca, make)
 }

@@ -20,7 +20,7 @@ pub mod proto;
 use prost::Message;
 use strand_ipc::MAX_JOINTS;
 
-use crate::protocol::{PacketError, RobotPacket, RobotProtocol};
+use crate::protocol::{Clock, PacketError, RobotPacket, RobotProtocol};
 use proto::egm_header::MessageType;
 use proto::egm_mci_state::MciStateType;
 use proto::egm_motor_state::MotorStateType;
@@ -69,6 +69,7 @@ fn to_wire(v: f64, linear: bool) -> f64 {
 
 impl RobotProtocol for Egm {
     const NAME: &'static str = "egm";
+    const CLOCK: Clock = Clock::Robot;
     /// An `EgmRobot` with every field is under 400 bytes; abb_libegm reads into 1024.
     const MAX_PACKET: usize = 1024;
 

@@ -18,7 +18,7 @@ pub mod proto;
 
 use prost::Message;
 
-use crate::protocol::{PacketError, RobotPacket, RobotProtocol};
+use crate::protocol::{Clock, PacketError, RobotPacket, RobotProtocol};
 use proto::{
     COMMAND_MESSAGE_ID, ConnectionQuality, FriCommandMessage, FriMonitoringMessage, JointValues, MONITORING_MESSAGE_ID, MessageCommandData,
     MessageHeader, SafetyState, SessionState,
@@ -77,6 +77,7 @@ fn seven(values: &Option<JointValues>, what: &str) -> Result<Option<[f64; JOINTS
 
 impl RobotProtocol for Fri {
     const NAME: &'static str = "fri";
+    const CLOCK: Clock = Clock::Robot;
     /// `FRI_MONITOR_MSG_MAX_SIZE` of the SDK.
     const MAX_PACKET: usize = 1500;
 

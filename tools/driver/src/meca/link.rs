@@ -10,7 +10,12 @@ use std::time::Duration;
 use strand::io::clock::monotonic_ns;
 
 use super::{FROM_CONTROL, FROM_MONITOR, describe, parse_message, parse_numbers};
-use crate::paced::{DriverLink, LinkError, readable, sleep_until};
+use strand::config::Config;
+use strand::config::driver::DriverConfig;
+
+use super::Meca;
+use crate::paced::{DriverLink, Handshake, LinkError, readable, sleep_until};
+use crate::session::Session;
 
 /// One connection's bytes, split at NUL (or a newline) into messages.
 struct Socket {
@@ -295,5 +300,27 @@ impl DriverLink for MecaLink {
             }
         }
         Ok(Some(&self.packet))
+    }
+}
+
+impl Handshake<Meca> for MecaLink {
+    /// Connects both ports, activates and homes the arm as needed, sets velocity mode up
+    /// (`[driver] velocity_timeout`, monitoring at half the cycle), and gives the session the
+    /// URDF's speed limits and `[driver] velocity_gain`. No first answer: the robot streams.
+    fn handshake(cfg: &Config, d: &DriverConfig, session: &mut Session<Meca>) -> Result<(MecaLink, Vec<u8>), LinkError> {
+        let addr = d.robot_address().map_err(|e| LinkError::Setup(e.to_string()))?;
+        let model = cfg.robot.build_model().map_err(|e| LinkError::Setup(e.to_string()))?;
+        let mut link = MecaLink::connect(addr, d.monitor_port, d.call_timeout)?;
+        let started = link.start(1.0 / cfg.controller.rate_hz, d.velocity_timeout).map_err(|e| LinkError::Setup(e.to_string()))?;
+        eprintln!(
+            "strand-meca: {}; {}",
+            started.banner,
+            if started.steps.is_empty() { "ready".to_string() } else { started.steps.join(", ") }
+        );
+        let speed: Vec<f64> = model.joints().iter().map(|j| j.limits.velocity).collect();
+        let meca = session.protocol_mut();
+        meca.set_speed_limits(&speed);
+        meca.set_gain(d.velocity_gain);
+        Ok((link, Vec::new()))
     }
 }

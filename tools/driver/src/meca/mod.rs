@@ -21,7 +21,7 @@ pub mod link;
 
 use std::io::Write;
 
-use crate::protocol::{PacketError, RobotPacket, RobotProtocol};
+use crate::protocol::{Clock, PacketError, RobotPacket, RobotProtocol};
 use strand_ipc::MAX_JOINTS;
 
 /// The Meca500's joints.
@@ -229,6 +229,7 @@ impl Meca {
 
 impl RobotProtocol for Meca {
     const NAME: &'static str = "meca";
+    const CLOCK: Clock = Clock::Driver;
     const MAX_PACKET: usize = 256 * 1024;
 
     fn set_linear_axes(&mut self, linear: &[bool]) -> Result<(), String> {

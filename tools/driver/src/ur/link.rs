@@ -11,7 +11,12 @@ use strand::io::clock::monotonic_ns;
 
 use super::rtde::{self, kind};
 use super::{JOINTS, mode};
-use crate::paced::{DriverLink, LinkError, readable};
+use strand::config::Config;
+use strand::config::driver::DriverConfig;
+
+use super::Ur;
+use crate::paced::{DriverLink, Handshake, LinkError, readable};
+use crate::session::Session;
 
 /// How the link is set up (`[driver]`).
 #[derive(Clone, Debug)]
@@ -361,5 +366,35 @@ impl DriverLink for UrLink {
         let r = write_all(&mut self.rtde, &out, self.settings.timeout, "RTDE");
         self.out = out;
         r
+    }
+}
+
+impl Handshake<Ur> for UrLink {
+    /// Sets RTDE up at `[controller] rate_hz`, sends strand's servo program to
+    /// `[driver] script_port`, waits for it to connect back to `reverse_port`, and gives the
+    /// session the output recipe and the read timeout. No first answer: the robot streams.
+    fn handshake(cfg: &Config, d: &DriverConfig, session: &mut Session<Ur>) -> Result<(UrLink, Vec<u8>), LinkError> {
+        let settings = UrSettings {
+            rtde: d.robot_address().map_err(|e| LinkError::Setup(e.to_string()))?,
+            script_port: d.script_port,
+            reverse_port: d.reverse_port,
+            reverse_host: d.reverse_host.clone(),
+            lookahead_time: d.lookahead_time,
+            servo_gain: d.servo_gain,
+            frequency: cfg.controller.rate_hz,
+            analog_output: u8::try_from(d.analog_output).ok(),
+            analog_scale: d.analog_scale,
+            analog_offset: d.analog_offset,
+            timeout: d.call_timeout,
+        };
+        let (link, started) = UrLink::start(settings).map_err(|e| LinkError::Setup(e.to_string()))?;
+        let v = started.version;
+        eprintln!(
+            "strand-ur: URControl {}.{}.{}.{}; RTDE at {} Hz; the program connected back to {}",
+            v[0], v[1], v[2], v[3], cfg.controller.rate_hz, started.reverse
+        );
+        session.protocol_mut().set_recipe(started.recipe);
+        session.protocol_mut().set_read_timeout(d.read_timeout);
+        Ok((link, Vec::new()))
     }
 }

@@ -22,7 +22,7 @@
 pub mod link;
 pub mod rtde;
 
-use crate::protocol::{PacketError, RobotPacket, RobotProtocol};
+use crate::protocol::{Clock, PacketError, RobotPacket, RobotProtocol};
 use strand_ipc::MAX_JOINTS;
 
 /// A UR's joints.
@@ -107,6 +107,7 @@ impl Ur {
 
 impl RobotProtocol for Ur {
     const NAME: &'static str = "ur";
+    const CLOCK: Clock = Clock::Robot;
     const MAX_PACKET: usize = 4096;
 
     fn set_linear_axes(&mut self, linear: &[bool]) -> Result<(), String> {

@@ -7,12 +7,11 @@ use std::process::ExitCode;
 use std::sync::atomic::{AtomicBool, Ordering};
 
 use clap::Parser;
-use strand::config::driver::{DriverConfig, DriverProtocol};
+use strand::config::driver::DriverProtocol;
 use strand::config::{Config, locate};
 use strand_driver::bridge::{BridgeOptions, BridgeReport, run};
-use strand_driver::paced::{DriverLink, PacedOptions, StreamEnd, run as paced_run};
+use strand_driver::paced::{Handshake, PacedOptions, StreamEnd, run as paced_run};
 use strand_driver::protocol::RobotProtocol;
-use strand_driver::session::Session;
 
 #[derive(Parser)]
 #[command(version)]
@@ -165,11 +164,7 @@ fn finish(name: &str, report: &BridgeReport, stats: Option<&std::path::Path>, en
 /// first; an error the robot reports ends the stream, the service is told, and the robot is given
 /// back all the same.
 #[allow(dead_code)]
-pub(crate) fn main_connecting<P: RobotProtocol, L: DriverLink>(
-    protocol: DriverProtocol,
-    make: fn() -> P,
-    open: fn(&Config, &DriverConfig, &mut Session<P>) -> Result<(L, Vec<u8>), String>,
-) -> ExitCode {
+pub(crate) fn main_connecting<P: RobotProtocol, L: Handshake<P>>(protocol: DriverProtocol, make: fn() -> P) -> ExitCode {
     let cli = Cli::parse();
     let name = P::NAME;
     let mut set = cli.set.clone();
@@ -204,7 +199,7 @@ pub(crate) fn main_connecting<P: RobotProtocol, L: DriverLink>(
     };
     on_signals();
     eprintln!("strand-{name}: connecting to the robot controller at {}", d.robot_address().map(|a| a.to_string()).unwrap_or_default());
-    let (mut link, first) = match open(&cfg, &d, &mut session) {
+    let (mut link, first) = match L::handshake(&cfg, &d, &mut session) {
         Ok(l) => l,
         Err(e) => {
             eprintln!("strand-{name}: {e}");
