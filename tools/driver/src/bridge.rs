@@ -25,8 +25,6 @@ pub struct BridgeOptions {
     pub bind: SocketAddr,
     /// The service prefix.
     pub prefix: String,
-    /// Longest wait for the service's command after a packet arrives (s).
-    pub reply_deadline: f64,
     /// The robot's cycle (s): the JointState velocity is measured over it, and the shut-down hold
     /// lasts until the robot has been at rest for a few of them.
     pub period: f64,
@@ -90,7 +88,6 @@ pub fn run<P: RobotProtocol>(session: &mut Session<P>, opts: &BridgeOptions, sto
     let mut stale = 0u64;
     let mut reply = Vec::with_capacity(1024);
     let mut latency = Histogram::new();
-    let deadline_ns = (opts.reply_deadline * 1e9) as u64;
     let period_ns = (opts.period * 1e9) as u64;
     let mut previous_q: Option<[f64; strand_ipc::MAX_JOINTS]> = None;
     let mut control_seq = 0u64;
@@ -108,7 +105,8 @@ pub fn run<P: RobotProtocol>(session: &mut Session<P>, opts: &BridgeOptions, sto
                 log_transition(name, t, " (no packet from the robot: its session ended)");
                 previous_q = None;
             }
-            Due::Nothing => {}
+            // Every accepted packet is answered in its own pass of this loop, by its deadline.
+            Due::Reply | Due::Nothing => {}
         }
         let (n, from) = match socket.recv_from(&mut buf) {
             Ok(x) => x,
@@ -198,7 +196,7 @@ pub fn run<P: RobotProtocol>(session: &mut Session<P>, opts: &BridgeOptions, sto
         } else {
             let _ = ports.send_joint_state(&state);
             last_state_seq = seq;
-            let command = wait_command(&ports, seq, received + deadline_ns);
+            let command = wait_command(&ports, seq, session.reply_deadline().unwrap_or(received));
             let r = session.reply(command.as_ref(), &mut reply);
             answer(&socket, &reply, from, received, period_ns, &mut latency, session);
             r
@@ -208,7 +206,7 @@ pub fn run<P: RobotProtocol>(session: &mut Session<P>, opts: &BridgeOptions, sto
                 format!(
                     " ({} commands in a row missed the {} ms deadline: holding, and telling the service)",
                     session.late_run(),
-                    opts.reply_deadline * 1e3
+                    session.rules().reply_deadline * 1e3
                 )
             } else {
                 String::new()

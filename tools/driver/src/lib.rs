@@ -164,5 +164,10 @@ pub fn session<P: RobotProtocol>(cfg: &Config, d: &DriverConfig, mut protocol: P
             source: strand::core::InvalidSetting::new("driver", e.to_string()),
         })?),
     };
-    Ok(Session::new(protocol, map, guard, SessionRules { robot, max_late_cycles: d.max_late_cycles, recover_cycles: d.recover_cycles }))
+    Ok(Session::new(
+        protocol,
+        map,
+        guard,
+        SessionRules { robot, max_late_cycles: d.max_late_cycles, recover_cycles: d.recover_cycles, reply_deadline: d.reply_deadline },
+    ))
 }

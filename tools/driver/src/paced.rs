@@ -80,8 +80,6 @@ pub trait Handshake<P: RobotProtocol>: DriverLink + Sized {
 pub struct PacedOptions {
     /// The service prefix.
     pub prefix: String,
-    /// Longest wait for the service's command after a state arrives (s).
-    pub reply_deadline: f64,
     /// The robot's cycle (s).
     pub period: f64,
     /// Longest wait for the robot's state after an answer (s): beyond it the robot is gone.
@@ -148,7 +146,6 @@ pub fn run<P: RobotProtocol, L: DriverLink>(
     let mut started = first.is_empty() || link.send(first).is_ok();
     let mut reply = Vec::with_capacity(1024);
     let mut latency = Histogram::new();
-    let deadline_ns = (opts.reply_deadline * 1e9) as u64;
     let period_ns = (opts.period * 1e9) as u64;
     let timeout_ns = (opts.state_timeout * 1e9) as u64;
     let mut previous_q: Option<[f64; strand_ipc::MAX_JOINTS]> = None;
@@ -254,7 +251,7 @@ pub fn run<P: RobotProtocol, L: DriverLink>(
         } else {
             let _ = ports.send_joint_state(&state);
             last_state_seq = seq;
-            let command = wait_command(&ports, seq, received + deadline_ns);
+            let command = wait_command(&ports, seq, session.reply_deadline().unwrap_or(received));
             let r = session.reply(command.as_ref(), &mut reply);
             if let Err(e) = answer(link, &reply, received, period_ns, &mut latency, session) {
                 break StreamEnd::Robot(e.to_string());
@@ -266,7 +263,7 @@ pub fn run<P: RobotProtocol, L: DriverLink>(
                 (_, DriverState::HeldAfterFault) => format!(
                     " ({} commands in a row missed the {} ms deadline: holding, and telling the service)",
                     session.late_run(),
-                    opts.reply_deadline * 1e3
+                    session.rules().reply_deadline * 1e3
                 ),
                 (DriverState::HeldAfterFault, DriverState::Following) => " (the service answers in time again)".to_string(),
                 _ => String::new(),

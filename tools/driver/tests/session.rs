@@ -20,7 +20,7 @@ fn rob(ipoc: u64, a1: f64) -> Vec<u8> {
 
 fn session() -> Session<Rsi> {
     let b = JointBounds { lower: -3.0, upper: 3.0, velocity: 2.0, acceleration: 10.0 };
-    let rules = SessionRules { robot: None, max_late_cycles: 3, recover_cycles: 5 };
+    let rules = SessionRules { robot: None, max_late_cycles: 3, recover_cycles: 5, reply_deadline: 0.002 };
     Session::new(Rsi::new(), AxisMap::identity(6), ReplyGuard::new(vec![b; 6], 0.004), rules)
 }
 
@@ -200,13 +200,20 @@ fn the_report_says_what_the_robot_was_told_and_that_it_held() {
 }
 
 #[test]
-fn the_session_owns_the_silence_and_the_stop_deadlines() {
-    // 4 ms cycles: 25 silent cycles = 100 ms end the robot's session; a stop holds until at rest.
+fn the_session_owns_the_reply_the_silence_and_the_stop_deadlines() {
+    // 4 ms cycles: the answer is due 2 ms after its packet ([driver] reply_deadline); 25 silent
+    // cycles = 100 ms end the robot's session; a stop holds until at rest.
     let mut s = session();
     let robot: SocketAddr = "127.0.0.1:5000".parse().unwrap();
     let ms = 1_000_000u64;
-    assert_eq!(s.poll_timeout(), None, "nothing pending before the robot");
+    assert_eq!((s.poll_timeout(), s.reply_deadline()), (None, None), "nothing pending before the robot");
     s.on_packet_at(1000 * ms, &rob(100, 0.0), robot).unwrap();
+    assert_eq!((s.reply_deadline(), s.poll_timeout()), (Some(1002 * ms), Some(1002 * ms)));
+    assert_eq!(s.poll(1002 * ms - 1), Due::Nothing);
+    assert_eq!(s.poll(1002 * ms), Due::Reply, "the answer is due: a hold, since no command came");
+    let mut out = Vec::new();
+    assert_eq!(s.reply(None, &mut out).0, ReplyKind::Late);
+    assert_eq!(s.reply_deadline(), None, "answered");
     assert_eq!(s.poll_timeout(), Some(1100 * ms));
     assert_eq!(s.poll(1099 * ms), Due::Nothing);
     match s.poll(1101 * ms) {
@@ -215,7 +222,6 @@ fn the_session_owns_the_silence_and_the_stop_deadlines() {
     }
     // A new session; the service moves A1, then a stop: the answers hold, braking, and the stop is
     // done once the target has been at rest for a few polls.
-    let mut out = Vec::new();
     let mut t = 2000 * ms;
     s.on_packet_at(t, &rob(200, 0.0), robot).unwrap();
     for k in 1..=50u64 {

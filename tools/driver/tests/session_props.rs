@@ -120,7 +120,7 @@ struct Cell {
 
 impl Cell {
     fn new(start: &[f64; DOF]) -> Cell {
-        let rules = SessionRules { robot: None, max_late_cycles: 3, recover_cycles: 5 };
+        let rules = SessionRules { robot: None, max_late_cycles: 3, recover_cycles: 5, reply_deadline: 0.002 };
         let session = Session::new(Rsi::new(), AxisMap::identity(DOF), ReplyGuard::new(bounds(), PERIOD), rules);
         let start_deg: Vec<f64> = start.iter().map(|q| q.to_degrees()).collect();
         Cell {

@@ -11,9 +11,11 @@
 //!   fault for the service (the bridge sends an emergency stop); after `recover_cycles` in time the
 //!   driver follows again, from where it holds;
 //! - every answer passes the [`ReplyGuard`]: inside the joint limits, no jump;
-//! - the deadlines that need no packet, given `now` ([`Session::poll`], [`Session::poll_timeout`]):
-//!   a robot silent for [`SILENT_CYCLES`] ends its session; a requested stop holds the robot until
-//!   it is at rest.
+//! - every deadline, given `now` ([`Session::poll`], [`Session::poll_timeout`]): the answer to a
+//!   packet received at `now` is due by `now + reply_deadline` ([`Session::reply_deadline`]: the
+//!   loop waits for the service's command until then, and answers with a hold after it); a robot
+//!   silent for [`SILENT_CYCLES`] ends its session; a requested stop holds the robot until it is at
+//!   rest.
 
 use std::net::SocketAddr;
 
@@ -40,6 +42,9 @@ const REST_POLLS_TO_STOP: u32 = 5;
 pub enum Due {
     /// Nothing.
     Nothing,
+    /// The reply deadline of the last packet passed unanswered: answer now, with a hold
+    /// ([`Session::reply`] with no command).
+    Reply,
     /// The robot went quiet for [`SILENT_CYCLES`]: its session ended (the transition, for the log).
     SessionEnded(Transition),
     /// A requested stop is done: the robot is at rest (a few polls in a row), or the longest stop
@@ -166,6 +171,9 @@ pub struct SessionRules {
     pub max_late_cycles: u32,
     /// Answers in time in a row that release a latched hold.
     pub recover_cycles: u32,
+    /// After a packet arrives, the longest wait for the service's command before the answer
+    /// holds instead (s; `[driver] reply_deadline`).
+    pub reply_deadline: f64,
 }
 
 /// One robot connection.
@@ -186,6 +194,8 @@ pub struct Session<P: RobotProtocol> {
     last_accepted_ns: Option<u64>,
     /// A stop requested (when, ns) and the polls in a row at rest since.
     stop: Option<(u64, u32)>,
+    /// When the answer to the last packet is due (ns), until it is sent.
+    reply_due: Option<u64>,
     /// Counters since start.
     pub counters: Counters,
 }
@@ -219,12 +229,14 @@ impl<P: RobotProtocol> Session<P> {
             held: false,
             last_accepted_ns: None,
             stop: None,
+            reply_due: None,
             counters: Counters::default(),
         }
     }
 
     /// Takes a packet as [`Session::on_packet`] does, received at `now_ns` (monotonic): an
-    /// accepted one restarts the silence [`Session::poll`] watches.
+    /// accepted one restarts the silence [`Session::poll`] watches, and its answer is due by
+    /// `now_ns` + the reply deadline ([`Session::reply_deadline`]).
     pub fn on_packet_at(
         &mut self,
         now_ns: u64,
@@ -234,8 +246,16 @@ impl<P: RobotProtocol> Session<P> {
         let r = self.on_packet(bytes, from);
         if r.is_ok() {
             self.last_accepted_ns = Some(now_ns);
+            self.reply_due = Some(now_ns + (self.rules.reply_deadline.max(0.0) * 1e9) as u64);
         }
         r
+    }
+
+    /// When the answer to the last packet taken by [`Session::on_packet_at`] is due (ns, the
+    /// caller's monotonic clock), until it is sent: the loop waits for the service's command until
+    /// then, and answers with a hold after it.
+    pub fn reply_deadline(&self) -> Option<u64> {
+        self.reply_due
     }
 
     /// A stop was asked for at `now_ns` (Ctrl-C): from now on every answer holds, until
@@ -253,11 +273,15 @@ impl<P: RobotProtocol> Session<P> {
         self.stop.is_some()
     }
 
-    /// The deadlines the session owns, at `now_ns`: the robot's silence (its session ends after
-    /// [`SILENT_CYCLES`]), and a requested stop's hold (done when the guard's target has been at
+    /// The deadlines the session owns, at `now_ns`: the last packet's reply deadline
+    /// ([`Due::Reply`]), the robot's silence (its session ends after [`SILENT_CYCLES`]), and a
+    /// requested stop's hold (done when the guard's target has been at
     /// rest for a few polls — the loops poll once a cycle — or after the slowest joint's stop from
     /// full speed plus 0.5 s). Call it once per cycle, and when a wait for the robot times out.
     pub fn poll(&mut self, now_ns: u64) -> Due {
+        if self.reply_due.is_some_and(|due| now_ns >= due) {
+            return Due::Reply;
+        }
         if let Some((since, rest)) = self.stop {
             let rest = if self.guard.at_rest() { rest + 1 } else { 0 };
             self.stop = Some((since, rest));
@@ -284,10 +308,7 @@ impl<P: RobotProtocol> Session<P> {
             .flatten()
             .map(|t| t + (SILENT_CYCLES * self.guard.period() * 1e9) as u64);
         let stop = self.stop.map(|(since, _)| since + ((self.guard.longest_stop() + 0.5) * 1e9) as u64);
-        match (silence, stop) {
-            (Some(a), Some(b)) => Some(a.min(b)),
-            (a, b) => a.or(b),
-        }
+        [silence, stop, self.reply_due].into_iter().flatten().min()
     }
 
     /// Its state.
@@ -330,6 +351,7 @@ impl<P: RobotProtocol> Session<P> {
         self.last_seq = None;
         self.current = None;
         self.last_accepted_ns = None;
+        self.reply_due = None;
         self.late_run = 0;
         self.good_run = 0;
         self.enter(DriverState::WaitingForRobot)
@@ -338,6 +360,11 @@ impl<P: RobotProtocol> Session<P> {
     /// Whether the robot follows corrections now (the last accepted packet says so).
     pub fn robot_following(&self) -> bool {
         self.current.is_some_and(|p| p.following)
+    }
+
+    /// The rules it keeps.
+    pub fn rules(&self) -> &SessionRules {
+        &self.rules
     }
 
     /// Late answers in a row so far.
@@ -357,6 +384,7 @@ impl<P: RobotProtocol> Session<P> {
         self.counters.held += 1;
         self.counters.replies += 1;
         self.held = true;
+        self.reply_due = None;
         (ReplyKind::Hold, None)
     }
 
@@ -567,6 +595,7 @@ impl<P: RobotProtocol> Session<P> {
         let axes = self.map.axes_from_joints(&q[..self.map.dof()]);
         self.protocol.encode_reply(&packet, &axes[..packet.dof], out);
         self.counters.replies += 1;
+        self.reply_due = None;
         (kind, transition)
     }
 }

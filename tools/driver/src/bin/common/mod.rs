@@ -69,7 +69,6 @@ pub(crate) fn main_for<P: RobotProtocol>(protocol: DriverProtocol, make: fn() ->
         let opts = BridgeOptions {
             bind: d.bind_address().map_err(|e| e.to_string())?,
             prefix: cli.prefix.clone().unwrap_or_else(|| cfg.service.prefix.clone()),
-            reply_deadline: d.reply_deadline,
             period: 1.0 / cfg.controller.rate_hz,
             max_packets: 0,
         };
@@ -183,7 +182,6 @@ pub(crate) fn main_connecting<P: RobotProtocol, L: Handshake<P>>(protocol: Drive
         let period = 1.0 / cfg.controller.rate_hz;
         let opts = PacedOptions {
             prefix: cli.prefix.clone().unwrap_or_else(|| cfg.service.prefix.clone()),
-            reply_deadline: d.reply_deadline,
             period,
             state_timeout: (8.0 * period).max(0.2),
             max_packets: 0,
