@@ -39,8 +39,10 @@ fn rust_files(dir: &Path, out: &mut Vec<PathBuf>) {
 
 #[test]
 fn the_core_depends_on_nothing_of_the_shell() {
-    let allowed: BTreeSet<String> =
-        ["nalgebra", "urdf-rs", "libm", "serde", "thiserror", "rsruckig", "strand-wire"].iter().map(|s| s.to_string()).collect();
+    let allowed: BTreeSet<String> = ["nalgebra", "urdf-rs", "libm", "serde", "thiserror", "rsruckig", "strand-wire", "strand-limits"]
+        .iter()
+        .map(|s| s.to_string())
+        .collect();
     let deps = dependencies(&root().join("src/core/Cargo.toml"));
     let extra: Vec<_> = deps.difference(&allowed).collect();
     assert!(extra.is_empty(), "strand-core may not depend on {extra:?}: the core does no I/O");
@@ -109,12 +111,14 @@ fn the_wire_contract_and_the_crates_on_it_link_no_transport() {
     assert!(wire.is_subset(&allowed), "strand-wire depends on {:?}: the types only", wire.difference(&allowed).collect::<Vec<_>>());
     // What every robot driver shares: on the wire types, not on the service or a transport.
     let robot = dependencies(&root().join("tools/robot/Cargo.toml"));
-    let allowed: BTreeSet<String> = ["strand-wire", "thiserror", "serde"].iter().map(|s| s.to_string()).collect();
+    let allowed: BTreeSet<String> = ["strand-wire", "strand-limits", "thiserror", "serde"].iter().map(|s| s.to_string()).collect();
     assert!(robot.is_subset(&allowed), "strand-robot depends on {:?}", robot.difference(&allowed).collect::<Vec<_>>());
-    for name in ["strand-wire", "strand-core", "strand-job", "strand-robot"] {
+    // The joint limits both the controller and the drivers' guard keep: on nothing at all.
+    assert!(dependencies(&root().join("limits/Cargo.toml")).is_empty(), "strand-limits depends on nothing");
+    for name in ["strand-wire", "strand-limits", "strand-core", "strand-job", "strand-robot"] {
         let tree = locked_tree(name);
         assert!(
-            tree.contains("nalgebra") || name == "strand-wire" || name == "strand-robot",
+            tree.contains("nalgebra") || name == "strand-wire" || name == "strand-limits" || name == "strand-robot",
             "{name}'s tree read from Cargo.lock: {tree:?}"
         );
         for transport in ["iceoryx2", "iceoryx2-cal", "strand-ipc"] {

@@ -59,38 +59,20 @@ impl JointCommandStage {
     }
 
     /// Moves the command towards `q_des` within every joint's position, velocity and acceleration
-    /// limits. Returns the first clamped joint when this tick starts a run of clamped ticks (the
-    /// controller reports it once).
+    /// limits, by the rule the drivers' reply guard keeps too ([`crate::kin::JointLimits::step`]:
+    /// it brakes before a position limit rather than stop on it dead). Returns the first clamped
+    /// joint when this tick starts a run of clamped ticks (the controller reports it once).
     pub(super) fn limit(&mut self, model: &RobotModel, dt: f64, q_des: &JointVector) -> Option<u8> {
         let n = model.dof();
         let mut clamped = None;
         for i in 0..n {
-            let l = model.limits(i);
-            let dv = l.acceleration * dt;
-            let (mut lo, mut hi) = ((-l.velocity).max(self.qd[i] - dv), l.velocity.min(self.qd[i] + dv));
-            if lo > hi {
-                // Faster than the limit already (cannot happen from our own commands): slow down
-                // at the acceleration limit.
-                let v = if self.qd[i] > 0.0 { self.qd[i] - dv } else { self.qd[i] + dv };
-                (lo, hi) = (v, v);
-            }
-            let tol = 1e-9 * (1.0 + l.velocity);
-            let mut v = (q_des[i] - self.q[i]) / dt;
-            if v < lo - tol || v > hi + tol {
+            let s = model.limits(i).step(self.q[i], self.qd[i], (q_des[i] - self.q[i]) / dt, dt);
+            if s.clamped {
                 clamped.get_or_insert(i);
             }
-            v = v.max(lo).min(hi);
-            let mut qn = self.q[i] + v * dt;
-            // Never further out than the limit (or than where it is, if it starts outside).
-            let (q_lo, q_hi) = (l.lower.min(self.q[i]), l.upper.max(self.q[i]));
-            if qn > q_hi + 1e-12 || qn < q_lo - 1e-12 {
-                clamped.get_or_insert(i);
-            }
-            qn = qn.max(q_lo).min(q_hi);
-            v = (qn - self.q[i]) / dt;
-            self.qdd[i] = (v - self.qd[i]) / dt;
-            self.qd[i] = v;
-            self.q[i] = qn;
+            self.qdd[i] = (s.velocity - self.qd[i]) / dt;
+            self.qd[i] = s.velocity;
+            self.q[i] = s.position;
         }
         match clamped {
             Some(joint) => {

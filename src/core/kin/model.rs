@@ -42,29 +42,8 @@ impl JointKind {
     }
 }
 
-/// Limits of one joint. Position and velocity come from the URDF; acceleration and jerk from config
-/// (URDF before 1.2 has none; a 1.2 file's values are used until config sets them), `f64::INFINITY`
-/// when neither gives one.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct JointLimits {
-    /// Lowest position (rad or m); `-inf` for a continuous joint.
-    pub lower: f64,
-    /// Highest position (rad or m); `+inf` for a continuous joint.
-    pub upper: f64,
-    /// Largest speed (rad/s or m/s).
-    pub velocity: f64,
-    /// Largest acceleration (rad/s² or m/s²).
-    pub acceleration: f64,
-    /// Largest jerk (rad/s³ or m/s³).
-    pub jerk: f64,
-}
-
-impl JointLimits {
-    /// Midpoint of the position range (rad or m); 0 for a continuous joint.
-    pub fn middle(&self) -> f64 {
-        if self.lower.is_finite() && self.upper.is_finite() { 0.5 * (self.lower + self.upper) } else { 0.0 }
-    }
-}
+/// Limits of one joint (the shared `strand-limits` crate: the drivers' reply guard keeps the same).
+pub use strand_limits::JointLimits;
 
 /// One movable joint of the chain.
 #[derive(Clone, Debug)]

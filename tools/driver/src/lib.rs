@@ -31,7 +31,7 @@ use strand::config::Config;
 use strand::config::driver::{DriverConfig, DriverProtocol};
 
 use axes::AxisMap;
-use guard::{JointBounds, ReplyGuard};
+use guard::ReplyGuard;
 use protocol::RobotProtocol;
 use session::{Session, SessionRules};
 
@@ -145,16 +145,7 @@ pub fn session<P: RobotProtocol>(cfg: &Config, d: &DriverConfig, mut protocol: P
     let linear: Vec<bool> = model.joints().iter().map(|j| !j.kind.rotates()).collect();
     protocol.set_linear_axes(&linear).map_err(|why| SetupError::Robot { file: cfg.file.display().to_string(), protocol: P::NAME, why })?;
     protocol.set_period(1.0 / cfg.controller.rate_hz);
-    let bounds = model
-        .joints()
-        .iter()
-        .map(|j| JointBounds {
-            lower: j.limits.lower,
-            upper: j.limits.upper,
-            velocity: j.limits.velocity,
-            acceleration: j.limits.acceleration,
-        })
-        .collect();
+    let bounds = model.joints().iter().map(|j| j.limits).collect();
     let guard = ReplyGuard::new(bounds, 1.0 / cfg.controller.rate_hz);
     let map = AxisMap::new(model.dof(), &d.axis_sign, &d.axis_offset);
     let robot = match d.robot.as_str() {

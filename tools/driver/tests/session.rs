@@ -7,7 +7,7 @@ use std::net::SocketAddr;
 use strand_driver::rsi::Rsi;
 use strand_ipc::JointCommand;
 use strand_robot::axes::AxisMap;
-use strand_robot::guard::{JointBounds, ReplyGuard};
+use strand_robot::guard::{JointLimits, ReplyGuard};
 use strand_robot::protocol::PacketError;
 use strand_robot::session::{DriverState, Dropped, Due, ReplyKind, Session, SessionRules};
 
@@ -19,7 +19,7 @@ fn rob(ipoc: u64, a1: f64) -> Vec<u8> {
 }
 
 fn session() -> Session<Rsi> {
-    let b = JointBounds { lower: -3.0, upper: 3.0, velocity: 2.0, acceleration: 10.0 };
+    let b = JointLimits { lower: -3.0, upper: 3.0, velocity: 2.0, acceleration: 10.0, jerk: f64::INFINITY };
     let rules = SessionRules { robot: None, max_late_cycles: 3, recover_cycles: 5, reply_deadline: 0.002 };
     Session::new(Rsi::new(), AxisMap::identity(6), ReplyGuard::new(vec![b; 6], 0.004), rules)
 }

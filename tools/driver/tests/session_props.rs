@@ -27,7 +27,7 @@ use strand_driver::fake::rsi::FakeRsi;
 use strand_driver::rsi::Rsi;
 use strand_ipc::{JointCommand, MAX_JOINTS};
 use strand_robot::axes::AxisMap;
-use strand_robot::guard::{JointBounds, ReplyGuard};
+use strand_robot::guard::{JointLimits, ReplyGuard};
 use strand_robot::session::{DriverState, Session, SessionRules};
 
 const DOF: usize = 6;
@@ -35,13 +35,14 @@ const PERIOD: f64 = 0.004;
 /// RSI's `IPOC` step (ms).
 const PERIOD_MS: u64 = 4;
 
-fn bounds() -> Vec<JointBounds> {
+fn bounds() -> Vec<JointLimits> {
     (0..DOF)
-        .map(|k| JointBounds {
+        .map(|k| JointLimits {
             lower: -2.0 - 0.2 * k as f64,
             upper: 2.0 + 0.1 * k as f64,
             velocity: 1.5 + 0.5 * k as f64,
             acceleration: 8.0 + 3.0 * k as f64,
+            jerk: f64::INFINITY,
         })
         .collect()
 }

@@ -35,23 +35,14 @@ pub const CATCH_UP_SHARE: f64 = 0.5;
 /// Below this (rad or m) an answer is the service's command.
 const SAME: f64 = 1e-12;
 
-/// The limits of one joint (rad, rad/s, rad/s²; or m, m/s, m/s²).
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct JointBounds {
-    /// Lowest position.
-    pub lower: f64,
-    /// Highest position.
-    pub upper: f64,
-    /// Largest speed.
-    pub velocity: f64,
-    /// Largest acceleration.
-    pub acceleration: f64,
-}
+/// The limits of one joint, as the controller's final command stage keeps them (the shared
+/// `strand-limits` crate): the guard's last stage is the same step rule.
+pub use strand_limits::JointLimits;
 
 /// The replies sent so far, and the limits they keep.
 #[derive(Clone, Debug)]
 pub struct ReplyGuard {
-    bounds: Vec<JointBounds>,
+    bounds: Vec<JointLimits>,
     period: f64,
     /// The last target sent (joint space).
     last: Option<[f64; MAX_JOINTS]>,
@@ -118,7 +109,7 @@ pub fn catch_up_bound(gap: f64, target_velocity: f64, velocity: f64, acceleratio
 
 impl ReplyGuard {
     /// A guard for joints with `bounds`, replying every `period` seconds (the robot's cycle).
-    pub fn new(bounds: Vec<JointBounds>, period: f64) -> ReplyGuard {
+    pub fn new(bounds: Vec<JointLimits>, period: f64) -> ReplyGuard {
         ReplyGuard {
             bounds,
             period,
@@ -256,7 +247,6 @@ impl ReplyGuard {
         }
         let mut out = prev;
         for (k, b) in self.bounds.iter().enumerate() {
-            let dv = b.acceleration * dt;
             // The relative speed towards the target: land on it this cycle if that is slow
             // enough to stop there (in step: the gap is nought, and the answer is the target);
             // else the square-root law. Towards the target it speeds up by the (synchronised)
@@ -270,16 +260,9 @@ impl ReplyGuard {
             let toward_was = (self.velocity[k] - self.target_velocity[k]) * gap[k].signum();
             let w_new = if d / dt <= law { gap[k] / dt } else { law.min(toward_was + share[k] * dt) * gap[k].signum() };
             let v_chase = u[k] + w_new;
-            // Never faster than what can still stop before a position limit (the discrete
-            // square-root law: after this step, braking at the acceleration limit stops in time).
-            let stop = |room: f64| {
-                let h = 0.5 * dv;
-                (-h + (h * h + 2.0 * b.acceleration * room.max(0.0)).sqrt()).max(0.0)
-            };
-            let v_up = b.velocity.min(stop(b.upper - prev[k]));
-            let v_down = b.velocity.min(stop(prev[k] - b.lower));
-            let v = v_chase.clamp(self.velocity[k] - dv, self.velocity[k] + dv).clamp(-v_down, v_up);
-            let mut x_out = (prev[k] + v * dt).clamp(b.lower, b.upper);
+            // The step itself by the controller's own rule: within the speed and acceleration
+            // limits, and never faster than what can still stop before a position limit.
+            let mut x_out = b.step(prev[k], self.velocity[k], v_chase, dt).position;
             if (x_out - x[k]).abs() <= SAME && x[k] == target[k] {
                 // In step: the service's command itself, to the bit.
                 x_out = x[k];
@@ -369,7 +352,7 @@ mod tests {
     const UNSAID: [f64; MAX_JOINTS] = [f64::NAN; MAX_JOINTS];
 
     fn guard() -> ReplyGuard {
-        let b = JointBounds { lower: -1.0, upper: 1.0, velocity: 1.0, acceleration: 10.0 };
+        let b = JointLimits { lower: -1.0, upper: 1.0, velocity: 1.0, acceleration: 10.0, jerk: f64::INFINITY };
         let mut g = ReplyGuard::new(vec![b; 2], 0.004);
         g.reset(&[0.0; MAX_JOINTS]);
         g
@@ -473,7 +456,7 @@ mod tests {
     /// more cycles the target brakes to rest at 4.5 rad/s² (within the 5 rad/s² the catch-up
     /// leaves it). Returns the guard's answers and the targets from the first missed cycle on.
     fn chase(speed: [f64; 2], missed: usize, brake_after: Option<usize>) -> (Vec<[f64; 2]>, Vec<[f64; 2]>, u64) {
-        let b = JointBounds { lower: -10.0, upper: 10.0, velocity: 1.0, acceleration: 10.0 };
+        let b = JointLimits { lower: -10.0, upper: 10.0, velocity: 1.0, acceleration: 10.0, jerk: f64::INFINITY };
         let mut g = ReplyGuard::new(vec![b; 2], 0.004);
         g.reset(&[0.0; MAX_JOINTS]);
         let (mut x, mut v) = ([0.0f64; 2], [0.0f64; 2]);
@@ -575,7 +558,7 @@ mod tests {
 
     #[test]
     fn after_late_cycles_held_to_rest_the_answers_catch_up_without_passing() {
-        let b = JointBounds { lower: -10.0, upper: 10.0, velocity: 1.0, acceleration: 10.0 };
+        let b = JointLimits { lower: -10.0, upper: 10.0, velocity: 1.0, acceleration: 10.0, jerk: f64::INFINITY };
         let mut g = ReplyGuard::new(vec![b], 0.004);
         g.reset(&[0.0; MAX_JOINTS]);
         let mut t = [0.0; MAX_JOINTS];

@@ -32,6 +32,11 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use strand::io::clock::monotonic_ns;
 use strand::io::histogram::Histogram;
 
+/// A fake in virtual time refused its set-up (the message names the option and why).
+#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
+#[error("{0}")]
+pub struct InvalidSetup(pub String);
+
 /// The controller side of one protocol.
 pub trait FakeProtocol {
     /// The packet for cycle `k` (its sequence is the protocol's), with the actual axes (degrees).

@@ -7,7 +7,7 @@
 //! joints each cycle and moves them towards the target the ticks set.
 
 use super::{BcapOptions, Ctrl, MAX_JOINTS, Packet, Variant, func, hr, slv_pose};
-use crate::fake::FakeProtocol;
+use crate::fake::{FakeProtocol, InvalidSetup};
 
 /// An RC8 already in J-type slave mode (the connect sequence is not simulated here).
 pub struct VirtualRc8 {
@@ -22,12 +22,12 @@ pub struct VirtualRc8 {
 impl VirtualRc8 {
     /// A controller at `opts.start_deg`, motor on, the arm taken, in `slave_mode` (0x002, 0x102 or
     /// 0x202; others are refused, named).
-    pub fn new(opts: BcapOptions, slave_mode: u32) -> Result<VirtualRc8, String> {
+    pub fn new(opts: BcapOptions, slave_mode: u32) -> Result<VirtualRc8, InvalidSetup> {
         if ![0x002, 0x102, 0x202].contains(&slave_mode) {
-            return Err(format!("slave mode {slave_mode:#x}: the fake takes the J-type modes 0x002, 0x102, 0x202"));
+            return Err(InvalidSetup(format!("slave mode {slave_mode:#x}: the fake takes the J-type modes 0x002, 0x102, 0x202")));
         }
         if opts.start_deg.is_empty() || opts.start_deg.len() > MAX_JOINTS {
-            return Err(format!("{} joints: 1 to {MAX_JOINTS}", opts.start_deg.len()));
+            return Err(InvalidSetup(format!("{} joints: 1 to {MAX_JOINTS}", opts.start_deg.len())));
         }
         let mut c = Ctrl::new(&opts.start_deg);
         c.connected = true;

@@ -7,7 +7,7 @@
 //! cycle and moves them towards the target an answer sets.
 
 use super::{DATA, JOINTS, MODE_SERVOJ, OutField, RUNTIME_PLAYING, State, UrOptions, package};
-use crate::fake::FakeProtocol;
+use crate::fake::{FakeProtocol, InvalidSetup};
 
 /// A UR controller running strand's program, on a cycle of `UrOptions::step`.
 pub struct VirtualUr {
@@ -24,10 +24,10 @@ impl VirtualUr {
     /// A controller whose RTDE output recipe (id 1) is `outputs` (comma-separated names), with
     /// strand's program already playing (the handshake is not simulated here). Unknown names are
     /// refused, named.
-    pub fn new(opts: UrOptions, outputs: &str) -> Result<VirtualUr, String> {
+    pub fn new(opts: UrOptions, outputs: &str) -> Result<VirtualUr, InvalidSetup> {
         let fields = outputs
             .split(',')
-            .map(|n| OutField::of(n.trim()).ok_or_else(|| format!("output {n:?} is not one the fake knows")))
+            .map(|n| OutField::of(n.trim()).ok_or_else(|| InvalidSetup(format!("output {n:?} is not one the fake knows"))))
             .collect::<Result<Vec<_>, _>>()?;
         let mut st = State::new(&opts, 0);
         st.program_running = true;
