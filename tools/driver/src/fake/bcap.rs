@@ -80,7 +80,7 @@ use strand::io::clock::monotonic_ns;
 
 pub mod virtual_time;
 
-use super::{FakeReport, sleep_until};
+use super::{FakeReport, real_time, sleep_until};
 
 /// Start of a packet.
 pub const SOH: u8 = 0x01;
@@ -886,17 +886,6 @@ impl BcapWatch {
     /// Controller ticks spent in slave mode (count), including those before the first command.
     pub fn slave_ticks(&self) -> u64 {
         self.0.lock().slave_ticks
-    }
-}
-
-/// SCHED_FIFO at `priority` for the calling thread, if given and permitted.
-fn real_time(priority: Option<i32>) {
-    if let Some(priority) = priority {
-        let param = libc::sched_param { sched_priority: priority };
-        // SAFETY: this thread (0), a valid sched_param. Failure (no privilege) leaves it as it is.
-        unsafe {
-            libc::sched_setscheduler(0, libc::SCHED_FIFO, &param);
-        }
     }
 }
 

@@ -33,7 +33,7 @@ use strand::io::clock::monotonic_ns;
 
 pub mod virtual_time;
 
-use super::{FakeReport, sleep_until};
+use super::{FakeReport, every, real_time};
 
 /// The Meca500's joints.
 pub const JOINTS: usize = 6;
@@ -1026,16 +1026,6 @@ impl MecaWatch {
     }
 }
 
-fn set_priority(priority: Option<i32>) {
-    if let Some(priority) = priority {
-        let param = libc::sched_param { sched_priority: priority };
-        // SAFETY: this thread (0), a valid sched_param. Failure (no privilege) leaves it as it is.
-        unsafe {
-            libc::sched_setscheduler(0, libc::SCHED_FIFO, &param);
-        }
-    }
-}
-
 impl FakeMeca {
     /// Binds both ports and starts the robot's threads; returns at once.
     pub fn spawn(opts: MecaOptions) -> std::io::Result<FakeMeca> {
@@ -1053,21 +1043,8 @@ impl FakeMeca {
         let tick_ns = ((opts.tick.is_finite() && opts.tick > 0.0).then_some(opts.tick).unwrap_or(0.001) * 1e9).round() as u64;
         let priority = opts.rt_priority;
         threads.push(std::thread::Builder::new().name("fake-meca-tick".into()).spawn(move || {
-            set_priority(priority);
-            let mut base = t0;
-            let mut k = 0u64;
-            while !s.stop.load(Ordering::Relaxed) {
-                k += 1;
-                let mut deadline = base + k * tick_ns;
-                let now = monotonic_ns();
-                if now > deadline + 1_000_000_000 {
-                    // A second behind (a stopped machine): start again from now.
-                    base = now - k * tick_ns;
-                    deadline = now;
-                }
-                sleep_until(deadline);
-                s.lock().step(deadline);
-            }
+            real_time(priority);
+            every(t0, tick_ns, || s.stop.load(Ordering::Relaxed), |deadline| s.lock().step(deadline));
         })?);
         let s = shared.clone();
         let b = banner.clone();
@@ -1442,7 +1419,7 @@ mod tests {
         let first = monotonic_ns();
         let mut last = first;
         for k in 0..125u64 {
-            sleep_until(first + k * 4_000_000);
+            crate::fake::sleep_until(first + k * 4_000_000);
             let dash = if k % 2 == 0 { "-" } else { "" };
             c.send(&format!("{dash}MoveJointsVel({})", w.map(|v| format!("{v:.4}")).join(",")));
             last = monotonic_ns();

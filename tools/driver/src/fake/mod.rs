@@ -157,17 +157,41 @@ fn sleep_until(deadline_ns: u64) {
     unsafe { while libc::clock_nanosleep(libc::CLOCK_MONOTONIC, libc::TIMER_ABSTIME, &ts, std::ptr::null_mut()) == libc::EINTR {} }
 }
 
-/// Runs the fake controller until `opts.cycles`, `stop`, or it gives up.
-pub fn run(protocol: &mut dyn FakeProtocol, opts: &FakeOptions, stop: &AtomicBool) -> std::io::Result<FakeReport> {
-    let socket = UdpSocket::bind(opts.bind)?;
-    socket.set_nonblocking(true)?;
-    if let Some(priority) = opts.rt_priority {
+/// SCHED_FIFO at `priority` for the calling thread, if given and permitted (without the privilege
+/// it runs as it is): a robot controller is hard real-time.
+pub(crate) fn real_time(priority: Option<i32>) {
+    if let Some(priority) = priority {
         let param = libc::sched_param { sched_priority: priority };
         // SAFETY: this thread (0), a valid sched_param. Failure (no privilege) leaves it as it is.
         unsafe {
             libc::sched_setscheduler(0, libc::SCHED_FIFO, &param);
         }
     }
+}
+
+/// A controller's step loop: `step(deadline)` every `step_ns` from `t0` (ns, `CLOCK_MONOTONIC`) on
+/// absolute deadlines until `stopped()`. A second behind (a stopped machine), it starts again from
+/// now rather than run the backlog in a burst.
+pub(crate) fn every(t0: u64, step_ns: u64, stopped: impl Fn() -> bool, mut step: impl FnMut(u64)) {
+    let (mut base, mut k) = (t0, 0u64);
+    while !stopped() {
+        k += 1;
+        let mut deadline = base + k * step_ns;
+        let now = monotonic_ns();
+        if now > deadline + 1_000_000_000 {
+            base = now - k * step_ns;
+            deadline = now;
+        }
+        sleep_until(deadline);
+        step(deadline);
+    }
+}
+
+/// Runs the fake controller until `opts.cycles`, `stop`, or it gives up.
+pub fn run(protocol: &mut dyn FakeProtocol, opts: &FakeOptions, stop: &AtomicBool) -> std::io::Result<FakeReport> {
+    let socket = UdpSocket::bind(opts.bind)?;
+    socket.set_nonblocking(true)?;
+    real_time(opts.rt_priority);
     let period_ns = (opts.period * 1e9).round() as u64;
     let mut actual = opts.start_deg.clone();
     let mut target = opts.start_deg.clone();

@@ -32,7 +32,7 @@ use std::time::Duration;
 
 use strand::io::clock::monotonic_ns;
 
-use super::{FakeReport, sleep_until};
+use super::{FakeReport, every, real_time};
 
 pub mod virtual_time;
 
@@ -1163,16 +1163,6 @@ impl UrWatch {
     }
 }
 
-fn set_priority(priority: Option<i32>) {
-    if let Some(priority) = priority {
-        let param = libc::sched_param { sched_priority: priority };
-        // SAFETY: this thread (0), a valid sched_param. Failure (no privilege) leaves it as it is.
-        unsafe {
-            libc::sched_setscheduler(0, libc::SCHED_FIFO, &param);
-        }
-    }
-}
-
 impl FakeUr {
     /// Binds the RTDE and primary ports and starts the controller's threads; returns at once.
     pub fn spawn(opts: UrOptions) -> std::io::Result<FakeUr> {
@@ -1191,21 +1181,8 @@ impl FakeUr {
         let step_ns = (step * 1e9).round().max(1.0) as u64;
         let priority = opts.rt_priority;
         main.push(std::thread::Builder::new().name("fake-ur-step".into()).spawn(move || {
-            set_priority(priority);
-            let mut base = t0;
-            let mut k = 0u64;
-            while !s.stop.load(Ordering::Relaxed) {
-                k += 1;
-                let mut deadline = base + k * step_ns;
-                let now = monotonic_ns();
-                if now > deadline + 1_000_000_000 {
-                    // A second behind (a stopped machine): start again from now.
-                    base = now - k * step_ns;
-                    deadline = now;
-                }
-                sleep_until(deadline);
-                s.lock().step(deadline);
-            }
+            real_time(priority);
+            every(t0, step_ns, || s.stop.load(Ordering::Relaxed), |deadline| s.lock().step(deadline));
         })?);
         let s = shared.clone();
         main.push(std::thread::Builder::new().name("fake-ur-rtde".into()).spawn(move || {
