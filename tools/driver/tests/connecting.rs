@@ -10,6 +10,9 @@
 //! must end the stream, named, with the service told and the robot given back.
 //!
 //! Needs the workspace's binaries (`cargo build --workspace`, as the README's test command does).
+//! The jobs and the killed services run optimised (`cargo test --release --test connecting`, a CI
+//! stage of its own) or with `STRAND_DEBUG_CELLS=1` ([`common::cells_run_here`]); the controller's
+//! errors run in both.
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
@@ -17,7 +20,7 @@ use std::time::Duration;
 
 mod common;
 
-use common::{Kid, bin, root, temp_dir, wait_for};
+use common::{Kid, bin, cells_run_here, root, temp_dir, wait_for};
 use strand::config::Config;
 use strand_driver::fake::FakeReport;
 use strand_driver::fake::bcap::{BcapOptions, BcapReport, BcapWatch, FakeBcap};
@@ -335,16 +338,25 @@ fn ur_ran_cleanly(r: &UrReport, log: &str, config: &Path) {
 
 #[test]
 fn a_job_streams_through_strand_bcap_to_a_denso_and_finishes() {
+    if !cells_run_here("a_job_streams_through_strand_bcap_to_a_denso_and_finishes") {
+        return;
+    }
     a_job_streams_through("bcap");
 }
 
 #[test]
 fn a_job_streams_through_strand_meca_to_a_meca500_and_finishes() {
+    if !cells_run_here("a_job_streams_through_strand_meca_to_a_meca500_and_finishes") {
+        return;
+    }
     a_job_streams_through("meca");
 }
 
 #[test]
 fn a_job_streams_through_strand_ur_to_a_ur5e_and_finishes() {
+    if !cells_run_here("a_job_streams_through_strand_ur_to_a_ur5e_and_finishes") {
+        return;
+    }
     a_job_streams_through("ur");
 }
 
@@ -352,6 +364,9 @@ fn a_job_streams_through_strand_ur_to_a_ur5e_and_finishes() {
 /// job still finishes, with the arm never asked for more than the robot gives).
 #[test]
 fn the_ur_speed_slider_slows_the_services_path() {
+    if !cells_run_here("the_ur_speed_slider_slows_the_services_path") {
+        return;
+    }
     let cell = Cell::start("ur", "slider-ur");
     let job = job(&cell.dir);
     let feed_log = cell.dir.join("feed.log");
@@ -406,16 +421,25 @@ fn killed_service(protocol: &str) {
 
 #[test]
 fn a_killed_service_leaves_the_ur5e_held_without_a_jump() {
+    if !cells_run_here("a_killed_service_leaves_the_ur5e_held_without_a_jump") {
+        return;
+    }
     killed_service("ur");
 }
 
 #[test]
 fn a_killed_service_leaves_the_denso_held_over_bcap_without_a_jump() {
+    if !cells_run_here("a_killed_service_leaves_the_denso_held_over_bcap_without_a_jump") {
+        return;
+    }
     killed_service("bcap");
 }
 
 #[test]
 fn a_killed_service_leaves_the_meca500_held_without_a_jump() {
+    if !cells_run_here("a_killed_service_leaves_the_meca500_held_without_a_jump") {
+        return;
+    }
     killed_service("meca");
 }
 

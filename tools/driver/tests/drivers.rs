@@ -24,7 +24,7 @@ use std::time::Duration;
 
 mod common;
 
-use common::{Kid, bin, root, temp_dir, wait_for};
+use common::{Kid, bin, cells_run_here, root, temp_dir, wait_for};
 
 use strand::config::Config;
 use strand_driver::fake::egm::FakeEgm;
@@ -48,15 +48,6 @@ fn job(dir: &Path) -> PathBuf {
 static ONE_CELL: std::sync::Mutex<()> = std::sync::Mutex::new(());
 
 /// A running cell: service, driver and the fake on its thread.
-/// Whether the real-time cells run in this build (see the module's documentation).
-fn cells_run_here(test: &str) -> bool {
-    let here = !cfg!(debug_assertions) || std::env::var_os("STRAND_DEBUG_CELLS").is_some_and(|v| v == "1");
-    if !here {
-        eprintln!("{test}: skipped in a debug build (real-time cells run with --release, or STRAND_DEBUG_CELLS=1)");
-    }
-    here
-}
-
 struct Cell {
     _one: std::sync::MutexGuard<'static, ()>,
     dir: PathBuf,
