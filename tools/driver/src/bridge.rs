@@ -15,7 +15,7 @@ use strand::io::histogram::Histogram;
 use strand_ipc::ports::{ClientPorts, ClientRoles};
 use strand_ipc::{Command, Control, JointCommand, JointState, ServiceNames};
 
-use crate::protocol::{Clock, RobotProtocol};
+use crate::protocol::{Channel, Clock, RobotProtocol};
 use crate::session::{Counters, DriverState, Due, ReplyKind, Session, Transition};
 
 /// How the bridge runs.
@@ -73,6 +73,7 @@ pub(crate) fn log_transition(name: &str, t: Transition, why: &str) {
 pub fn run<P: RobotProtocol>(session: &mut Session<P>, opts: &BridgeOptions, stop: &AtomicBool) -> Result<BridgeReport, BridgeError> {
     // A datagram robot sends first and servos to the newest answer: it clocks the cycle.
     const { assert!(matches!(P::CLOCK, Clock::Robot), "the UDP bridge serves robots that clock the cycle") };
+    const { assert!(matches!(P::CHANNEL, Channel::Datagram), "the UDP bridge reads one packet per datagram") };
     let name = P::NAME;
     let socket = UdpSocket::bind(opts.bind).map_err(|source| BridgeError::Socket { address: opts.bind, source })?;
     let local = socket.local_addr().map_err(|source| BridgeError::Socket { address: opts.bind, source })?;

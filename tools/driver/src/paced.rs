@@ -51,6 +51,11 @@ pub trait DriverLink {
     /// zero velocity) the moment the stream ends — a robot that runs on buffered commands stops
     /// with an error when they run out. Returns what failed, named.
     fn finish(&mut self) -> Vec<String>;
+    /// Ticks of the driver's own clock that went by without running before the state just
+    /// received (its process stalled), where the driver clocks the cycle; once. 0 by default.
+    fn lapsed(&mut self) -> u64 {
+        0
+    }
     /// Whether the link carries the extruder's command (UR: a standard analog output).
     fn wants_extruder(&self) -> bool {
         false
@@ -150,7 +155,10 @@ pub fn run<P: RobotProtocol, L: DriverLink>(
     let timeout_ns = (opts.state_timeout * 1e9) as u64;
     let mut previous_q: Option<[f64; strand_ipc::MAX_JOINTS]> = None;
     let mut control_seq = 0u64;
+    // The JointStates' own sequence: one per service tick, owed ticks included.
+    let mut state_seq = 0u64;
     let mut last_state_seq = 0u64;
+    let mut owed_answer = Vec::with_capacity(1024);
     let mut logged_drops = 0u64;
     let mut clamps_logged = 0u64;
     let estop = |ports: &ClientPorts, seq: &mut u64| {
@@ -175,7 +183,7 @@ pub fn run<P: RobotProtocol, L: DriverLink>(
             Err(e) => break StreamEnd::Robot(e.to_string()),
         };
         let received = monotonic_ns();
-        let (seq, q, transition) = match session.on_packet_at(received, bytes, peer) {
+        let (_, q, transition) = match session.on_packet_at(received, bytes, peer) {
             Ok(x) => x,
             Err(Dropped::Packet(PacketError::RobotError(why))) => break StreamEnd::Robot(why),
             Err(dropped) => {
@@ -191,6 +199,7 @@ pub fn run<P: RobotProtocol, L: DriverLink>(
                 continue;
             }
         };
+        session.driver_lapsed(link.lapsed());
         if let Some(t) = transition {
             log_transition(name, t, &format!(" (robot at {peer})"));
         }
@@ -221,8 +230,33 @@ pub fn run<P: RobotProtocol, L: DriverLink>(
                 break StreamEnd::Robot(e.to_string());
             }
         }
-        let state = joint_state(session, seq, received, q, &mut previous_q, opts.period);
         let held = session.stopping() || session.state() == DriverState::HeldAfterFault;
+        let owed = session.take_owed_ticks();
+        let mut owed_transition = None;
+        if session.robot_following() && !held && owed > 0 {
+            // The driver's loop lapsed and the robot ran on along its last command: the service
+            // owes it the ticks it missed, each a state a cycle apart before this one with the
+            // robot's motion spread over them; their answers are not sent (the robot is past them).
+            let from = previous_q.unwrap_or(q);
+            for i in 1..=owed {
+                let f = i as f64 / (owed + 1) as f64;
+                let mut qi = q;
+                for k in 0..session.dof() {
+                    qi[k] = from[k] + f * (q[k] - from[k]);
+                }
+                state_seq += 1;
+                let stamp = received.saturating_sub((owed + 1 - i) * period_ns);
+                let _ = ports.send_joint_state(&joint_state(session, state_seq, stamp, qi, &mut previous_q, opts.period));
+                let deadline = monotonic_ns() + (session.rules().reply_deadline * 1e9) as u64;
+                let command = wait_command(&ports, state_seq, deadline);
+                if let (_, Some(t)) = session.reply_owed(command.as_ref(), &mut owed_answer) {
+                    owed_transition = Some(t);
+                }
+            }
+        }
+        state_seq += 1;
+        let seq = state_seq;
+        let state = joint_state(session, seq, received, q, &mut previous_q, opts.period);
         let (kind, transition) = if !session.robot_following() && !held {
             // The robot does not follow yet (UR: strand's program not playing): hold it where it
             // is, and do not clock the service.
@@ -258,7 +292,7 @@ pub fn run<P: RobotProtocol, L: DriverLink>(
             }
             r
         };
-        if let Some(t) = transition {
+        for t in [owed_transition, transition].into_iter().flatten() {
             let why = match (t.from, t.to) {
                 (_, DriverState::HeldAfterFault) => format!(
                     " ({} commands in a row missed the {} ms deadline: holding, and telling the service)",

@@ -26,7 +26,7 @@ use quick_xml::Reader;
 use quick_xml::events::{BytesStart, Event};
 use strand_ipc::MAX_JOINTS;
 
-use crate::protocol::{Clock, PacketError, RobotPacket, RobotProtocol};
+use crate::protocol::{Channel, Clock, PacketError, RobotPacket, RobotProtocol};
 
 /// Axes RSI streams for the robot arm (A1..A6).
 pub const AXES: usize = 6;
@@ -35,6 +35,8 @@ pub const AXES: usize = 6;
 #[derive(Clone, Debug, Default)]
 pub struct Rsi {
     reference: Option<[f64; MAX_JOINTS]>,
+    /// The newest packet's `IPOC`, which the answer echoes.
+    ipoc: u64,
 }
 
 impl Rsi {
@@ -69,6 +71,7 @@ fn attr_axes(e: &BytesStart, axes: &mut [Option<f64>; AXES]) -> Result<(), Packe
 impl RobotProtocol for Rsi {
     const NAME: &'static str = "rsi";
     const CLOCK: Clock = Clock::Robot;
+    const CHANNEL: Channel = Channel::Datagram;
     /// A KR C4 packet with every element is about 600 bytes; 4 KiB leaves room for extra sensor
     /// elements the RSI XML may add.
     const MAX_PACKET: usize = 4096;
@@ -91,7 +94,7 @@ impl RobotProtocol for Rsi {
         }
     }
 
-    fn decode(&mut self, packet: &[u8]) -> Result<RobotPacket, PacketError> {
+    fn read(&mut self, packet: &[u8]) -> Result<RobotPacket, PacketError> {
         if packet.len() > Self::MAX_PACKET {
             return Err(PacketError::Oversized(packet.len()));
         }
@@ -154,6 +157,7 @@ impl RobotProtocol for Rsi {
         if self.reference.is_none() {
             self.reference = Some(out);
         }
+        self.ipoc = ipoc;
         Ok(RobotPacket { seq: ipoc, axes: out, dof: AXES, following: true })
     }
 
@@ -161,10 +165,12 @@ impl RobotProtocol for Rsi {
         self.reference = None;
     }
 
-    fn encode_reply(&mut self, to: &RobotPacket, axes: &[f64], out: &mut Vec<u8>) {
+    /// The correction `AK` (relative to the first packet's axes, degrees), echoing the newest
+    /// packet's `IPOC`; before any packet, nothing.
+    fn write(&mut self, axes: &[f64], out: &mut Vec<u8>) {
         use std::io::Write;
         out.clear();
-        let reference = self.reference.unwrap_or(to.axes);
+        let Some(reference) = self.reference else { return };
         let mut ak = [0.0; AXES];
         for k in 0..AXES.min(axes.len()) {
             ak[k] = (axes[k] - reference[k]).to_degrees();
@@ -173,7 +179,7 @@ impl RobotProtocol for Rsi {
         let _ = write!(
             out,
             "<Sen Type=\"ImFree\"><AK A1=\"{:.6}\" A2=\"{:.6}\" A3=\"{:.6}\" A4=\"{:.6}\" A5=\"{:.6}\" A6=\"{:.6}\" /><IPOC>{}</IPOC></Sen>",
-            ak[0], ak[1], ak[2], ak[3], ak[4], ak[5], to.seq
+            ak[0], ak[1], ak[2], ak[3], ak[4], ak[5], self.ipoc
         );
     }
 }
@@ -191,14 +197,14 @@ mod tests {
     #[test]
     fn a_robot_packet_decodes_and_the_reply_echoes_its_ipoc() {
         let mut rsi = Rsi::new();
-        let p = rsi.decode(SAMPLE.as_bytes()).unwrap();
+        let p = rsi.read(SAMPLE.as_bytes()).unwrap();
         assert_eq!(p.seq, 4208146);
         assert_eq!(p.dof, 6);
         assert!((p.axes[1] + std::f64::consts::FRAC_PI_2).abs() < 1e-15);
         let mut target = p.axes;
         target[0] += 1f64.to_radians();
         let mut out = Vec::new();
-        rsi.encode_reply(&p, &target[..6], &mut out);
+        rsi.write(&target[..6], &mut out);
         let text = String::from_utf8(out).unwrap();
         assert_eq!(
             text,
@@ -210,14 +216,14 @@ mod tests {
     fn bad_packets_are_named() {
         let mut rsi = Rsi::new();
         let cut = &SAMPLE[..SAMPLE.len() - 20];
-        assert!(matches!(rsi.decode(cut.as_bytes()), Err(PacketError::Truncated(_) | PacketError::Malformed(_))));
-        assert!(matches!(rsi.decode(b"hello"), Err(PacketError::Malformed(_))));
-        assert!(matches!(rsi.decode(SAMPLE.replace("A3=\"90.0\" ", "").as_bytes()), Err(PacketError::Truncated(_))));
-        assert!(matches!(rsi.decode(SAMPLE.replace("<IPOC>4208146</IPOC>", "").as_bytes()), Err(PacketError::Truncated(_))));
-        assert!(matches!(rsi.decode(SAMPLE.replace("A2=\"-90.0\"", "A2=\"nan\"").as_bytes()), Err(PacketError::BadValue(_))));
-        assert!(matches!(rsi.decode(SAMPLE.replace("4208146", "x").as_bytes()), Err(PacketError::BadValue(_))));
-        assert!(matches!(rsi.decode(&vec![b' '; 5000]), Err(PacketError::Oversized(5000))));
-        assert!(matches!(rsi.decode(SAMPLE.replace("Rob", "Sen").as_bytes()), Err(PacketError::Malformed(_))));
+        assert!(matches!(rsi.read(cut.as_bytes()), Err(PacketError::Truncated(_) | PacketError::Malformed(_))));
+        assert!(matches!(rsi.read(b"hello"), Err(PacketError::Malformed(_))));
+        assert!(matches!(rsi.read(SAMPLE.replace("A3=\"90.0\" ", "").as_bytes()), Err(PacketError::Truncated(_))));
+        assert!(matches!(rsi.read(SAMPLE.replace("<IPOC>4208146</IPOC>", "").as_bytes()), Err(PacketError::Truncated(_))));
+        assert!(matches!(rsi.read(SAMPLE.replace("A2=\"-90.0\"", "A2=\"nan\"").as_bytes()), Err(PacketError::BadValue(_))));
+        assert!(matches!(rsi.read(SAMPLE.replace("4208146", "x").as_bytes()), Err(PacketError::BadValue(_))));
+        assert!(matches!(rsi.read(&vec![b' '; 5000]), Err(PacketError::Oversized(5000))));
+        assert!(matches!(rsi.read(SAMPLE.replace("Rob", "Sen").as_bytes()), Err(PacketError::Malformed(_))));
         assert!(rsi.reference().is_none(), "no bad packet sets the reference");
     }
 }

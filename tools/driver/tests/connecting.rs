@@ -443,6 +443,44 @@ fn a_killed_service_leaves_the_meca500_held_without_a_jump() {
     killed_service("meca");
 }
 
+/// strand-meca's process stalls mid-job (SIGSTOP for 20 ms, three times: five ticks of its 4 ms
+/// clock each): the Meca500 runs on at its last velocity meanwhile, so the driver owes the service
+/// the ticks it missed (`owed_ticks`), and the job finishes without a fault, an error, a velocity
+/// timeout or a joint past its limits.
+#[test]
+fn a_stalled_strand_meca_pays_the_service_the_ticks_the_meca500_ran_on() {
+    if !cells_run_here("a_stalled_strand_meca_pays_the_service_the_ticks_the_meca500_ran_on") {
+        return;
+    }
+    let mut cell = Cell::start("meca", "stall-meca");
+    let job = job(&cell.dir);
+    let feed_log = cell.dir.join("feed.log");
+    let mut feed = Kid(cell.feed(&job).stdout(Stdio::null()).stderr(std::fs::File::create(&feed_log).unwrap()).spawn().unwrap());
+    wait_for(&cell.dir.join("driver.log"), "Holding → Following", Duration::from_secs(30));
+    for _ in 0..3 {
+        std::thread::sleep(Duration::from_millis(1000));
+        cell.driver.signal(libc::SIGSTOP);
+        std::thread::sleep(Duration::from_millis(20));
+        cell.driver.signal(libc::SIGCONT);
+    }
+    let code = feed.wait_exit(Duration::from_secs(180));
+    if code != Some(0) {
+        panic!("strand-feed ended {code:?}\n{}", cell.logs());
+    }
+    let config = cell.config.clone();
+    let (code, stats, log, seen) = cell.finish();
+    assert_eq!(code, Some(0), "the driver exits cleanly on SIGTERM:\n{log}");
+    eprintln!("driver: {stats}");
+    let counters = &stats["counters"];
+    assert_eq!((counters["faults"].as_u64(), counters["robot_errors"].as_u64()), (Some(0), Some(0)), "{stats}");
+    assert!(counters["owed_ticks"].as_u64().unwrap() >= 3, "three stalls owe ticks: {stats}");
+    assert!(counters["lost_cycles"].as_u64().unwrap() >= counters["owed_ticks"].as_u64().unwrap(), "{stats}");
+    let Seen::Meca(r) = &seen else { unreachable!() };
+    assert!(r.errors.is_empty(), "the robot sent errors {:?}\n{log}", r.errors);
+    assert_eq!(r.timeouts, 0, "{r:?}");
+    assert_within_limits("meca", &config, &r.report, 0.002);
+}
+
 /// The controller stops the arm with an error mid-job: the driver names it, tells the service
 /// (which faults, so strand-feed fails), gives the robot back, and exits with 1.
 fn robot_error(protocol: &str, code: u32, named: &[&str]) {

@@ -248,3 +248,59 @@ fn the_session_owns_the_reply_the_silence_and_the_stop_deadlines() {
     quiet.request_stop(0);
     assert_eq!(quiet.poll(0), Due::StopDone);
 }
+
+/// Where the driver clocks the cycle and its own loop lapsed (the process stalled), a robot that
+/// runs on at its last command — the Meca500 keeps its last velocity until `SetVelTimeout` — is
+/// owed the service's ticks it ran on for, up to that timeout; a robot that holds owes none. The
+/// owed ticks' commands pass the guard (the robot ran on along them) but are not answers sent, and
+/// the packet's own answer is still due.
+#[test]
+fn a_lapse_of_the_drivers_loop_owes_the_ticks_a_robot_ran_on_for() {
+    use strand_driver::meca::{FROM_MONITOR, Meca};
+    let b = JointLimits { lower: -3.0, upper: 3.0, velocity: 2.0, acceleration: 10.0, jerk: f64::INFINITY };
+    let rules = SessionRules { robot: None, max_late_cycles: 3, recover_cycles: 5, reply_deadline: 0.002 };
+    let mut meca = Meca::new(0.004, 20.0);
+    meca.set_velocity_timeout(0.02);
+    let mut s = Session::new(meca, AxisMap::identity(6), ReplyGuard::new(vec![b; 6], 0.004), rules);
+    let robot: SocketAddr = "127.0.0.1:10000".parse().unwrap();
+    let packet = |t: u64| {
+        let mut p = Vec::new();
+        for m in [format!("[2210][{t},0,0,0,0,0,0]"), format!("[2230][{t}]")] {
+            p.push(FROM_MONITOR);
+            p.extend_from_slice(m.as_bytes());
+            p.push(0);
+        }
+        p
+    };
+    let mut c = JointCommand { state_seq: 1, dof: 6, valid: 1, ..Default::default() };
+    let mut out = Vec::new();
+    s.on_packet_at(0, &packet(0), robot).unwrap();
+    s.reply(Some(&c), &mut out);
+    // Three ticks lapsed, within the 20 ms the arm runs on for at 4 ms a tick: three owed, once.
+    s.on_packet_at(16_000_000, &packet(16_000), robot).unwrap();
+    s.driver_lapsed(3);
+    assert_eq!((s.take_owed_ticks(), s.take_owed_ticks()), (3, 0));
+    let replies = s.counters.replies;
+    for k in 1..=3 {
+        c.position[0] = 0.001 * k as f64;
+        assert_eq!(s.reply_owed(Some(&c), &mut out).0, ReplyKind::Command);
+        assert!(out.starts_with(b"MoveJointsVel("), "{}", String::from_utf8_lossy(&out));
+    }
+    assert_eq!(s.counters.replies, replies, "owed answers are not sent");
+    assert_eq!(s.reply_deadline(), Some(16_000_000 + 2_000_000), "the packet's answer is still due");
+    // The guard went along the owed commands (within its acceleration limit: 10 rad/s²).
+    let went = s.guard().last().unwrap()[0];
+    assert!((0.0007..=0.003).contains(&went), "{went}");
+    s.reply(Some(&c), &mut out);
+    assert_eq!((s.counters.replies, s.reply_deadline()), (replies + 1, None));
+    // Twelve lapsed: the arm stopped itself after five (20 ms); five are owed.
+    s.on_packet_at(68_000_000, &packet(68_000), robot).unwrap();
+    s.driver_lapsed(12);
+    assert_eq!(s.take_owed_ticks(), 5);
+    assert_eq!((s.counters.lost_cycles, s.counters.owed_ticks), (15, 8));
+    // A robot that holds its target (RSI) owes nothing: its next answer catches up.
+    let mut rsi = session();
+    rsi.on_packet(&rob(100, 0.0), robot).unwrap();
+    rsi.driver_lapsed(3);
+    assert_eq!((rsi.take_owed_ticks(), rsi.counters.lost_cycles), (0, 3));
+}

@@ -2,14 +2,17 @@
 //! driver, without its I/O. It depends on the wire types (`strand-wire`) only, so a driver's
 //! logic is unit-tested here and each driver binary keeps only its transport's loop.
 //!
-//! - [`protocol`] — the one small trait a robot interface implements (decode the robot's packet,
-//!   encode the answer); the interfaces themselves (EGM, RSI) live with their drivers.
+//! - [`protocol`] — the one small trait a robot interface implements (read the robot's state,
+//!   write a command; its channel and who clocks the cycle); the interfaces themselves live with
+//!   their drivers.
+//! - [`channel`] — a datagram, or a stream cut into packets by the protocol's framing.
 //! - [`session`] — one connection as a state machine without I/O: senders, order, holds, faults.
 //! - [`guard`] — the limits every answer keeps, and the catch-up after a missed or held cycle.
 //! - [`axes`] — the controller's axes ↔ the URDF's joints.
 //! - [`RobotAddress`] — which sender a driver accepts.
 
 pub mod axes;
+pub mod channel;
 pub mod guard;
 pub mod protocol;
 pub mod session;

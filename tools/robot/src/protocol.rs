@@ -1,9 +1,18 @@
-//! The one small trait every robot interface implements: decode the robot's packet into axis
-//! angles, and encode the answer to it. A protocol knows its wire format and its start-up rules
-//! (RSI's reference axes, EGM's motion-control state, FRI's session), nothing of sockets, the service or limits —
-//! so the next interface (UR RTDE, FANUC Stream Motion, Franka) is one new module.
+//! The one small trait every robot interface implements, split as ros2_control splits a hardware
+//! interface: [`RobotProtocol::read`] the robot's state from a packet, [`RobotProtocol::write`] a
+//! command. A write need not answer a packet: where the robot clocks the cycle the command goes
+//! back as the answer to the newest state (the protocol keeps from its read what the answer echoes:
+//! RSI's `IPOC`, FRI's sequence counter), where the driver clocks it the command is the cycle's
+//! (b-CAP's `slvMove`, the Meca500's `MoveJointsVel`). Besides, a protocol says what carries its
+//! state ([`Channel`]: a datagram, or framed bytes of a stream, cut by [`RobotProtocol::frame`])
+//! and who clocks the cycle ([`Clock`]); the set-up before the first cycle is the driver's
+//! handshake hook. A protocol knows its wire format and its start-up rules (RSI's reference axes,
+//! EGM's motion-control state, FRI's session), nothing of sockets, the service or limits — so the
+//! next interface (FANUC Stream Motion, Franka) is one new module.
 
 use strand_wire::MAX_JOINTS;
+
+pub use crate::channel::{Channel, Frame};
 
 /// A robot packet, decoded.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -66,6 +75,8 @@ pub trait RobotProtocol {
     const NAME: &'static str;
     /// Who clocks the cycle.
     const CLOCK: Clock;
+    /// What carries the robot's state.
+    const CHANNEL: Channel;
     /// The longest packet it sends (bytes); longer ones are dropped as oversized.
     const MAX_PACKET: usize;
 
@@ -93,8 +104,25 @@ pub trait RobotProtocol {
         let _ = period;
     }
 
-    /// Decodes a packet from the robot.
-    fn decode(&mut self, packet: &[u8]) -> Result<RobotPacket, PacketError>;
+    /// Where the next packet ends in a stream's buffered bytes (`buffered` is never empty), for
+    /// a [`Channel::Stream`] protocol; a datagram is its own packet (the default).
+    fn frame(buffered: &[u8]) -> Frame {
+        Frame::Packet(buffered.len())
+    }
+
+    /// Reads the robot's state from one packet: a datagram, or a stream's packet as
+    /// [`RobotProtocol::frame`] cut it (the Meca500: a tick's messages).
+    fn read(&mut self, packet: &[u8]) -> Result<RobotPacket, PacketError>;
+
+    /// How long the robot runs on at its last command when commands stop coming (s): 0, the
+    /// default, where it holds its last target (EGM, RSI, FRI, UR's `servoj`) or runs what it has
+    /// buffered and then stops with an error (b-CAP); the Meca500's `SetVelTimeout`, through which
+    /// it keeps its last velocity. After the driver's own loop lapsed (where the driver clocks the
+    /// cycle) the service owes the robot the ticks it ran on for
+    /// ([`crate::session::Session::driver_lapsed`]).
+    fn runs_on_for(&self) -> f64 {
+        0.0
+    }
 
     /// Forgets the connection (the robot's interface session ended: RSI off, EGM stopped, a
     /// controller restart): the next packet starts a new one.
@@ -114,7 +142,9 @@ pub trait RobotProtocol {
         None
     }
 
-    /// Encodes into `out` (cleared first) the answer to `to`: the robot's axes should go to `axes`
-    /// (rad, or m for a linear axis; the robot's own axes, `to.dof` of them).
-    fn encode_reply(&mut self, to: &RobotPacket, axes: &[f64], out: &mut Vec<u8>);
+    /// Writes into `out` (cleared first) the command that the robot's axes go to `axes` (rad, or
+    /// m for a linear axis; the robot's own axes, as many as its packets carry). Where the robot
+    /// clocks the cycle it answers the newest packet read; an empty `out` sends nothing (FRI
+    /// after its session ended).
+    fn write(&mut self, axes: &[f64], out: &mut Vec<u8>);
 }

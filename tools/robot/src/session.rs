@@ -124,8 +124,12 @@ pub struct Counters {
     /// Answers sent after the robot's cycle had ended (the robot discarded or delayed them).
     pub missed_cycle: u64,
     /// Robot cycles that went by without an answer the driver knew of (their packets lost, or
-    /// skipped because a newer one was queued): the robot held its target through them.
+    /// skipped because a newer one was queued: the robot held its target through them), and
+    /// ticks the driver's own loop lapsed where it clocks the cycle
+    /// ([`Session::driver_lapsed`]).
     pub lost_cycles: u64,
+    /// Service ticks owed to a robot that ran on through a lapse of the driver's loop, and run.
+    pub owed_ticks: u64,
     /// Packets dropped: from another sender.
     pub foreign: u64,
     /// Packets dropped: malformed, truncated, a bad value, or the wrong number of axes.
@@ -196,6 +200,8 @@ pub struct Session<P: RobotProtocol> {
     stop: Option<(u64, u32)>,
     /// When the answer to the last packet is due (ns), until it is sent.
     reply_due: Option<u64>,
+    /// Service ticks owed for the last packet ([`Session::driver_lapsed`]).
+    owed: u64,
     /// Counters since start.
     pub counters: Counters,
 }
@@ -230,6 +236,7 @@ impl<P: RobotProtocol> Session<P> {
             last_accepted_ns: None,
             stop: None,
             reply_due: None,
+            owed: 0,
             counters: Counters::default(),
         }
     }
@@ -352,6 +359,7 @@ impl<P: RobotProtocol> Session<P> {
         self.current = None;
         self.last_accepted_ns = None;
         self.reply_due = None;
+        self.owed = 0;
         self.late_run = 0;
         self.good_run = 0;
         self.enter(DriverState::WaitingForRobot)
@@ -380,7 +388,7 @@ impl<P: RobotProtocol> Session<P> {
         };
         let q = self.hold_or_measured(&packet);
         let axes = self.map.axes_from_joints(&q[..self.map.dof()]);
-        self.protocol.encode_reply(&packet, &axes[..packet.dof], out);
+        self.protocol.write(&axes[..packet.dof], out);
         self.counters.held += 1;
         self.counters.replies += 1;
         self.held = true;
@@ -404,6 +412,45 @@ impl<P: RobotProtocol> Session<P> {
             return self.enter(DriverState::Following);
         }
         None
+    }
+
+    /// The driver's own loop lapsed `cycles` ticks before the packet just taken (its process
+    /// stalled). Only a driver that clocks the cycle sees this ([`crate::protocol::Clock::Driver`]):
+    /// the robot's state was there for ticks the driver did not run. A robot that runs on at its
+    /// last command (the Meca500 keeps its last velocity, [`RobotProtocol::runs_on_for`]) went on
+    /// along the path through them, up to that long: the service owes it those ticks
+    /// ([`Session::take_owed_ticks`]), lest the arm stand ahead of the service's path and the next
+    /// commands pull it back — if it was following the service's commands; one that was held ran
+    /// on at a hold. A robot that runs its buffered commands (b-CAP) owes nothing. Counted in
+    /// `lost_cycles`.
+    pub fn driver_lapsed(&mut self, cycles: u64) {
+        self.counters.lost_cycles += cycles;
+        let ran_on = (self.protocol.runs_on_for() / self.guard.period() + 1e-9).floor() as u64;
+        self.owed = if self.state == DriverState::Following { cycles.min(ran_on) } else { 0 };
+    }
+
+    /// The service ticks owed for the packet just taken, once: the loop publishes a JointState
+    /// for each (the robot's motion spread over them, stamped a cycle apart before this one), and
+    /// passes each command to [`Session::reply`] without sending its answer — the robot is past
+    /// it; only the answer to the packet itself goes out. Counted in `owed_ticks`.
+    pub fn take_owed_ticks(&mut self) -> u64 {
+        let owed = std::mem::take(&mut self.owed);
+        self.counters.owed_ticks += owed;
+        owed
+    }
+
+    /// Takes an owed tick's command ([`Session::take_owed_ticks`]) through the guard as any
+    /// answer — the robot ran on along it — writing its answer into `out`, which is not sent: the
+    /// answer to the packet is still due.
+    pub fn reply_owed(&mut self, command: Option<&JointCommand>, out: &mut Vec<u8>) -> (ReplyKind, Option<Transition>) {
+        let due = self.reply_due;
+        let answered = self.current.is_some();
+        let r = self.reply(command, out);
+        if answered {
+            self.counters.replies -= 1;
+        }
+        self.reply_due = due;
+        r
     }
 
     /// The last answer left after the robot's cycle (the bridge measured it): the robot stood at
@@ -486,7 +533,7 @@ impl<P: RobotProtocol> Session<P> {
         if bytes.len() > P::MAX_PACKET {
             return Err(PacketError::Oversized(bytes.len()).into());
         }
-        let packet = self.protocol.decode(bytes)?;
+        let packet = self.protocol.read(bytes)?;
         if packet.dof != self.map.dof() {
             return Err(Dropped::Axes { got: packet.dof, want: self.map.dof() });
         }
@@ -593,7 +640,7 @@ impl<P: RobotProtocol> Session<P> {
             self.counters.clamped += 1;
         }
         let axes = self.map.axes_from_joints(&q[..self.map.dof()]);
-        self.protocol.encode_reply(&packet, &axes[..packet.dof], out);
+        self.protocol.write(&axes[..packet.dof], out);
         self.counters.replies += 1;
         self.reply_due = None;
         (kind, transition)

@@ -10,9 +10,11 @@ use std::time::Duration;
 
 use strand::io::clock::monotonic_ns;
 
-use super::wire::{self, Framer, Variant, func};
+use super::wire::{self, Variant, func};
+use crate::protocol::RobotProtocol;
 use strand::config::Config;
 use strand::config::driver::DriverConfig;
+use strand_robot::channel::StreamBuffer;
 
 use super::Bcap;
 use crate::paced::{DriverLink, Handshake, LinkError, readable, sleep_until};
@@ -30,7 +32,7 @@ pub const RECV_FORMAT: i32 = 0x0002;
 pub struct BcapLink {
     stream: TcpStream,
     peer: SocketAddr,
-    framer: Framer,
+    framer: StreamBuffer,
     /// The serial of setup and release calls (the cycle's `slvMove`s have their own).
     serial: u16,
     out: Vec<u8>,
@@ -57,7 +59,7 @@ impl BcapLink {
         Ok(BcapLink {
             stream,
             peer: addr,
-            framer: Framer::new(),
+            framer: StreamBuffer::with_capacity(4096),
             serial: 0,
             out: Vec::with_capacity(512),
             call_timeout,
@@ -76,6 +78,12 @@ impl BcapLink {
     /// The robot's handle (after [`BcapLink::start`]).
     pub fn robot(&self) -> Option<i32> {
         self.robot
+    }
+
+    /// The next whole packet's length, if one came (b-CAP resynchronises on its SOH: it never
+    /// loses the framing).
+    fn next_len(&mut self) -> Option<usize> {
+        self.framer.next_len(Bcap::frame).ok().flatten()
     }
 
     fn next_serial(&mut self) -> u16 {
@@ -145,7 +153,7 @@ impl BcapLink {
         // Interim packets restart the wait (the controller says it is still working).
         let mut deadline = monotonic_ns() + (self.call_timeout * 1e9) as u64;
         loop {
-            if let Some(n) = self.framer.next_len() {
+            if let Some(n) = self.next_len() {
                 let packet = self.framer.packet(n).to_vec();
                 self.framer.consume(n);
                 let Ok(h) = wire::read_header(&packet) else { continue };
@@ -243,7 +251,7 @@ impl BcapLink {
             self.framer.consume(n);
         }
         let end = monotonic_ns() + 20_000_000;
-        while self.framer.next_len().is_none() && monotonic_ns() < end {
+        while self.next_len().is_none() && monotonic_ns() < end {
             if self.fill(end).is_err() {
                 break;
             }
@@ -322,12 +330,12 @@ impl DriverLink for BcapLink {
             self.paced = Some((period, next));
         }
         loop {
-            if let Some(n) = self.framer.next_len() {
+            if let Some(n) = self.next_len() {
                 self.packet_len = Some(n);
                 return Ok(Some(self.framer.packet(n)));
             }
             // Nothing by the deadline (a signal that cut the wait short is no deadline).
-            if !self.fill(deadline_ns)? && monotonic_ns() >= deadline_ns && self.framer.next_len().is_none() {
+            if !self.fill(deadline_ns)? && monotonic_ns() >= deadline_ns && self.next_len().is_none() {
                 return Ok(None);
             }
         }

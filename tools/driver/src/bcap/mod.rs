@@ -22,7 +22,7 @@
 pub mod link;
 pub mod wire;
 
-use crate::protocol::{Clock, PacketError, RobotPacket, RobotProtocol};
+use crate::protocol::{Channel, Clock, Frame, PacketError, RobotPacket, RobotProtocol};
 use strand_ipc::MAX_JOINTS;
 
 /// Values in a J-type `slvMove` (unused joints 0).
@@ -86,6 +86,11 @@ impl Bcap {
 impl RobotProtocol for Bcap {
     const NAME: &'static str = "bcap";
     const CLOCK: Clock = Clock::Driver;
+    const CHANNEL: Channel = Channel::Stream;
+
+    fn frame(buffered: &[u8]) -> Frame {
+        wire::frame(buffered)
+    }
     const MAX_PACKET: usize = wire::MAX_PACKET;
 
     fn set_linear_axes(&mut self, linear: &[bool]) -> Result<(), String> {
@@ -101,7 +106,7 @@ impl RobotProtocol for Bcap {
     /// A `slvMove` reply: the arm's position this cycle. An interim packet, or a reply to another
     /// serial, is not a state; an error the controller answers is [`PacketError::RobotError`]
     /// (the arm stopped), except a full buffer, which is dropped (the next command goes again).
-    fn decode(&mut self, packet: &[u8]) -> Result<RobotPacket, PacketError> {
+    fn read(&mut self, packet: &[u8]) -> Result<RobotPacket, PacketError> {
         let h = wire::read_header(packet).map_err(|e| PacketError::Malformed(e.0))?;
         if h.hresult == wire::hr::S_EXECUTING {
             return Err(PacketError::Malformed("an interim S_EXECUTING packet, not a reply".into()));
@@ -135,7 +140,8 @@ impl RobotProtocol for Bcap {
         // A new connection: the sequence goes on (it only has to increase).
     }
 
-    fn encode_reply(&mut self, _to: &RobotPacket, axes: &[f64], out: &mut Vec<u8>) {
+    /// The cycle's `slvMove`, with the next serial.
+    fn write(&mut self, axes: &[f64], out: &mut Vec<u8>) {
         self.encode_move(axes, out);
     }
 }
@@ -161,20 +167,20 @@ mod tests {
         b.encode_move(&[0.1, 0.2, 0.3, 0.0, 0.0, 0.0], &mut out);
         assert_eq!(wire::read_header(&out).unwrap().serial, 1);
         let deg = vec![10.0, 20.0, 30.0, 0.0, 0.0, 0.0, 0.0, 0.0];
-        let p = b.decode(&reply(1, 0, Some(Variant::R8Array(deg)))).unwrap();
+        let p = b.read(&reply(1, 0, Some(Variant::R8Array(deg)))).unwrap();
         assert_eq!((p.seq, p.dof), (1, 6));
         assert!((p.axes[2] - 30f64.to_radians()).abs() < 1e-15);
         // The buffer full (success), then an old serial, then the controller's error.
         b.encode_move(&[0.0; 6], &mut out);
-        assert!(b.decode(&reply(2, wire::hr::S_BUF_FULL, Some(Variant::R8Array(vec![0.0; 8])))).is_ok());
+        assert!(b.read(&reply(2, wire::hr::S_BUF_FULL, Some(Variant::R8Array(vec![0.0; 8])))).is_ok());
         b.encode_move(&[0.0; 6], &mut out);
-        assert!(matches!(b.decode(&reply(2, 0, Some(Variant::R8Array(vec![0.0; 8])))), Err(PacketError::Malformed(_))));
-        match b.decode(&reply(3, 0x8420_1482, None)) {
+        assert!(matches!(b.read(&reply(2, 0, Some(Variant::R8Array(vec![0.0; 8])))), Err(PacketError::Malformed(_))));
+        match b.read(&reply(3, 0x8420_1482, None)) {
             Err(PacketError::RobotError(why)) => assert!(why.contains("0x84201482") && why.contains("too late"), "{why}"),
             other => panic!("{other:?}"),
         }
-        assert!(matches!(b.decode(&reply(3, wire::hr::E_BUF_FULL, None)), Err(PacketError::Malformed(_))));
-        assert!(matches!(b.decode(&reply(3, 0, Some(Variant::R8Array(vec![f64::NAN; 8])))), Err(PacketError::BadValue(_))));
-        assert!(matches!(b.decode(&reply(3, 0, Some(Variant::R8Array(vec![0.0; 4])))), Err(PacketError::Truncated(_))));
+        assert!(matches!(b.read(&reply(3, wire::hr::E_BUF_FULL, None)), Err(PacketError::Malformed(_))));
+        assert!(matches!(b.read(&reply(3, 0, Some(Variant::R8Array(vec![f64::NAN; 8])))), Err(PacketError::BadValue(_))));
+        assert!(matches!(b.read(&reply(3, 0, Some(Variant::R8Array(vec![0.0; 4])))), Err(PacketError::Truncated(_))));
     }
 }

@@ -14,6 +14,8 @@ pub const MIN_PACKET: usize = 16;
 /// 16 MB).
 pub const MAX_PACKET: usize = 64 * 1024;
 
+use crate::protocol::Frame;
+
 /// VARTYPE codes (`docs/protocols/bcap.md` §2).
 pub mod vt {
     /// No value.
@@ -428,85 +430,28 @@ pub fn encode_slv_move(out: &mut Vec<u8>, serial: u16, robot: i32, joints: &[f64
     finish(out);
 }
 
-/// Splits a TCP byte stream into packets, resynchronising as DENSO's receiver does: bytes before
-/// a SOH are skipped, a length below 16 or above [`MAX_PACKET`] drops that SOH, a packet whose
-/// last byte is not EOT is dropped whole. Skipped bytes are counted.
-#[derive(Debug, Default)]
-pub struct Framer {
-    buf: Vec<u8>,
-    /// Bytes skipped as not part of a packet.
-    pub skipped: u64,
-}
-
-impl Framer {
-    /// An empty framer with room for a few packets.
-    pub fn new() -> Framer {
-        Framer { buf: Vec::with_capacity(4096), skipped: 0 }
+/// Where the next packet ends in a TCP byte stream, resynchronising as DENSO's receiver does:
+/// bytes before a SOH are skipped, a length below 16 or above [`MAX_PACKET`] drops that SOH, a
+/// packet whose last byte is not EOT is dropped whole (for [`crate::protocol::RobotProtocol::frame`]
+/// in a [`strand_robot::channel::StreamBuffer`], which counts what is skipped).
+pub fn frame(b: &[u8]) -> Frame {
+    if b.first() != Some(&SOH) {
+        return Frame::Skip(b.iter().position(|x| *x == SOH).unwrap_or(b.len()));
     }
-
-    /// The space to read the next bytes into: call [`Framer::filled`] with how many came.
-    pub fn spare(&mut self, n: usize) -> &mut [u8] {
-        let at = self.buf.len();
-        self.buf.resize(at + n, 0);
-        &mut self.buf[at..]
+    if b.len() < 5 {
+        return Frame::Incomplete;
     }
-
-    /// `n` bytes were read into [`Framer::spare`]'s slice of `asked` bytes.
-    pub fn filled(&mut self, asked: usize, n: usize) {
-        let keep = self.buf.len() - asked + n;
-        self.buf.truncate(keep);
+    let len = u32::from_le_bytes([b[1], b[2], b[3], b[4]]) as usize;
+    if !(MIN_PACKET..=MAX_PACKET).contains(&len) {
+        return Frame::Skip(1);
     }
-
-    /// Takes whole bytes.
-    pub fn push(&mut self, bytes: &[u8]) {
-        self.buf.extend_from_slice(bytes);
+    if b.len() < len {
+        return Frame::Incomplete;
     }
-
-    /// The length of the next whole packet at the front, dropping garbage before it; None until
-    /// one is whole. Take it with [`Framer::packet`], then [`Framer::consume`] it.
-    pub fn next_len(&mut self) -> Option<usize> {
-        loop {
-            let soh = self.buf.iter().position(|b| *b == SOH);
-            let drop = soh.unwrap_or(self.buf.len());
-            if drop > 0 {
-                self.skipped += drop as u64;
-                self.buf.drain(..drop);
-            }
-            if self.buf.len() < 5 {
-                return None;
-            }
-            let len = u32::from_le_bytes([self.buf[1], self.buf[2], self.buf[3], self.buf[4]]) as usize;
-            if !(MIN_PACKET..=MAX_PACKET).contains(&len) {
-                self.skipped += 1;
-                self.buf.drain(..1);
-                continue;
-            }
-            if self.buf.len() < len {
-                return None;
-            }
-            if self.buf[len - 1] != EOT {
-                self.skipped += len as u64;
-                self.buf.drain(..len);
-                continue;
-            }
-            return Some(len);
-        }
+    if b[len - 1] != EOT {
+        return Frame::Skip(len);
     }
-
-    /// The front `len` bytes (a packet [`Framer::next_len`] found).
-    pub fn packet(&self, len: usize) -> &[u8] {
-        &self.buf[..len]
-    }
-
-    /// Drops the front `len` bytes.
-    pub fn consume(&mut self, len: usize) {
-        self.buf.drain(..len.min(self.buf.len()));
-    }
-
-    /// Forgets everything buffered (a new connection).
-    pub fn clear(&mut self) {
-        self.buf.clear();
-    }
+    Frame::Packet(len)
 }
 
 /// The name and meaning of an HRESULT (`docs/protocols/bcap.md` §5), for messages: `0x84201482
@@ -634,18 +579,26 @@ mod tests {
     fn the_framer_resynchronises_after_garbage_and_split_reads() {
         let mut a = Vec::new();
         encode_call(&mut a, 1, func::SERVICE_STOP, &[]);
-        let mut f = Framer::new();
+        let mut f = strand_robot::channel::StreamBuffer::default();
         // Garbage, a SOH with a silly length, then a packet split in two, then another.
         f.push(&[0x55, 0x66, SOH, 0xFF, 0xFF, 0xFF, 0x7F]);
         f.push(&a[..7]);
-        assert_eq!(f.next_len(), None);
+        assert_eq!(f.next_len(frame), Ok(None));
         f.push(&a[7..]);
         f.push(&a);
-        let n = f.next_len().unwrap();
+        let n = f.next_len(frame).unwrap().unwrap();
         assert_eq!(f.packet(n), &a[..]);
         f.consume(n);
-        assert_eq!(f.next_len(), Some(a.len()));
-        assert_eq!(f.skipped, 7);
+        assert_eq!(f.next_len(frame), Ok(Some(a.len())));
+        assert_eq!(f.skipped(), 7);
+        // A packet whose last byte is not EOT is dropped whole.
+        let mut cut = a.clone();
+        *cut.last_mut().unwrap() = 0;
+        f.consume(a.len());
+        f.push(&cut);
+        f.push(&a);
+        assert_eq!(f.next_len(frame), Ok(Some(a.len())));
+        assert_eq!(f.skipped(), 7 + a.len() as u64);
     }
 
     #[test]

@@ -20,7 +20,7 @@ pub mod proto;
 use prost::Message;
 use strand_ipc::MAX_JOINTS;
 
-use crate::protocol::{Clock, PacketError, RobotPacket, RobotProtocol};
+use crate::protocol::{Channel, Clock, PacketError, RobotPacket, RobotProtocol};
 use proto::egm_header::MessageType;
 use proto::egm_mci_state::MciStateType;
 use proto::egm_motor_state::MotorStateType;
@@ -70,6 +70,7 @@ fn to_wire(v: f64, linear: bool) -> f64 {
 impl RobotProtocol for Egm {
     const NAME: &'static str = "egm";
     const CLOCK: Clock = Clock::Robot;
+    const CHANNEL: Channel = Channel::Datagram;
     /// An `EgmRobot` with every field is under 400 bytes; abb_libegm reads into 1024.
     const MAX_PACKET: usize = 1024;
 
@@ -93,7 +94,7 @@ impl RobotProtocol for Egm {
         Ok(())
     }
 
-    fn decode(&mut self, packet: &[u8]) -> Result<RobotPacket, PacketError> {
+    fn read(&mut self, packet: &[u8]) -> Result<RobotPacket, PacketError> {
         if packet.len() > Self::MAX_PACKET {
             return Err(PacketError::Oversized(packet.len()));
         }
@@ -144,9 +145,9 @@ impl RobotProtocol for Egm {
         *self = Egm { linear: self.linear, ..Egm::default() };
     }
 
-    fn encode_reply(&mut self, to: &RobotPacket, axes: &[f64], out: &mut Vec<u8>) {
+    fn write(&mut self, axes: &[f64], out: &mut Vec<u8>) {
         out.clear();
-        let n = to.dof.min(axes.len());
+        let n = axes.len();
         let wire = |from: usize, to: usize| (from..to).map(|k| to_wire(axes[k], self.linear[k])).collect::<Vec<f64>>();
         let robot = wire(0, n.min(ROBOT_AXES));
         let external = if n > ROBOT_AXES { Some(EgmJoints { joints: wire(ROBOT_AXES, n) }) } else { None };
@@ -178,13 +179,13 @@ mod tests {
     #[test]
     fn a_robot_message_decodes_and_the_reply_carries_absolute_degrees() {
         let mut egm = Egm::new();
-        let p = egm.decode(&packet(7, true)).unwrap();
+        let p = egm.read(&packet(7, true)).unwrap();
         assert_eq!((p.seq, p.dof, p.following), (7, 6, true));
         assert!((p.axes[1] + 30f64.to_radians()).abs() < 1e-15);
         let mut target = p.axes;
         target[0] = 10f64.to_radians();
         let mut out = Vec::new();
-        egm.encode_reply(&p, &target[..6], &mut out);
+        egm.write(&target[..6], &mut out);
         let sensor = EgmSensor::decode(&out[..]).unwrap();
         let h = sensor.header.unwrap();
         assert_eq!((h.seqno, h.mtype()), (Some(0), MessageType::MsgtypeCorrection));
@@ -200,32 +201,32 @@ mod tests {
         let e = egm.set_linear_axes(&[false, true, false, false, false, false, false]).unwrap_err();
         assert!(e.contains("joint 2 is prismatic"), "{e}");
         let m = robot_message(1, 4, &[0.0, -30.0, 30.0, 0.0, 60.0, 0.0, 1250.0], true);
-        let rotary = egm.decode(&m.encode_to_vec()).unwrap();
+        let rotary = egm.read(&m.encode_to_vec()).unwrap();
         assert!((rotary.axes[6] - 1250f64.to_radians()).abs() < 1e-12);
         egm.set_linear_axes(&[false, false, false, false, false, false, true]).unwrap();
-        let p = egm.decode(&m.encode_to_vec()).unwrap();
+        let p = egm.read(&m.encode_to_vec()).unwrap();
         assert_eq!(p.dof, 7);
         assert!((p.axes[6] - 1.25).abs() < 1e-15 && (p.axes[1] + 30f64.to_radians()).abs() < 1e-15);
         let mut target = p.axes;
         target[6] = 0.5;
         let mut out = Vec::new();
-        egm.encode_reply(&p, &target[..7], &mut out);
+        egm.write(&target[..7], &mut out);
         let planned = EgmSensor::decode(&out[..]).unwrap().planned.unwrap();
         assert_eq!(planned.external_joints.unwrap().joints, vec![500.0]);
         assert!((planned.joints.unwrap().joints[1] + 30.0).abs() < 1e-12);
         // A new EGM session keeps the axes' kinds.
         egm.reset();
-        assert!((egm.decode(&m.encode_to_vec()).unwrap().axes[6] - 1.25).abs() < 1e-15);
+        assert!((egm.read(&m.encode_to_vec()).unwrap().axes[6] - 1.25).abs() < 1e-15);
     }
 
     #[test]
     fn not_following_before_mci_running_and_a_new_session_is_a_new_epoch() {
         let mut egm = Egm::new();
-        assert!(!egm.decode(&packet(5000, false)).unwrap().following);
-        let restarted = egm.decode(&packet(0, true)).unwrap();
+        assert!(!egm.read(&packet(5000, false)).unwrap().following);
+        let restarted = egm.read(&packet(0, true)).unwrap();
         assert!(restarted.seq > 5000, "a restarted EGM session continues the sequence: {}", restarted.seq);
         // A packet a few behind is out of order (the session drops it), not a new session.
-        let late = egm.decode(&packet(0, true)).unwrap();
+        let late = egm.read(&packet(0, true)).unwrap();
         assert_eq!(late.seq, restarted.seq);
     }
 
@@ -233,18 +234,18 @@ mod tests {
     fn bad_packets_are_named() {
         let mut egm = Egm::new();
         let good = packet(1, true);
-        assert!(matches!(egm.decode(&good[..good.len() / 2]), Err(PacketError::Malformed(_) | PacketError::Truncated(_))));
-        assert!(matches!(egm.decode(b"\xff\xff\xff\xff"), Err(PacketError::Malformed(_))));
+        assert!(matches!(egm.read(&good[..good.len() / 2]), Err(PacketError::Malformed(_) | PacketError::Truncated(_))));
+        assert!(matches!(egm.read(b"\xff\xff\xff\xff"), Err(PacketError::Malformed(_))));
         let mut m = robot_message(1, 4, &[0.0; 6], true);
         m.header.as_mut().unwrap().mtype = Some(MessageType::MsgtypeCorrection as i32);
-        assert!(matches!(egm.decode(&m.encode_to_vec()), Err(PacketError::Malformed(_))));
+        assert!(matches!(egm.read(&m.encode_to_vec()), Err(PacketError::Malformed(_))));
         let m = robot_message(1, 4, &[0.0; 5], true);
-        assert!(matches!(egm.decode(&m.encode_to_vec()), Err(PacketError::Truncated(_))));
+        assert!(matches!(egm.read(&m.encode_to_vec()), Err(PacketError::Truncated(_))));
         let m = robot_message(1, 4, &[0.0, f64::NAN, 0.0, 0.0, 0.0, 0.0], true);
-        assert!(matches!(egm.decode(&m.encode_to_vec()), Err(PacketError::BadValue(_))));
+        assert!(matches!(egm.read(&m.encode_to_vec()), Err(PacketError::BadValue(_))));
         let mut m = robot_message(1, 4, &[0.0; 6], true);
         m.mci_state = None;
-        assert!(matches!(egm.decode(&m.encode_to_vec()), Err(PacketError::Truncated(_))));
-        assert!(matches!(egm.decode(&vec![0u8; 2000]), Err(PacketError::Oversized(2000))));
+        assert!(matches!(egm.read(&m.encode_to_vec()), Err(PacketError::Truncated(_))));
+        assert!(matches!(egm.read(&vec![0u8; 2000]), Err(PacketError::Oversized(2000))));
     }
 }

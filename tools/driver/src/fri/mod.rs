@@ -18,7 +18,7 @@ pub mod proto;
 
 use prost::Message;
 
-use crate::protocol::{Clock, PacketError, RobotPacket, RobotProtocol};
+use crate::protocol::{Channel, Clock, PacketError, RobotPacket, RobotProtocol};
 use proto::{
     COMMAND_MESSAGE_ID, ConnectionQuality, FriCommandMessage, FriMonitoringMessage, JointValues, MONITORING_MESSAGE_ID, MessageCommandData,
     MessageHeader, SafetyState, SessionState,
@@ -36,6 +36,12 @@ struct Seen {
     safety: SafetyState,
     /// The interpolator's joints (rad), while an overlay is active.
     ipo: Option<[f64; JOINTS]>,
+    /// The measured joints (rad).
+    measured: [f64; JOINTS],
+    /// The message's `sequenceCounter`, which the command reflects.
+    raw_seq: u32,
+    /// Whether the robot follows commands (commanding active, quality good, safety normal).
+    following: bool,
 }
 
 /// The FRI client's side of the protocol.
@@ -78,6 +84,7 @@ fn seven(values: &Option<JointValues>, what: &str) -> Result<Option<[f64; JOINTS
 impl RobotProtocol for Fri {
     const NAME: &'static str = "fri";
     const CLOCK: Clock = Clock::Robot;
+    const CHANNEL: Channel = Channel::Datagram;
     /// `FRI_MONITOR_MSG_MAX_SIZE` of the SDK.
     const MAX_PACKET: usize = 1500;
 
@@ -95,7 +102,7 @@ impl RobotProtocol for Fri {
         self.period_ms = Some(period * 1e3);
     }
 
-    fn decode(&mut self, packet: &[u8]) -> Result<RobotPacket, PacketError> {
+    fn read(&mut self, packet: &[u8]) -> Result<RobotPacket, PacketError> {
         let m = FriMonitoringMessage::decode(packet).map_err(|e| PacketError::Malformed(format!("not an FRI monitoring message: {e}")))?;
         if m.header.message_identifier != MONITORING_MESSAGE_ID {
             return Err(PacketError::Malformed(format!(
@@ -132,7 +139,9 @@ impl RobotProtocol for Fri {
             self.wraps += 1;
         }
         self.last_raw = Some(raw);
-        let seen = Seen { state, quality, safety, ipo };
+        let following =
+            state == SessionState::CommandingActive && quality >= ConnectionQuality::Good && safety == SafetyState::NormalOperation;
+        let seen = Seen { state, quality, safety, ipo, measured: q, raw_seq: raw, following };
         if self.seen.is_none_or(|s| (s.state, s.quality, s.safety) != (state, quality, safety)) {
             self.news = Some(match self.seen {
                 None => format!("FRI session {state:?}, quality {quality:?}, {safety:?}"),
@@ -142,8 +151,6 @@ impl RobotProtocol for Fri {
         self.seen = Some(seen);
         let mut axes = [0.0; MAX_JOINTS];
         axes[..JOINTS].copy_from_slice(&q);
-        let following =
-            state == SessionState::CommandingActive && quality >= ConnectionQuality::Good && safety == SafetyState::NormalOperation;
         Ok(RobotPacket { seq: (self.wraps << 32) | u64::from(raw), axes, dof: JOINTS, following })
     }
 
@@ -155,7 +162,10 @@ impl RobotProtocol for Fri {
         self.news.take()
     }
 
-    fn encode_reply(&mut self, to: &RobotPacket, axes: &[f64], out: &mut Vec<u8>) {
+    /// The command message answering the newest monitoring message: its sequence counter
+    /// reflected, the joints only while commanding (the interpolator's position until the robot
+    /// follows), nothing once the session is over.
+    fn write(&mut self, axes: &[f64], out: &mut Vec<u8>) {
         out.clear();
         let Some(seen) = self.seen else { return };
         let position = match seen.state {
@@ -164,17 +174,15 @@ impl RobotProtocol for Fri {
             SessionState::MonitoringWait | SessionState::MonitoringReady => None,
             // The overlay starts: hold the interpolator's position, as the controller demands.
             SessionState::CommandingWait => seen.ipo.map(|q| q.to_vec()),
-            SessionState::CommandingActive => Some(if to.following {
-                axes[..JOINTS].to_vec()
-            } else {
-                seen.ipo.map_or_else(|| to.axes[..JOINTS].to_vec(), |q| q.to_vec())
-            }),
+            SessionState::CommandingActive => {
+                Some(if seen.following { axes[..JOINTS].to_vec() } else { seen.ipo.unwrap_or(seen.measured).to_vec() })
+            }
         };
         let m = FriCommandMessage {
             header: MessageHeader {
                 message_identifier: COMMAND_MESSAGE_ID,
                 sequence_counter: self.sent,
-                reflected_sequence_counter: to.seq as u32,
+                reflected_sequence_counter: seen.raw_seq,
             },
             command_data: position.map(|value| MessageCommandData { joint_position: Some(JointValues { value }) }),
         };
@@ -214,10 +222,10 @@ mod tests {
         let mut out = Vec::new();
         let answer = |out: &[u8]| FriCommandMessage::decode(out).unwrap();
         // Monitoring: not following, a header alone that reflects the robot's counter.
-        let p = fri.decode(&monitoring(10, SessionState::MonitoringReady, ConnectionQuality::Good, q, None)).unwrap();
+        let p = fri.read(&monitoring(10, SessionState::MonitoringReady, ConnectionQuality::Good, q, None)).unwrap();
         assert!(!p.following);
         assert_eq!(&p.axes[..7], &q);
-        fri.encode_reply(&p, &command, &mut out);
+        fri.write(&command, &mut out);
         let a = answer(&out);
         assert_eq!(
             (a.header.message_identifier, a.header.sequence_counter, a.header.reflected_sequence_counter),
@@ -226,24 +234,29 @@ mod tests {
         assert!(a.command_data.is_none());
         assert!(fri.take_news().unwrap().contains("MonitoringReady"));
         // The overlay starting: the interpolator's position, whatever the session would send.
-        let p = fri.decode(&monitoring(11, SessionState::CommandingWait, ConnectionQuality::Good, q, Some(ipo))).unwrap();
+        let p = fri.read(&monitoring(11, SessionState::CommandingWait, ConnectionQuality::Good, q, Some(ipo))).unwrap();
         assert!(!p.following);
-        fri.encode_reply(&p, &command, &mut out);
+        fri.write(&command, &mut out);
         let a = answer(&out);
         assert_eq!(a.header.sequence_counter, 1);
         assert_eq!(a.command_data.unwrap().joint_position.unwrap().value, ipo);
         // Commanding with a good link: the command.
-        let p = fri.decode(&monitoring(12, SessionState::CommandingActive, ConnectionQuality::Excellent, q, Some(ipo))).unwrap();
+        let p = fri.read(&monitoring(12, SessionState::CommandingActive, ConnectionQuality::Excellent, q, Some(ipo))).unwrap();
         assert!(p.following);
-        fri.encode_reply(&p, &command, &mut out);
+        fri.write(&command, &mut out);
         assert_eq!(answer(&out).command_data.unwrap().joint_position.unwrap().value, &command[..7]);
         // A poor link while commanding: not followed (the controller aborts the overlay).
-        let p = fri.decode(&monitoring(13, SessionState::CommandingActive, ConnectionQuality::Fair, q, Some(ipo))).unwrap();
+        let p = fri.read(&monitoring(13, SessionState::CommandingActive, ConnectionQuality::Fair, q, Some(ipo))).unwrap();
         assert!(!p.following);
         assert!(fri.take_news().unwrap().contains("Excellent → Fair"));
+        // The command written then holds the interpolator's position, reflecting this message.
+        fri.write(&command, &mut out);
+        let a = answer(&out);
+        assert_eq!(a.header.reflected_sequence_counter, 13);
+        assert_eq!(a.command_data.unwrap().joint_position.unwrap().value, ipo);
         // Idle: nothing is sent.
-        let p = fri.decode(&monitoring(14, SessionState::Idle, ConnectionQuality::Poor, q, None)).unwrap();
-        fri.encode_reply(&p, &command, &mut out);
+        fri.read(&monitoring(14, SessionState::Idle, ConnectionQuality::Poor, q, None)).unwrap();
+        fri.write(&command, &mut out);
         assert!(out.is_empty());
     }
 
@@ -251,34 +264,34 @@ mod tests {
     fn bad_messages_are_refused_with_the_reason() {
         let q = [0.0; JOINTS];
         let mut fri = Fri::new();
-        assert!(matches!(fri.decode(b"\xff\xff\xff"), Err(PacketError::Malformed(_))));
+        assert!(matches!(fri.read(b"\xff\xff\xff"), Err(PacketError::Malformed(_))));
         // A command message is not a monitoring message.
         let cmd = FriCommandMessage {
             header: MessageHeader { message_identifier: COMMAND_MESSAGE_ID, sequence_counter: 0, reflected_sequence_counter: 0 },
             command_data: None,
         }
         .encode_to_vec();
-        assert!(matches!(fri.decode(&cmd), Err(PacketError::Malformed(m)) if m.contains("0x34001")));
+        assert!(matches!(fri.read(&cmd), Err(PacketError::Malformed(m)) if m.contains("0x34001")));
         // Six joints, a NaN, no measured joints.
         let mut six =
             FriMonitoringMessage::decode(&monitoring(1, SessionState::MonitoringWait, ConnectionQuality::Poor, q, None)[..]).unwrap();
         six.monitor_data = Some(MessageMonitorData { measured_joint_position: Some(JointValues { value: vec![0.0; 6] }) });
-        assert!(matches!(fri.decode(&six.encode_to_vec()), Err(PacketError::BadValue(m)) if m.contains("6 values")));
+        assert!(matches!(fri.read(&six.encode_to_vec()), Err(PacketError::BadValue(m)) if m.contains("6 values")));
         let mut nan = q;
         nan[3] = f64::NAN;
         assert!(matches!(
-            fri.decode(&monitoring(2, SessionState::CommandingActive, ConnectionQuality::Good, nan, None)),
+            fri.read(&monitoring(2, SessionState::CommandingActive, ConnectionQuality::Good, nan, None)),
             Err(PacketError::BadValue(m)) if m.contains("joint 4")
         ));
         let mut none = six.clone();
         none.monitor_data = None;
-        assert!(matches!(fri.decode(&none.encode_to_vec()), Err(PacketError::Truncated(_))));
+        assert!(matches!(fri.read(&none.encode_to_vec()), Err(PacketError::Truncated(_))));
         let _ = MessageIpoData::default();
         // Another send period than the service's: refused, naming both.
         let mut fri = Fri::new();
         fri.set_period(0.001);
         assert!(matches!(
-            fri.decode(&monitoring(3, SessionState::MonitoringWait, ConnectionQuality::Good, q, None)),
+            fri.read(&monitoring(3, SessionState::MonitoringWait, ConnectionQuality::Good, q, None)),
             Err(PacketError::BadValue(m)) if m.contains("every 4 ms") && m.contains("every 1 ms")
         ));
     }
@@ -287,8 +300,8 @@ mod tests {
     fn the_robots_counter_is_unwrapped_across_its_32_bits() {
         let q = [0.0; JOINTS];
         let mut fri = Fri::new();
-        let a = fri.decode(&monitoring(u32::MAX - 1, SessionState::MonitoringWait, ConnectionQuality::Good, q, None)).unwrap().seq;
-        let b = fri.decode(&monitoring(2, SessionState::MonitoringWait, ConnectionQuality::Good, q, None)).unwrap().seq;
+        let a = fri.read(&monitoring(u32::MAX - 1, SessionState::MonitoringWait, ConnectionQuality::Good, q, None)).unwrap().seq;
+        let b = fri.read(&monitoring(2, SessionState::MonitoringWait, ConnectionQuality::Good, q, None)).unwrap().seq;
         assert_eq!(b - a, 4);
         assert_eq!(Fri::cycles_between(a, b, 0.001), 4);
     }

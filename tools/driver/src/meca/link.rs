@@ -15,12 +15,14 @@ use strand::config::driver::DriverConfig;
 
 use super::Meca;
 use crate::paced::{DriverLink, Handshake, LinkError, readable, sleep_until};
+use crate::protocol::RobotProtocol;
 use crate::session::Session;
+use strand_robot::channel::StreamBuffer;
 
-/// One connection's bytes, split at NUL (or a newline) into messages.
+/// One connection's bytes, split at NUL (or a newline) into messages ([`Meca::frame`]).
 struct Socket {
     stream: TcpStream,
-    buf: Vec<u8>,
+    buf: StreamBuffer,
     what: &'static str,
 }
 
@@ -30,7 +32,7 @@ impl Socket {
         let stream = TcpStream::connect_timeout(&addr, Duration::from_secs_f64(timeout)).map_err(io)?;
         stream.set_nodelay(true).map_err(io)?;
         stream.set_nonblocking(true).map_err(io)?;
-        let mut s = Socket { stream, buf: Vec::with_capacity(8192), what };
+        let mut s = Socket { stream, buf: StreamBuffer::with_capacity(8192), what };
         // A lone NUL: the robot then knows this is no WebSocket and sends its banner at once.
         s.write_all(b"\0", timeout)?;
         Ok(s)
@@ -61,15 +63,16 @@ impl Socket {
         if !readable(&self.stream, deadline_ns.saturating_sub(monotonic_ns())) {
             return Ok(false);
         }
-        let mut chunk = [0u8; 4096];
+        const CHUNK: usize = 4096;
         let mut any = false;
         loop {
-            match self.stream.read(&mut chunk) {
+            let r = self.stream.read(self.buf.spare(CHUNK));
+            self.buf.filled(CHUNK, *r.as_ref().unwrap_or(&0));
+            match r {
                 Ok(0) => return Err(LinkError::Closed(format!("the robot closed its {} port", self.what))),
                 Ok(n) => {
-                    self.buf.extend_from_slice(&chunk[..n]);
                     any = true;
-                    if n < chunk.len() {
+                    if n < CHUNK {
                         return Ok(true);
                     }
                 }
@@ -83,9 +86,9 @@ impl Socket {
     /// The next whole message (without its terminator), if one is buffered.
     fn next(&mut self) -> Option<String> {
         loop {
-            let end = self.buf.iter().position(|b| *b == 0 || *b == b'\n')?;
-            let text = String::from_utf8_lossy(&self.buf[..end]).trim().to_string();
-            self.buf.drain(..=end);
+            let n = self.buf.next_len(Meca::frame).ok().flatten()?;
+            let text = String::from_utf8_lossy(&self.buf.packet(n)[..n - 1]).trim().to_string();
+            self.buf.consume(n);
             if !text.is_empty() {
                 return Some(text);
             }
@@ -112,6 +115,8 @@ pub struct MecaLink {
     /// The tick (ns) and the next one.
     period_ns: u64,
     next_tick: u64,
+    /// Ticks that went by without running before the last one (the driver stalled).
+    lapsed: u64,
     /// The tick's messages, tagged by socket, NUL-terminated (the packet [`super::Meca`] reads).
     packet: Vec<u8>,
 }
@@ -128,6 +133,7 @@ impl MecaLink {
             banner: String::new(),
             period_ns: 0,
             next_tick: 0,
+            lapsed: 0,
             packet: Vec::with_capacity(8192),
         };
         // The banners: [3000] (the monitoring port of old firmware may send a 2007 first).
@@ -270,6 +276,10 @@ impl DriverLink for MecaLink {
         self.release()
     }
 
+    fn lapsed(&mut self) -> u64 {
+        std::mem::take(&mut self.lapsed)
+    }
+
     fn send(&mut self, answer: &[u8]) -> Result<(), LinkError> {
         if answer.is_empty() {
             return Ok(());
@@ -286,7 +296,9 @@ impl DriverLink for MecaLink {
         let now = monotonic_ns();
         self.next_tick += self.period_ns;
         if self.next_tick < now {
-            // More than a tick behind (the machine stalled): on from now.
+            // More than a tick behind (the machine stalled): the ticks that went by are told to the
+            // loop, and the clock goes on from now.
+            self.lapsed += (now - self.next_tick) / self.period_ns + 1;
             self.next_tick = now + self.period_ns;
         }
         self.packet.clear();
@@ -321,6 +333,7 @@ impl Handshake<Meca> for MecaLink {
         let meca = session.protocol_mut();
         meca.set_speed_limits(&speed);
         meca.set_gain(d.velocity_gain);
+        meca.set_velocity_timeout(d.velocity_timeout);
         Ok((link, Vec::new()))
     }
 }

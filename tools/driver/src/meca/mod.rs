@@ -21,7 +21,7 @@ pub mod link;
 
 use std::io::Write;
 
-use crate::protocol::{Clock, PacketError, RobotPacket, RobotProtocol};
+use crate::protocol::{Channel, Clock, Frame, PacketError, RobotPacket, RobotProtocol};
 use strand_ipc::MAX_JOINTS;
 
 /// The Meca500's joints.
@@ -128,6 +128,8 @@ fn stops_the_arm(code: u32) -> bool {
 pub struct Meca {
     /// The cycle (s).
     period: f64,
+    /// `SetVelTimeout` (s): how long the arm keeps its last velocity.
+    velocity_timeout: f64,
     /// Velocity = feed-forward + gain × position error (1/s).
     gain: f64,
     /// Speed limits (rad/s).
@@ -149,6 +151,7 @@ impl Meca {
     pub fn new(period: f64, gain: f64) -> Meca {
         Meca {
             period,
+            velocity_timeout: 0.0,
             gain,
             speed: [f64::INFINITY; JOINTS],
             ticks: 0,
@@ -162,6 +165,12 @@ impl Meca {
     /// The gain on the position error (1/s; `[driver] velocity_gain`).
     pub fn set_gain(&mut self, gain: f64) {
         self.gain = gain;
+    }
+
+    /// The velocity timeout the link set (s; `[driver] velocity_timeout`): how long the arm runs on
+    /// at its last velocity when commands stop.
+    pub fn set_velocity_timeout(&mut self, seconds: f64) {
+        self.velocity_timeout = seconds.max(0.0);
     }
 
     /// The speed limits the velocities keep (rad/s, the URDF's).
@@ -230,6 +239,16 @@ impl Meca {
 impl RobotProtocol for Meca {
     const NAME: &'static str = "meca";
     const CLOCK: Clock = Clock::Driver;
+    const CHANNEL: Channel = Channel::Stream;
+
+    /// One message on either port, up to its NUL (a newline ends one too); a tick's packet is the
+    /// messages of both ports since the last tick ([`link`] collects them).
+    fn frame(buffered: &[u8]) -> Frame {
+        match buffered.iter().position(|b| *b == 0 || *b == b'\n') {
+            Some(end) => Frame::Packet(end + 1),
+            None => Frame::Incomplete,
+        }
+    }
     const MAX_PACKET: usize = 256 * 1024;
 
     fn set_linear_axes(&mut self, linear: &[bool]) -> Result<(), String> {
@@ -248,7 +267,7 @@ impl RobotProtocol for Meca {
 
     /// One tick's messages (each: its socket's tag byte, the text, a NUL): the newest joints of a
     /// closed monitoring interval are the state; before the first one, nothing is.
-    fn decode(&mut self, packet: &[u8]) -> Result<RobotPacket, PacketError> {
+    fn read(&mut self, packet: &[u8]) -> Result<RobotPacket, PacketError> {
         for frame in packet.split(|b| *b == 0) {
             let Some((&from, text)) = frame.split_first() else { continue };
             let Ok(text) = std::str::from_utf8(text) else {
@@ -267,6 +286,11 @@ impl RobotProtocol for Meca {
         Ok(RobotPacket { seq: self.ticks, axes, dof: JOINTS, following: true })
     }
 
+    /// The arm keeps its last velocity until `SetVelTimeout`.
+    fn runs_on_for(&self) -> f64 {
+        self.velocity_timeout
+    }
+
     fn reset(&mut self) {
         self.joints = None;
         self.last_target = None;
@@ -274,15 +298,16 @@ impl RobotProtocol for Meca {
     }
 
     /// `MoveJointsVel` in deg/s, fixed-point: the target's step over the cycle plus the gain on
-    /// the error between the target and the measured joints, within the speed limits.
-    fn encode_reply(&mut self, to: &RobotPacket, axes: &[f64], out: &mut Vec<u8>) {
+    /// the error between the target and the newest measured joints, within the speed limits.
+    fn write(&mut self, axes: &[f64], out: &mut Vec<u8>) {
         out.clear();
         let mut target = [0.0; JOINTS];
         target.copy_from_slice(&axes[..JOINTS]);
+        let measured = self.joints.unwrap_or(target);
         let _ = write!(out, "MoveJointsVel(");
         for k in 0..JOINTS {
             let ff = self.last_target.map_or(0.0, |p| (target[k] - p[k]) / self.period);
-            let v = (ff + self.gain * (target[k] - to.axes[k])).clamp(-self.speed[k], self.speed[k]);
+            let v = (ff + self.gain * (target[k] - measured[k])).clamp(-self.speed[k], self.speed[k]);
             let v = if v.is_finite() { v } else { 0.0 };
             let _ = write!(out, "{}{:.4}", if k > 0 { "," } else { "" }, v.to_degrees());
         }
@@ -324,10 +349,10 @@ mod tests {
     fn the_newest_closed_interval_is_the_state_and_a_stop_ends_the_stream() {
         let mut m = Meca::new(0.004, 20.0);
         // No interval closed yet: no state.
-        assert!(matches!(m.decode(&packet(&[(FROM_MONITOR, "[2026][1,2,3,4,5,6]")])), Err(PacketError::Truncated(_))));
+        assert!(matches!(m.read(&packet(&[(FROM_MONITOR, "[2026][1,2,3,4,5,6]")])), Err(PacketError::Truncated(_))));
         // Closed: the encoders' joints win over the legacy ones.
         let p = m
-            .decode(&packet(&[
+            .read(&packet(&[
                 (FROM_MONITOR, "[2026][1,2,3,4,5,6]"),
                 (FROM_MONITOR, "[2210][1000,10,20,30,40,50,60]"),
                 (FROM_MONITOR, "[2230][1000]"),
@@ -337,7 +362,7 @@ mod tests {
         assert_eq!((p.seq, p.dof), (1, 6));
         assert!((p.axes[5] - 60f64.to_radians()).abs() < 1e-12);
         // A tick without a new interval: the newest joints again, the next sequence.
-        let p = m.decode(&[]).unwrap();
+        let p = m.read(&[]).unwrap();
         assert_eq!(p.seq, 2);
         assert!((p.axes[0] - 10f64.to_radians()).abs() < 1e-12);
         for (from, text, says) in [
@@ -346,7 +371,7 @@ mod tests {
             (FROM_MONITOR, "[2007][1,1,0,1,1,1,1]", "reports an error"),
             (FROM_MONITOR, "[2007][1,1,0,0,1,1,1]", "paused"),
         ] {
-            match m.decode(&packet(&[(from, text)])) {
+            match m.read(&packet(&[(from, text)])) {
                 Err(PacketError::RobotError(why)) => assert!(why.contains(says), "{why}"),
                 other => panic!("{text}: {other:?}"),
             }
@@ -357,13 +382,13 @@ mod tests {
     fn the_velocity_is_the_steps_feed_forward_plus_the_gain_on_the_error_within_the_limits() {
         let mut m = Meca::new(0.004, 20.0);
         m.set_speed_limits(&[1.0; 6]);
-        let mut to = RobotPacket { seq: 1, axes: [0.0; MAX_JOINTS], dof: 6, following: true };
+        m.joints = Some([0.0; JOINTS]);
         let mut out = Vec::new();
-        m.encode_reply(&to, &[0.01, 0.0, 0.0, 0.0, 0.0, 0.0], &mut out);
+        m.write(&[0.01, 0.0, 0.0, 0.0, 0.0, 0.0], &mut out);
         // No step yet: 20 × 0.01 rad/s = 11.4592 deg/s on J1.
         assert_eq!(std::str::from_utf8(&out).unwrap(), "MoveJointsVel(11.4592,0.0000,0.0000,0.0000,0.0000,0.0000)\0");
-        to.axes[0] = 0.01;
-        m.encode_reply(&to, &[0.012, 0.5, 0.0, 0.0, 0.0, 0.0], &mut out);
+        m.joints = Some([0.01, 0.0, 0.0, 0.0, 0.0, 0.0]);
+        m.write(&[0.012, 0.5, 0.0, 0.0, 0.0, 0.0], &mut out);
         let text = std::str::from_utf8(&out).unwrap();
         // J1: 0.002 / 0.004 + 20 × 0.002 = 0.54 rad/s; J2 clamped to 1 rad/s.
         assert!(text.starts_with(&format!("MoveJointsVel({:.4},{:.4},", 0.54f64.to_degrees(), 1f64.to_degrees())), "{text}");

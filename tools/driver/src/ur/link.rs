@@ -16,7 +16,9 @@ use strand::config::driver::DriverConfig;
 
 use super::Ur;
 use crate::paced::{DriverLink, Handshake, LinkError, readable};
+use crate::protocol::RobotProtocol;
 use crate::session::Session;
+use strand_robot::channel::StreamBuffer;
 
 /// How the link is set up (`[driver]`).
 #[derive(Clone, Debug)]
@@ -61,7 +63,7 @@ pub struct UrStarted {
 pub struct UrLink {
     settings: UrSettings,
     rtde: TcpStream,
-    framer: rtde::Framer,
+    framer: StreamBuffer,
     reverse: Option<TcpStream>,
     listener: Option<TcpListener>,
     input_recipe: Option<u8>,
@@ -106,7 +108,7 @@ impl UrLink {
         let mut link = UrLink {
             settings: settings.clone(),
             rtde,
-            framer: rtde::Framer::default(),
+            framer: StreamBuffer::with_capacity(8192),
             reverse: None,
             listener: None,
             input_recipe: None,
@@ -217,7 +219,7 @@ impl UrLink {
     /// Drops every whole package read so far: the stream's next one is fresh (the controller
     /// sends its newest data every cycle).
     fn drop_old_data(&mut self) {
-        while let Ok(Some(n)) = self.framer.next_len() {
+        while let Ok(Some(n)) = self.framer.next_len(Ur::frame) {
             self.framer.consume(n);
         }
     }
@@ -234,13 +236,11 @@ impl UrLink {
         if !readable(&self.rtde, deadline_ns.saturating_sub(monotonic_ns())) {
             return Ok(false);
         }
-        let mut chunk = [0u8; 4096];
-        match self.rtde.read(&mut chunk) {
+        let r = self.rtde.read(self.framer.spare(4096));
+        self.framer.filled(4096, *r.as_ref().unwrap_or(&0));
+        match r {
             Ok(0) => Err(LinkError::Closed("RTDE: the controller closed the connection".into())),
-            Ok(n) => {
-                self.framer.push(&chunk[..n]);
-                Ok(true)
-            }
+            Ok(_) => Ok(true),
             Err(e) if matches!(e.kind(), std::io::ErrorKind::WouldBlock | std::io::ErrorKind::Interrupted) => Ok(false),
             Err(e) => Err(LinkError::Io(format!("RTDE: {e}"))),
         }
@@ -249,7 +249,7 @@ impl UrLink {
     /// The next whole package's length (left at the front), by `deadline_ns`.
     fn next_package(&mut self, deadline_ns: u64) -> Result<Option<usize>, LinkError> {
         loop {
-            if let Some(n) = self.framer.next_len().map_err(|e| LinkError::Io(e.0))? {
+            if let Some(n) = self.framer.next_len(Ur::frame).map_err(|e| LinkError::Io(format!("RTDE: {e}")))? {
                 return Ok(Some(n));
             }
             if !self.fill(deadline_ns)? && monotonic_ns() >= deadline_ns {

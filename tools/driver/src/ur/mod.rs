@@ -22,7 +22,7 @@
 pub mod link;
 pub mod rtde;
 
-use crate::protocol::{Clock, PacketError, RobotPacket, RobotProtocol};
+use crate::protocol::{Channel, Clock, Frame, PacketError, RobotPacket, RobotProtocol};
 use strand_ipc::MAX_JOINTS;
 
 /// A UR's joints.
@@ -108,6 +108,12 @@ impl Ur {
 impl RobotProtocol for Ur {
     const NAME: &'static str = "ur";
     const CLOCK: Clock = Clock::Robot;
+    /// RTDE's TCP stream; the state is its data package.
+    const CHANNEL: Channel = Channel::Stream;
+
+    fn frame(buffered: &[u8]) -> Frame {
+        rtde::frame(buffered)
+    }
     const MAX_PACKET: usize = 4096;
 
     fn set_linear_axes(&mut self, linear: &[bool]) -> Result<(), String> {
@@ -121,7 +127,7 @@ impl RobotProtocol for Ur {
     }
 
     /// An RTDE data package: the joints, and whether the robot runs strand's program now.
-    fn decode(&mut self, packet: &[u8]) -> Result<RobotPacket, PacketError> {
+    fn read(&mut self, packet: &[u8]) -> Result<RobotPacket, PacketError> {
         let d = rtde::read_data(packet, self.recipe).map_err(|e| PacketError::Malformed(e.0))?;
         let finite = d.actual_q.iter().all(|q| q.is_finite()) && d.timestamp.is_finite();
         if !finite {
@@ -184,7 +190,7 @@ impl RobotProtocol for Ur {
     }
 
     /// The servo target: `axes` (rad), with the read timeout for the robot's next read.
-    fn encode_reply(&mut self, _to: &RobotPacket, axes: &[f64], out: &mut Vec<u8>) {
+    fn write(&mut self, axes: &[f64], out: &mut Vec<u8>) {
         message(out, self.read_timeout_ms, axes, mode::SERVOJ);
     }
 }
@@ -270,22 +276,22 @@ mod tests {
     fn modes_decide_following_and_a_stop_ends_the_stream_named() {
         let mut ur = Ur::new();
         // Before the program plays: not following.
-        let p = ur.decode(&data(1.0, 0.1, (7, 1, 1), 1.0)).unwrap();
+        let p = ur.read(&data(1.0, 0.1, (7, 1, 1), 1.0)).unwrap();
         assert!(!p.following && ur.take_news().unwrap().contains("STOPPED"));
-        let p = ur.decode(&data(1.002, 0.1, (7, 1, 2), 1.0)).unwrap();
+        let p = ur.read(&data(1.002, 0.1, (7, 1, 2), 1.0)).unwrap();
         assert!(p.following && p.seq == 2 && (p.axes[3] - 0.1).abs() < 1e-15);
         // An old package is dropped; the speed slider at 40 % is told once.
-        assert!(matches!(ur.decode(&data(1.001, 0.1, (7, 1, 2), 1.0)), Err(PacketError::Malformed(_))));
-        ur.decode(&data(1.004, 0.1, (7, 1, 2), 0.4)).unwrap();
+        assert!(matches!(ur.read(&data(1.001, 0.1, (7, 1, 2), 1.0)), Err(PacketError::Malformed(_))));
+        ur.read(&data(1.004, 0.1, (7, 1, 2), 0.4)).unwrap();
         assert_eq!(ur.take_speed_scaling(), Some(0.4));
         assert_eq!(ur.take_speed_scaling(), None);
-        match ur.decode(&data(1.006, 0.1, (7, 3, 2), 0.4)) {
+        match ur.read(&data(1.006, 0.1, (7, 3, 2), 0.4)) {
             Err(PacketError::RobotError(why)) => assert!(why.contains("PROTECTIVE_STOP (3)"), "{why}"),
             other => panic!("{other:?}"),
         }
         let mut ur = Ur::new();
-        ur.decode(&data(1.0, 0.1, (7, 1, 2), 1.0)).unwrap();
-        assert!(matches!(ur.decode(&data(1.002, 0.1, (7, 1, 1), 1.0)), Err(PacketError::RobotError(_))));
+        ur.read(&data(1.0, 0.1, (7, 1, 2), 1.0)).unwrap();
+        assert!(matches!(ur.read(&data(1.002, 0.1, (7, 1, 1), 1.0)), Err(PacketError::RobotError(_))));
     }
 
     #[test]

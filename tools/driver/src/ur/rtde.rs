@@ -40,6 +40,8 @@ pub const INPUT_TYPES: [&str; 4] = ["UINT8", "UINT8", "DOUBLE", "DOUBLE"];
 #[error("{0}")]
 pub struct RtdeError(pub String);
 
+use crate::protocol::Frame;
+
 /// Encodes a package into `out` (cleared first).
 pub fn encode(out: &mut Vec<u8>, kind: u8, payload: &[u8]) {
     out.clear();
@@ -74,39 +76,17 @@ pub fn analog_output(out: &mut Vec<u8>, id: u8, pin: u8, voltage: bool, ratio: f
     encode(out, kind::DATA, &p);
 }
 
-/// Splits the stream into packages.
-#[derive(Debug, Default)]
-pub struct Framer {
-    buf: Vec<u8>,
-}
-
-impl Framer {
-    /// Takes bytes read from the socket.
-    pub fn push(&mut self, bytes: &[u8]) {
-        self.buf.extend_from_slice(bytes);
+/// Where the next package ends in the RTDE stream: its size is its first two bytes (big-endian,
+/// header included). RTDE has no start byte to resynchronise on, so a size below the header's
+/// loses the stream (for [`crate::protocol::RobotProtocol::frame`] in a
+/// [`strand_robot::channel::StreamBuffer`]).
+pub fn frame(b: &[u8]) -> Frame {
+    if b.len() < 3 {
+        return Frame::Incomplete;
     }
-
-    /// The next whole package's length at the front, if one is whole; a size below 3 is no
-    /// package (the stream is lost: `Err`).
-    pub fn next_len(&self) -> Result<Option<usize>, RtdeError> {
-        if self.buf.len() < 3 {
-            return Ok(None);
-        }
-        let size = u16::from_be_bytes([self.buf[0], self.buf[1]]) as usize;
-        if size < 3 {
-            return Err(RtdeError(format!("an RTDE package of size {size}: the stream is lost")));
-        }
-        Ok((self.buf.len() >= size).then_some(size))
-    }
-
-    /// The front `len` bytes.
-    pub fn packet(&self, len: usize) -> &[u8] {
-        &self.buf[..len]
-    }
-
-    /// Drops the front `len` bytes.
-    pub fn consume(&mut self, len: usize) {
-        self.buf.drain(..len.min(self.buf.len()));
+    match u16::from_be_bytes([b[0], b[1]]) as usize {
+        size if size < 3 => Frame::Lost(format!("an RTDE package of size {size}")),
+        size => Frame::Packet(size),
     }
 }
 
@@ -285,14 +265,14 @@ mod tests {
 
     #[test]
     fn the_framer_waits_for_whole_packages() {
-        let mut f = Framer::default();
+        let mut f = strand_robot::channel::StreamBuffer::default();
         f.push(&[0x00, 0x05]);
-        assert_eq!(f.next_len(), Ok(None));
+        assert_eq!(f.next_len(frame), Ok(None));
         f.push(&[0x56, 0x01, 0x00, 0x00]);
-        assert_eq!(f.next_len(), Ok(Some(5)));
+        assert_eq!(f.next_len(frame), Ok(Some(5)));
         f.consume(5);
-        assert_eq!(f.next_len(), Ok(None));
+        assert_eq!(f.next_len(frame), Ok(None));
         f.push(&[0x00, 0x01, 0x00]);
-        assert!(f.next_len().is_err());
+        assert!(f.next_len(frame).unwrap_err().0.contains("an RTDE package of size 0"));
     }
 }
