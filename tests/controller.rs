@@ -651,3 +651,41 @@ fn every_bundled_config_prints_a_square() {
         assert!(r.worst_error < 50e-6, "{name}: worst TCP error {:.1} µm", r.worst_error * 1e6);
     }
 }
+
+/// The robot's own speed scaling (UR's speed slider, sent by its driver) multiplies the operator's
+/// feed override: the path slows with the robot, and the operator's override stays the operator's
+/// (`Status::feed_override`, which `strand ctl feed` waits for). Out of 1 to 100 % it is refused.
+#[test]
+fn the_robots_speed_scaling_slows_the_path_under_the_operators_feed_override() {
+    let mut cell = Cell::iiwa();
+    // A 200 mm square at 20 mm/s: long sides to settle on.
+    cell.send(&square_job(1, ORIGIN, 0.2, 1, 0.02));
+    cell.control(Command::Start, 0.0);
+    run(&mut cell, 60_000, |c| c.state() == RunState::Running);
+    // Settle at the programmed feed, then at 50 % × 40 %.
+    cell.run_until(2_000, |_| false);
+    let out = cell.last.unwrap();
+    assert!((out.status.path_speed - 0.02).abs() < 1e-6, "{}", out.status.path_speed);
+    cell.control(Command::FeedOverride, 0.5);
+    cell.control(Command::RobotSpeedScaling, 0.4);
+    cell.run_until(1_500, |_| false);
+    let out = cell.last.unwrap();
+    assert!((out.status.path_speed - 0.004).abs() < 1e-6, "{}", out.status.path_speed);
+    assert_eq!(out.status.feed_override, 0.5);
+    // The operator's override changes under the robot's scaling, and the other way round.
+    cell.control(Command::FeedOverride, 1.0);
+    cell.run_until(1_500, |_| false);
+    let out = cell.last.unwrap();
+    assert!((out.status.path_speed - 0.008).abs() < 1e-6, "{}", out.status.path_speed);
+    cell.control(Command::RobotSpeedScaling, 1.0);
+    cell.run_until(1_500, |_| false);
+    let out = cell.last.unwrap();
+    assert!((out.status.path_speed - 0.02).abs() < 1e-6, "{}", out.status.path_speed);
+    for bad in [0.0, 1.5, f64::NAN] {
+        cell.control(Command::RobotSpeedScaling, bad);
+    }
+    let out = cell.step();
+    let reasons: Vec<RejectReason> =
+        out.events().iter().filter_map(|e| if let Event::ControlRejected { reason, .. } = e { Some(*reason) } else { None }).collect();
+    assert_eq!(reasons, vec![RejectReason::BadValue; 3]);
+}

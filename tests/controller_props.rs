@@ -73,6 +73,7 @@ fn command_strategy() -> impl Strategy<Value = (Command, f64)> {
         2 => Just((Command::ClearFault, 0.0)),
         1 => (0.0..2.5f64).prop_map(|v| (Command::FeedOverride, v)),
         1 => (-0.5..2.5f64).prop_map(|v| (Command::FlowOverride, v)),
+        1 => (-0.2..1.3f64).prop_map(|v| (Command::RobotSpeedScaling, v)),
     ]
 }
 

@@ -178,6 +178,12 @@ wire_enum! {
         FeedOverride = 7,
         /// Set the flow override to `value` (fraction, 0 to 2).
         FlowOverride = 8,
+        /// The robot's own speed scaling is `value` (fraction, 0.01 to 1): UR's speed slider times
+        /// its trajectory limiter, sent by the robot's driver when it changes. The path's speed is
+        /// the feed override times it, so that the path slows with the robot instead of the robot
+        /// falling behind its commands; the operator's feed override (`Status::feed_override`)
+        /// stays the operator's.
+        RobotSpeedScaling = 9,
     }
 }
 

@@ -92,6 +92,11 @@ pub struct Controller {
     /// Sequence, acceptance and refusals of what comes in.
     intake: Intake,
     flow_override: f64,
+    /// The operator's feed override (fraction; `Command::FeedOverride`).
+    feed_override: f64,
+    /// The robot's own speed scaling (fraction; `Command::RobotSpeedScaling`): the path runs at
+    /// the feed override times it.
+    robot_speed_scaling: f64,
     last_sample: Option<PathSample>,
     layer: LayerCount,
     last_clik: Option<ClikStep>,
@@ -143,6 +148,8 @@ impl Controller {
             speed_scale: 1.0,
             intake: Intake::new(settings.controller.bounds_min, settings.controller.bounds_max),
             flow_override: 1.0,
+            feed_override: 1.0,
+            robot_speed_scaling: 1.0,
             last_sample: None,
             layer: LayerCount::default(),
             last_clik: None,
@@ -416,7 +423,15 @@ impl Controller {
                 if !(value.is_finite() && (0.01..=2.0).contains(&value)) {
                     return Err(RejectReason::BadValue);
                 }
-                self.engine.set_feed_override(value);
+                self.feed_override = value;
+                self.engine.set_feed_override(value * self.robot_speed_scaling);
+            }
+            Command::RobotSpeedScaling => {
+                if !(value.is_finite() && (0.01..=1.0).contains(&value)) {
+                    return Err(RejectReason::BadValue);
+                }
+                self.robot_speed_scaling = value;
+                self.engine.set_feed_override(self.feed_override * value);
             }
             Command::FlowOverride => {
                 if !(value.is_finite() && (0.0..=2.0).contains(&value)) {
@@ -830,7 +845,7 @@ impl Controller {
             log_drops: input.cycle.log_drops,
             log_state: input.cycle.log_state,
             executing_layer: self.layer.count,
-            feed_override: self.engine.feed_override(),
+            feed_override: self.feed_override,
             flow_override: self.flow_override,
             path_position: sample.map_or(0.0, |s| s.s),
             path_speed: sample.map_or(0.0, |s| s.speed),

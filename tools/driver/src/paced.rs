@@ -207,14 +207,15 @@ pub fn run<P: RobotProtocol, L: DriverLink>(
             eprintln!("strand-{name}: robot: {news}");
         }
         if let Some(scaling) = session.take_speed_scaling() {
-            // The robot slows its motion (its speed slider): the service slows the path to match.
-            eprintln!("strand-{name}: robot: speed scaling {:.0} %: the service's feed follows it", scaling * 100.0);
+            // The robot slows its motion (its speed slider): the service slows the path to match,
+            // on top of the operator's feed override.
+            eprintln!("strand-{name}: robot: speed scaling {:.0} %: the service's path follows it", scaling * 100.0);
             control_seq += 1;
             let c = Control {
                 seq: control_seq,
                 stamp_ns: monotonic_ns(),
-                command: Command::FeedOverride as u32,
-                value: scaling.max(0.01),
+                command: Command::RobotSpeedScaling as u32,
+                value: scaling.clamp(0.01, 1.0),
                 _reserved: 0,
             };
             let _ = ports.send_control(&c);

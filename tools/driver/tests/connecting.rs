@@ -360,8 +360,10 @@ fn a_job_streams_through_strand_ur_to_a_ur5e_and_finishes() {
     a_job_streams_through("ur");
 }
 
-/// The robot's speed slider at 40 % mid-job: the driver tells the service, whose path slows (the
-/// job still finishes, with the arm never asked for more than the robot gives).
+/// The robot's speed slider at 40 % mid-job, under an operator's feed override of 80 %: the driver
+/// tells the service, whose path slows to 32 % (the job still finishes, with the arm never asked
+/// for more than the robot gives), and the operator's override stays 80 % (the robot's scaling is
+/// its own command, `RobotSpeedScaling`, not a feed override that would overwrite the operator's).
 #[test]
 fn the_ur_speed_slider_slows_the_services_path() {
     if !cells_run_here("the_ur_speed_slider_slows_the_services_path") {
@@ -372,8 +374,18 @@ fn the_ur_speed_slider_slows_the_services_path() {
     let feed_log = cell.dir.join("feed.log");
     let mut feed = Kid(cell.feed(&job).stdout(Stdio::null()).stderr(std::fs::File::create(&feed_log).unwrap()).spawn().unwrap());
     wait_for(&cell.dir.join("driver.log"), "Holding → Following", Duration::from_secs(30));
+    let ctl = |args: &[&str]| {
+        let out = Command::new(bin("strand")).args(["ctl", "--prefix", &cell.prefix, "--timeout", "5"]).args(args).output().unwrap();
+        assert!(out.status.success(), "strand ctl {args:?}: {}", String::from_utf8_lossy(&out.stderr));
+        String::from_utf8_lossy(&out.stdout).to_string()
+    };
+    ctl(&["feed", "80"]);
     std::thread::sleep(Duration::from_millis(1500));
     cell.ur().set_speed_scaling(0.4);
+    wait_for(&cell.dir.join("driver.log"), "speed scaling 40 %", Duration::from_secs(10));
+    std::thread::sleep(Duration::from_millis(100));
+    let status: serde_json::Value = serde_json::from_str(ctl(&["status", "--json"]).lines().next().unwrap()).unwrap();
+    assert_eq!(status["feed_override"].as_f64(), Some(0.8), "the operator's override stays: {status}");
     let code = feed.wait_exit(Duration::from_secs(240));
     let logs = cell.logs();
     assert_eq!(code, Some(0), "the job finishes at 40 %:\n{logs}");
