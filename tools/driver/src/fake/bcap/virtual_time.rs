@@ -6,7 +6,9 @@
 //! the arm's position, or the latched error. The drives are the caller's: it reports the actual
 //! joints each cycle and moves them towards the target the ticks set.
 
-use super::{BcapOptions, Ctrl, MAX_JOINTS, Packet, Variant, func, hr, slv_pose};
+use super::calls::slv_pose;
+use super::controller::Ctrl;
+use super::{BcapOptions, MAX_JOINTS, Packet, Variant, func, hr};
 use crate::fake::{FakeProtocol, InvalidSetup};
 
 /// An RC8 already in J-type slave mode (the connect sequence is not simulated here).

@@ -6,7 +6,9 @@
 //! it (the script's read, §2.7). The drives are the caller's: it reports the actual joints each
 //! cycle and moves them towards the target an answer sets.
 
-use super::{DATA, JOINTS, MODE_SERVOJ, OutField, RUNTIME_PLAYING, State, UrOptions, package};
+use super::controller::State;
+use super::rtde::{DATA, OutField, package};
+use super::{JOINTS, MODE_SERVOJ, RUNTIME_PLAYING, UrOptions};
 use crate::fake::{FakeProtocol, InvalidSetup};
 
 /// A UR controller running strand's program, on a cycle of `UrOptions::step`.
