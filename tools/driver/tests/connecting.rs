@@ -1,9 +1,10 @@
 //! The drivers that connect to the robot controller, end to end: the service on the robot clock,
 //! strand-bcap (a DENSO RC8's b-CAP slave mode, the VP6242), strand-meca (a Meca500's TCP API) or
 //! strand-ur (a UR5e's RTDE and reverse interface), a fake controller written from the public
-//! description only (`tools/driver/src/fake/bcap.rs`, `fake/meca.rs`, `fake/ur.rs`, in this process
+//! description only (`tools/driver/src/fake/bcap/`, `fake/meca/`, `fake/ur/`, in this process
 //! on their own threads, absolute deadlines), and strand-feed
-//! streaming the shared job. The job must finish with the controller never stopping the arm (no
+//! streaming the shared squares (`STRAND_DEMO_JOB=1`: the demo's job, the 35 mm box's first layer,
+//! for the job tests). The job must finish with the controller never stopping the arm (no
 //! b-CAP HRESULT: no empty command buffer, no command too fast; no Meca500 error and no velocity
 //! timeout while streaming), the arm within its limits, and the robot given back cleanly at the
 //! end; a killed service must leave the arm held without a jump; an error the controller reports
@@ -20,7 +21,7 @@ use std::time::Duration;
 
 mod common;
 
-use common::{Kid, bin, cells_run_here, root, temp_dir, wait_for};
+use common::{Kid, bin, cell_job, cells_run_here, root, temp_dir, wait_for};
 use strand::config::Config;
 use strand_driver::fake::FakeReport;
 use strand_driver::fake::bcap::{BcapOptions, BcapReport, BcapWatch, FakeBcap};
@@ -279,12 +280,14 @@ fn assert_within_limits(protocol: &str, config: &Path, report: &FakeReport, row_
     assert!(moved, "{protocol}: the arm moved to the job");
 }
 
+/// The job ([`cell_job`]: the squares, or the demo's) through the driver: it finishes, the controller never stopped
+/// the arm, the arm kept its limits, the robot was given back cleanly.
 fn a_job_streams_through(protocol: &str) {
     let cell = Cell::start(protocol, &format!("job-{protocol}"));
-    let job = job(&cell.dir);
     let feed_log = cell.dir.join("feed.log");
-    let mut feed = Kid(cell.feed(&job).stdout(Stdio::null()).stderr(std::fs::File::create(&feed_log).unwrap()).spawn().unwrap());
-    let code = feed.wait_exit(Duration::from_secs(180));
+    let (job, args) = cell_job(&cell.dir);
+    let mut feed = Kid(cell.feed(&job).args(args).stdout(Stdio::null()).stderr(std::fs::File::create(&feed_log).unwrap()).spawn().unwrap());
+    let code = feed.wait_exit(Duration::from_secs(300));
     if code != Some(0) {
         panic!("{protocol}: strand-feed ended {code:?}\n{}", cell.logs());
     }

@@ -1,6 +1,7 @@
 //! The drivers end to end: the service on the robot clock, strand-egm or strand-rsi, a fake robot
 //! controller speaking the real wire format (in this process, on its own thread, 4 ms absolute
-//! deadlines), and strand-feed streaming a small job. The job must finish; the fake's cycles must
+//! deadlines), and strand-feed streaming a small job (`STRAND_DEMO_JOB=1`: the demo's job, the 35 mm
+//! box's first layer, for the job tests). The job must finish; the fake's cycles must
 //! be answered in time; the axes the fake integrated must keep the robot's speed and acceleration
 //! limits; a killed service must leave the robot held (no jump) and the driver faulted; packets of
 //! every bad kind must be dropped without harm.
@@ -24,7 +25,7 @@ use std::time::Duration;
 
 mod common;
 
-use common::{Kid, bin, cells_run_here, root, temp_dir, wait_for};
+use common::{Kid, bin, cell_job, cells_run_here, root, temp_dir, wait_for};
 
 use strand::config::Config;
 use strand_driver::fake::egm::FakeEgm;
@@ -211,14 +212,14 @@ fn in_time_needed() -> f64 {
 
 fn a_job_streams_through(protocol: &str, robot: &str) {
     let cell = Cell::start(protocol, robot, &format!("job-{protocol}"));
-    let job = job(&cell.dir);
     // Bounded: a feeder that never ends is this test's failure, with what each process said, not a
     // test run that hangs until CI's own limit.
     let feed_log = cell.dir.join("feed.log");
-    let mut feed = Kid(cell.feed(&job).stdout(Stdio::null()).stderr(std::fs::File::create(&feed_log).unwrap()).spawn().unwrap());
-    let code = feed.wait_exit(Duration::from_secs(120));
+    let (job, args) = cell_job(&cell.dir);
+    let mut feed = Kid(cell.feed(&job).args(args).stdout(Stdio::null()).stderr(std::fs::File::create(&feed_log).unwrap()).spawn().unwrap());
+    let code = feed.wait_exit(Duration::from_secs(300));
     if code.is_none() {
-        panic!("{protocol}: strand-feed did not end within 120 s\n{}", cell.logs());
+        panic!("{protocol}: strand-feed did not end within 300 s\n{}", cell.logs());
     }
     let config = cell.config.clone();
     let feed_said = std::fs::read_to_string(&feed_log).unwrap_or_default();
@@ -252,7 +253,7 @@ fn a_job_streams_through(protocol: &str, robot: &str) {
         assert!(v[k] <= vl * 1.001, "{protocol}: axis {} at {:.1} deg/s, limit {vl:.1}", k + 1, v[k]);
         assert!(a[k] <= al * 1.001, "{protocol}: axis {} at {:.1} deg/s², limit {al:.1}", k + 1, a[k]);
     }
-    // It moved: the job is 2 layers of squares.
+    // It moved: the job is squares or the box's first layer.
     let moved = report.axes.first().unwrap().iter().zip(report.axes.last().unwrap()).any(|(a, b)| (a - b).abs() > 1.0);
     assert!(moved, "the robot moved to the job and back");
 }

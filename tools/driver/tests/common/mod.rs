@@ -19,6 +19,19 @@ pub fn squares_gcode() -> String {
     g
 }
 
+/// The job the drivers' job tests print, and `strand-feed`'s arguments for it: the shared squares
+/// (`squares_gcode`, written into `dir`: seconds), or with `STRAND_DEMO_JOB=1` the demo's job —
+/// `strand-demo`'s 35 mm box sliced by Slic3r (`strand_tools::jobs::DEMO_BOX`) to its first layer,
+/// about two minutes a driver (the long mode; CI runs the squares).
+pub fn cell_job(dir: &Path) -> (PathBuf, Vec<&'static str>) {
+    if std::env::var_os("STRAND_DEMO_JOB").is_some_and(|v| v == "1") {
+        return (root().join("tests/data/gcode/slic3r/box35.gcode"), vec!["--layers", "1"]);
+    }
+    let p = dir.join("squares.gcode");
+    std::fs::write(&p, squares_gcode()).unwrap();
+    (p, Vec::new())
+}
+
 pub fn root() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..")
 }
