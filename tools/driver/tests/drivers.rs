@@ -91,8 +91,9 @@ impl Cell {
             // late cycles before a fault, so that the tests check behaviour, not the build.
             driver.args(["--set", "driver.reply_deadline=0.003", "--set", "driver.max_late_cycles=10"]);
         } else if protocol == "fri" {
-            // The iiwa's config answers within 0.6 ms of its 1 ms cycle; here the cycle is 4 ms.
-            driver.args(["--set", "driver.reply_deadline=0.002"]);
+            // The iiwa's config answers within 0.6 ms of its 1 ms cycle and faults after 12 ms of
+            // late answers (12 cycles); here the cycle is 4 ms.
+            driver.args(["--set", "driver.reply_deadline=0.002", "--set", "driver.max_late_cycles=3"]);
         }
         driver.args(&settings);
         let driver = Kid(driver
