@@ -114,6 +114,9 @@ class Command(enum.IntEnum):
     CLEAR_FAULT = 6
     FEED_OVERRIDE = 7
     FLOW_OVERRIDE = 8
+    #: The robot's own speed scaling (fraction, 0.01 to 1), from its driver: the path runs at the
+    #: feed override times it.
+    ROBOT_SPEED_SCALING = 9
 
 
 class RunState(enum.IntEnum):
