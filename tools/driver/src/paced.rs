@@ -240,16 +240,12 @@ pub fn run<P: RobotProtocol, L: DriverLink>(
             // robot's motion spread over them; their answers are not sent (the robot is past them).
             let from = previous_q.unwrap_or(q);
             for i in 1..=owed {
-                let f = i as f64 / (owed + 1) as f64;
-                let mut qi = q;
-                for k in 0..session.dof() {
-                    qi[k] = from[k] + f * (q[k] - from[k]);
-                }
+                let qi = session.owed_position(&from, &q, i, owed);
                 state_seq += 1;
                 let stamp = received.saturating_sub((owed + 1 - i) * period_ns);
                 let _ = ports.send_joint_state(&joint_state(session, state_seq, stamp, qi, &mut previous_q, opts.period));
-                let deadline = monotonic_ns() + (session.rules().reply_deadline * 1e9) as u64;
-                let command = wait_command(&ports, state_seq, deadline);
+                // Within the packet's own reply deadline: the owed ticks must not make its answer late.
+                let command = wait_command(&ports, state_seq, session.reply_deadline().unwrap_or(received));
                 if let (_, Some(t)) = session.reply_owed(command.as_ref(), &mut owed_answer) {
                     owed_transition = Some(t);
                 }

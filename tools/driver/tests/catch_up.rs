@@ -207,11 +207,7 @@ fn run<P: RobotProtocol>(
         if session.robot_following() && owed > 0 {
             let from = last_q.unwrap_or(q);
             for i in 1..=owed {
-                let f = i as f64 / (owed + 1) as f64;
-                let mut qi = q;
-                for j in 0..n {
-                    qi[j] = from[j] + f * (q[j] - from[j]);
-                }
+                let qi = session.owed_position(&from, &q, i, owed);
                 let told = session.robot_report();
                 let state = ipc::JointState {
                     seq: 0,

@@ -287,6 +287,11 @@ fn a_lapse_of_the_drivers_loop_owes_the_ticks_a_robot_ran_on_for() {
         assert!(out.starts_with(b"MoveJointsVel("), "{}", String::from_utf8_lossy(&out));
     }
     assert_eq!(s.counters.replies, replies, "owed answers are not sent");
+    // An owed command that did not come in time is skipped: nothing written, nothing counted late.
+    let late = s.counters.late;
+    assert_eq!(s.reply_owed(None, &mut out).0, ReplyKind::Late);
+    assert!(out.is_empty());
+    assert_eq!((s.late_run(), s.counters.late), (0, late));
     assert_eq!(s.reply_deadline(), Some(16_000_000 + 2_000_000), "the packet's answer is still due");
     // The guard went along the owed commands (within its acceleration limit: 10 rad/s²).
     let went = s.guard().last().unwrap()[0];

@@ -439,10 +439,29 @@ impl<P: RobotProtocol> Session<P> {
         owed
     }
 
+    /// Where the robot was at owed tick `tick` (1..=`owed`) of the lapse that ended with it at
+    /// `to`, from `from` at the last state published before the lapse (rad or m): the motion spread
+    /// evenly over the lapse, as a robot running on at one velocity makes it.
+    pub fn owed_position(&self, from: &[f64; MAX_JOINTS], to: &[f64; MAX_JOINTS], tick: u64, owed: u64) -> [f64; MAX_JOINTS] {
+        let f = tick as f64 / (owed + 1) as f64;
+        let mut q = *to;
+        for k in 0..self.map.dof() {
+            q[k] = from[k] + f * (to[k] - from[k]);
+        }
+        q
+    }
+
     /// Takes an owed tick's command ([`Session::take_owed_ticks`]) through the guard as any
     /// answer — the robot ran on along it — writing its answer into `out`, which is not sent: the
-    /// answer to the packet is still due.
+    /// answer to the packet is still due. An owed command that did not come in time (the loop
+    /// waits for it no longer than the packet's reply deadline) is skipped, not counted late:
+    /// the robot is past that tick, and only the packet's own answer can leave it without one.
     pub fn reply_owed(&mut self, command: Option<&JointCommand>, out: &mut Vec<u8>) -> (ReplyKind, Option<Transition>) {
+        let Some(command) = command else {
+            out.clear();
+            return (ReplyKind::Late, None);
+        };
+        let command = Some(command);
         let due = self.reply_due;
         let answered = self.current.is_some();
         let r = self.reply(command, out);

@@ -169,6 +169,28 @@ pub(crate) fn real_time(priority: Option<i32>) {
     }
 }
 
+/// Sends what of `pending` the socket `fd` takes now, without blocking (a controller's thread never
+/// waits on a slow client), dropping what went out; false if the connection is dead (an error
+/// other than a full socket buffer), or if more than `limit` bytes are left unread: a client that
+/// stopped reading is dropped, as a robot controller drops it, instead of growing the buffer.
+pub(crate) fn send_pending(fd: std::os::fd::RawFd, pending: &mut Vec<u8>, limit: usize) -> bool {
+    while !pending.is_empty() {
+        // SAFETY: a valid socket and buffer; MSG_DONTWAIT makes this one call non-blocking
+        // without touching the descriptor's flags (the reader shares them).
+        let n = unsafe { libc::send(fd, pending.as_ptr().cast(), pending.len(), libc::MSG_DONTWAIT | libc::MSG_NOSIGNAL) };
+        if n > 0 {
+            pending.drain(..n as usize);
+        } else {
+            match std::io::Error::last_os_error().kind() {
+                std::io::ErrorKind::Interrupted => {}
+                std::io::ErrorKind::WouldBlock => break,
+                _ => return false,
+            }
+        }
+    }
+    pending.len() <= limit
+}
+
 /// A controller's step loop: `step(deadline)` every `step_ns` from `t0` (ns, `CLOCK_MONOTONIC`) on
 /// absolute deadlines until `stopped()`. A second behind (a stopped machine), it starts again from
 /// now rather than run the backlog in a burst.

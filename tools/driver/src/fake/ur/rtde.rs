@@ -217,28 +217,7 @@ impl Conn {
     }
 
     pub(super) fn flush(&mut self) {
-        while !self.dead && !self.pending.is_empty() {
-            // SAFETY: a valid socket and buffer; MSG_DONTWAIT makes this one call non-blocking
-            // without touching the descriptor's flags (the reader shares them).
-            let n = unsafe {
-                libc::send(
-                    self.stream.as_raw_fd(),
-                    self.pending.as_ptr().cast(),
-                    self.pending.len(),
-                    libc::MSG_DONTWAIT | libc::MSG_NOSIGNAL,
-                )
-            };
-            if n > 0 {
-                self.pending.drain(..n as usize);
-            } else {
-                match std::io::Error::last_os_error().kind() {
-                    std::io::ErrorKind::Interrupted => {}
-                    std::io::ErrorKind::WouldBlock => break,
-                    _ => self.dead = true,
-                }
-            }
-        }
-        if self.pending.len() > OUT_LIMIT {
+        if !self.dead && !crate::fake::send_pending(self.stream.as_raw_fd(), &mut self.pending, OUT_LIMIT) {
             self.dead = true;
         }
         if self.dead {
