@@ -90,7 +90,11 @@ fn the_free_flyer_prints_a_truss_while_its_base_drifts() {
         .output()
         .unwrap();
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
-    let r = demo(&dir, &["--config", "config/free-flyer.toml", "--gcode", job.to_str().unwrap(), "--set", FAST_APPROACH]);
+    // The cell's own approach speed (0.3 of the joint limits), not the other tests' FAST_APPROACH: at full
+    // speed the arm's reaction kicks the floating base 1.7 mm, and the alpha-beta estimate (alpha 0.04 at
+    // 120 Hz) overshoots it by 0.4 mm for a second into the path: 0.58 mm worst, 0.60 on a loaded CI
+    // machine. At 0.3 the worst is 0.46 mm.
+    let r = demo(&dir, &["--config", "config/free-flyer.toml", "--gcode", job.to_str().unwrap()]);
     assert_eq!(r["job_outcome"], "Finished", "{r}");
     assert_eq!(r["identical"], true, "{r}");
     assert_eq!(json_f64(&r, &["segments_rejected"]), 0.0);
