@@ -14,7 +14,7 @@ use strand::core::kin::{
 };
 
 // The targets `strand-bench clik` and the Pinocchio bench track too: one table.
-#[path = "../tools/src/bench/circle.rs"]
+#[path = "../tools/bench/src/circle.rs"]
 mod circle;
 use circle::{IIWA_Q0, circle};
 

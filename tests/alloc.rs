@@ -96,7 +96,7 @@ fn path_engine_and_extruder_ticks_allocate_nothing() {
     use strand::core::{Extruder, ExtruderConfig};
     use strand::core::{PathConfig, PathEngine, PlanningMode};
     use strand_job::gcode::{GcodeOptions, parse_file};
-    let file = common::root().join("tests/data/gcode/slic3r/vase_cyl_spiral.gcode");
+    let file = strand_testkit::root().join("tests/data/gcode/slic3r/vase_cyl_spiral.gcode");
     // The first 3,000 segments, read before counting; fed under back-pressure while counting.
     let segments: Vec<_> = parse_file(&file, GcodeOptions::for_path(&file)).unwrap().take(3000).map(|s| s.unwrap().segment).collect();
     for mode in [PlanningMode::Lookahead, PlanningMode::KnowledgeRules, PlanningMode::StopAndGo] {

@@ -10,7 +10,7 @@
 
 mod common;
 
-use common::root;
+use strand_testkit::root;
 use strand::check::{CheckJob, CheckReport, ProblemKind, Severity, check_job};
 use strand::config::Config;
 use strand_job::load::{BaseTrajectory, load_segments, wire_job};

@@ -628,7 +628,7 @@ fn every_bundled_config_prints_a_square() {
     // joint reaches its limit on this square (CLIK scale 0, 2-3 mm TCP error); their bed offsets and
     // start postures are not tuned yet (closing note of [SVC]).
     for name in ["iiwa7", "iiwa14"] {
-        let path = common::root().join(format!("config/{name}.toml"));
+        let path = strand_testkit::root().join(format!("config/{name}.toml"));
         let cfg = strand::config::Config::load(&path).unwrap_or_else(|e| panic!("{e}"));
         let model = cfg.robot.build_model().unwrap();
         let start: Vec<f64> = if cfg.service.initial_joints.is_empty() {

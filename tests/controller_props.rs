@@ -16,15 +16,15 @@
 //!   flight as a new job that nobody started); or (b) after Resume and Start, with the feeder gone,
 //!   every job ends, Finished, Stopped or with a named fault, within a bound.
 //!
-//! Cases: `PROPTEST_CASES` (default 24 in debug, 200 in release), seed `PROPTEST_RNG_SEED` (default
-//! fixed). A long run: `PROPTEST_CASES=5000 PROPTEST_RNG_SEED=N cargo test --release --test
+//! Cases: `PROPTEST_CASES` (default 24 in debug, 200 in release), seed `PROPTEST_RNG_SEED` (default: a
+//! fresh seed each run, printed first, so a failure names the seed that replays it). A long run: `PROPTEST_CASES=5000 PROPTEST_RNG_SEED=N cargo test --release --test
 //! controller_props`.
 
 mod common;
 
 use common::cell::{Cell, check_limits, square_job};
 use proptest::prelude::*;
-use proptest::test_runner::{Config, TestCaseError, TestRunner};
+use proptest::test_runner::{Config, RngSeed, TestCaseError, TestRunner};
 use strand::core::Event;
 use strand_ipc::{self as ipc, Command, JobOutcome, RunState};
 
@@ -258,10 +258,9 @@ fn cases() -> u32 {
 
 #[test]
 fn whatever_happens_the_command_stays_safe_and_every_job_ends() {
-    let mut config = Config { cases: cases(), failure_persistence: None, max_shrink_iters: 200, ..Config::default() };
-    if std::env::var_os("PROPTEST_RNG_SEED").is_none() {
-        config.rng_seed = proptest::test_runner::RngSeed::Fixed(20_261_126);
-    }
+    // A fresh seed each run (printed; PROPTEST_RNG_SEED replays one): CI explores new cases every time.
+    let seed = RngSeed::Fixed(strand_testkit::proptest_seed("controller_props"));
+    let config = Config { cases: cases(), failure_persistence: None, max_shrink_iters: 200, rng_seed: seed, ..Config::default() };
     let mut runner = TestRunner::new(config);
     let strategy = (prop::collection::vec(op_strategy(), 1..30), prop_oneof![Just(Closing::Stop), Just(Closing::RunOut)]);
     let ticks = std::cell::Cell::new(0u64);

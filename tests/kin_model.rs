@@ -49,7 +49,7 @@ fn fk_matches_the_published_dimensions() {
     // The TCP's z axis points along the approach direction on every arm (tool transforms in config).
     let m = robot("irb140");
     let flange =
-        strand::config::robot_model_from_urdf_file(&common::root().join("config/robots/irb140.urdf"), "base_link", "tool0").unwrap();
+        strand::config::robot_model_from_urdf_file(&strand_testkit::root().join("config/robots/irb140.urdf"), "base_link", "tool0").unwrap();
     let q = jv(&[0.3, 0.2, -0.4, 0.5, 0.6, 0.7]);
     let (tcp, fl) = (m.forward_kinematics(&q), flange.forward_kinematics(&q));
     let approach = fl.rotation * nalgebra::Vector3::x();
@@ -144,8 +144,8 @@ fn write(dir: &Path, name: &str, text: &str) -> std::path::PathBuf {
 fn config_errors_name_the_file_and_the_key() {
     let dir = std::env::temp_dir().join(format!("strand-config-test-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
-    std::fs::copy(common::root().join("config/robots/vp6242.urdf"), dir.join("vp6242.urdf")).unwrap();
-    let good = std::fs::read_to_string(common::root().join("config/robots/vp6242.toml")).unwrap();
+    std::fs::copy(strand_testkit::root().join("config/robots/vp6242.urdf"), dir.join("vp6242.urdf")).unwrap();
+    let good = std::fs::read_to_string(strand_testkit::root().join("config/robots/vp6242.toml")).unwrap();
     let ok = write(&dir, "ok.toml", &good);
     assert_eq!(RobotConfig::load(&ok).unwrap().build_model().unwrap().dof(), 6);
 
@@ -183,7 +183,7 @@ fn config_errors_name_the_file_and_the_key() {
 
 #[test]
 fn the_bundled_default_config_loads() {
-    let cfg = Config::load(&common::root().join("config/default.toml")).unwrap();
+    let cfg = Config::load(&strand_testkit::root().join("config/default.toml")).unwrap();
     assert_eq!(cfg.robot.build_model().unwrap().dof(), 7);
     assert_eq!(cfg.clik, strand::core::kin::ClikConfig::default(), "default.toml and ClikConfig::default() agree");
 }

@@ -8,16 +8,15 @@
 //!   dependency trees (from `Cargo.lock`);
 //! - the client crate (`strand-ipc`) depends on iceoryx2 and nothing of the controller;
 //! - the offline job crate (`strand-job`) does not depend on the service crate;
-//! - the service's folders (check, config, io, log) import each other without a loop;
-//! - the tools' `bin/` mains are thin (the command line and the exit code; the work is in the tool's
-//!   module), and no library code returns a bare `String` error (typed errors; text at the edge).
+//! - in every crate of the workspace, the modules under each module import each other without a
+//!   loop (a child may use its parent's items, and a parent its children's);
+//! - the tools' mains are thin (the command line and the exit code; the work is in the tool's
+//!   library), and no library code returns a bare `String` error (typed errors; text at the edge).
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
 
-fn root() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-}
+use strand_testkit::root;
 
 /// The `[dependencies]` names of a crate's manifest.
 fn dependencies(manifest: &Path) -> BTreeSet<String> {
@@ -138,57 +137,181 @@ fn the_client_crate_does_not_link_the_controller() {
     assert!(!job.contains("strand"), "strand-job depends on the service crate");
 }
 
+/// Every crate's folder and source folder (`src/`, or the folder itself for the core), from the
+/// workspace's members.
+fn crate_sources() -> Vec<(PathBuf, PathBuf)> {
+    let doc: toml::Table = std::fs::read_to_string(root().join("Cargo.toml")).unwrap().parse().unwrap();
+    let members = doc["workspace"]["members"].as_array().unwrap();
+    let dirs: Vec<(PathBuf, PathBuf)> = members
+        .iter()
+        .map(|m| root().join(m.as_str().unwrap()))
+        .map(|d| if d.join("src").is_dir() { (d.clone(), d.join("src")) } else { (d.clone(), d) })
+        .collect();
+    assert!(dirs.len() >= 18 && dirs.iter().all(|(_, s)| s.join("lib.rs").is_file() || s.join("main.rs").is_file()), "{dirs:?}");
+    dirs
+}
+
+/// The module path (`a::b`) of a library source file under `src` (None for a binary's files and
+/// for the files of another member inside this one's folder, as the core's inside the service's).
+fn module_of(member: &Path, src: &Path, file: &Path, members: &[(PathBuf, PathBuf)]) -> Option<Vec<String>> {
+    if members.iter().any(|(m, _)| m != member && m.starts_with(member) && file.starts_with(m)) {
+        return None;
+    }
+    let rel = file.strip_prefix(src).ok()?;
+    let mut parts: Vec<String> = rel.iter().map(|c| c.to_string_lossy().trim_end_matches(".rs").to_string()).collect();
+    if parts.first().is_some_and(|p| p == "bin") || parts == ["main"] {
+        return None;
+    }
+    if parts.last().is_some_and(|l| l == "mod" || l == "lib") {
+        parts.pop();
+    }
+    Some(parts)
+}
+
+/// The modules a file's code names (`crate::a::b::…`, `super::…`), as module paths (the longest
+/// prefix that is a module of the crate).
+fn references(text: &str, here: &[String], is_dir_module: bool, modules: &BTreeSet<Vec<String>>) -> BTreeSet<Vec<String>> {
+    let mut out = BTreeSet::new();
+    let code: String = text.split("#[cfg(test)]").next().unwrap_or("").lines().map(|l| l.split("//").next().unwrap_or("")).collect::<Vec<_>>().join("\n");
+    let bytes = code.as_bytes();
+    let ident = |i: usize| bytes[i].is_ascii_alphanumeric() || bytes[i] == b'_';
+    for (start, word) in [("crate::", true), ("super::", false)] {
+        let mut from = 0;
+        while let Some(k) = code[from..].find(start) {
+            let at = from + k;
+            from = at + start.len();
+            if at > 0 && (ident(at - 1) || bytes[at - 1] == b':') {
+                continue;
+            }
+            // The path after the prefix: identifiers joined by `::`, and `super::super::…`.
+            let mut path: Vec<String> = if word {
+                Vec::new()
+            } else {
+                // A file module's parent is its folder's module; a folder module's (mod.rs) is one up.
+                let mut p = here.to_vec();
+                if !is_dir_module || !p.is_empty() {
+                    p.pop();
+                }
+                p
+            };
+            let mut rest = &code[at + start.len()..];
+            loop {
+                let len = rest.bytes().take_while(|b| b.is_ascii_alphanumeric() || *b == b'_').count();
+                if len == 0 {
+                    break;
+                }
+                let name = &rest[..len];
+                if name == "super" {
+                    path.pop();
+                } else {
+                    path.push(name.to_string());
+                }
+                rest = &rest[len..];
+                match rest.strip_prefix("::") {
+                    Some(r) => rest = r,
+                    None => break,
+                }
+            }
+            while !path.is_empty() && !modules.contains(&path) {
+                path.pop();
+            }
+            out.insert(path);
+        }
+    }
+    out
+}
+
 #[test]
-fn the_service_folders_import_each_other_without_a_loop() {
-    let modules = ["check", "config", "io", "log"];
-    let mut graph: BTreeMap<&str, BTreeSet<&str>> = BTreeMap::new();
-    for m in modules {
+fn no_crate_has_an_import_loop() {
+    let sources = crate_sources();
+    let mut loops = Vec::new();
+    for (member, src) in &sources {
         let mut files = Vec::new();
-        let dir = root().join("src").join(m);
-        if dir.is_dir() {
-            rust_files(&dir, &mut files);
+        rust_files(src, &mut files);
+        let mut modules: BTreeMap<Vec<String>, Vec<PathBuf>> = BTreeMap::new();
+        for f in &files {
+            if let Some(m) = module_of(member, src, f, &sources) {
+                modules.entry(m).or_default().push(f.clone());
+            }
         }
-        let file = root().join("src").join(format!("{m}.rs"));
-        if file.exists() {
-            files.push(file);
-        }
-        assert!(!files.is_empty(), "src/{m}");
-        let uses = graph.entry(m).or_default();
-        for f in files {
-            let text = std::fs::read_to_string(&f).unwrap();
-            for other in modules {
-                if other != m && text.contains(&format!("crate::{other}::")) {
-                    uses.insert(other);
+        let names: BTreeSet<Vec<String>> = modules.keys().cloned().collect();
+        // Edges between siblings: a reference from `p::a::…` to `p::b::…` is `a -> b` under `p`.
+        let mut graph: BTreeMap<(Vec<String>, String), BTreeSet<String>> = BTreeMap::new();
+        for (m, fs) in &modules {
+            for f in fs {
+                let dir_module = f.file_name().is_some_and(|n| n == "mod.rs" || n == "lib.rs");
+                for r in references(&std::fs::read_to_string(f).unwrap(), m, dir_module, &names) {
+                    let common = m.iter().zip(&r).take_while(|(a, b)| a == b).count();
+                    if common < m.len() && common < r.len() {
+                        let parent = m[..common].to_vec();
+                        graph.entry((parent.clone(), m[common].clone())).or_default().insert(r[common].clone());
+                    }
                 }
             }
         }
-    }
-    // Depth-first search for a cycle.
-    fn visit<'a>(m: &'a str, graph: &BTreeMap<&'a str, BTreeSet<&'a str>>, stack: &mut Vec<&'a str>, done: &mut BTreeSet<&'a str>) {
-        if let Some(i) = stack.iter().position(|s| *s == m) {
-            panic!("import loop: {} -> {m}", stack[i..].join(" -> "));
+        // Depth-first search for a cycle among each module's children.
+        fn visit(
+            parent: &[String],
+            m: &str,
+            graph: &BTreeMap<(Vec<String>, String), BTreeSet<String>>,
+            stack: &mut Vec<String>,
+            done: &mut BTreeSet<String>,
+            found: &mut Vec<String>,
+        ) {
+            if let Some(i) = stack.iter().position(|s| s == m) {
+                found.push(format!("{}{} -> {m}", if parent.is_empty() { String::new() } else { parent.join("::") + ": " }, stack[i..].join(" -> ")));
+                return;
+            }
+            if done.contains(m) {
+                return;
+            }
+            stack.push(m.to_string());
+            if let Some(next) = graph.get(&(parent.to_vec(), m.to_string())) {
+                for n in next {
+                    visit(parent, n, graph, stack, done, found);
+                }
+            }
+            stack.pop();
+            done.insert(m.to_string());
         }
-        if done.contains(m) {
-            return;
+        let parents: BTreeSet<Vec<String>> = graph.keys().map(|(p, _)| p.clone()).collect();
+        for parent in parents {
+            let mut done = BTreeSet::new();
+            let mut found = Vec::new();
+            for ((p, m), _) in graph.range((parent.clone(), String::new())..) {
+                if *p != parent {
+                    break;
+                }
+                visit(&parent, m, &graph, &mut Vec::new(), &mut done, &mut found);
+            }
+            loops.extend(found.into_iter().map(|l| format!("{}: {l}", src.strip_prefix(root()).unwrap().display())));
         }
-        stack.push(m);
-        for next in &graph[m] {
-            visit(next, graph, stack, done);
+    }
+    assert!(loops.is_empty(), "import loops:\n{}", loops.join("\n"));
+}
+
+/// The tools' crates: one job each, a binary (or two) over a library.
+const TOOL_CRATES: [&str; 6] = ["feed", "replay", "kin", "plan", "sim", "bench"];
+
+/// A tool crate's mains: `src/main.rs` and everything under `src/bin/`.
+fn tool_mains() -> Vec<PathBuf> {
+    let mut mains = Vec::new();
+    for t in TOOL_CRATES {
+        let src = root().join("tools").join(t).join("src");
+        if src.join("main.rs").is_file() {
+            mains.push(src.join("main.rs"));
         }
-        stack.pop();
-        done.insert(m);
+        if src.join("bin").is_dir() {
+            rust_files(&src.join("bin"), &mut mains);
+        }
     }
-    let mut done = BTreeSet::new();
-    for m in modules {
-        visit(m, &graph, &mut Vec::new(), &mut done);
-    }
+    mains
 }
 
 #[test]
 fn the_tool_mains_are_thin() {
-    let mut mains = Vec::new();
-    rust_files(&root().join("tools/src/bin"), &mut mains);
-    assert!(mains.len() >= 7, "{mains:?}");
+    let mains = tool_mains();
+    assert!(mains.len() >= 9, "{mains:?}");
     for main in mains {
         let text = std::fs::read_to_string(&main).unwrap();
         let code = text.split("#[cfg(test)]").next().unwrap_or("");
@@ -201,24 +324,26 @@ fn the_tool_mains_are_thin() {
         // A main holds its clap types, the mapping to the tool's options and the exit codes: a
         // screen or four. More means the tool's work has crept back into the binary.
         let lines = text.lines().count();
-        assert!(lines <= 250, "{}: {lines} lines; move the work into the tool's module under tools/src/", main.display());
+        assert!(lines <= 250, "{}: {lines} lines; move the work into the tool's library", main.display());
         assert!(functions <= 4, "{}: {functions} functions; a main parses, calls the tool and reports", main.display());
     }
 }
 
 #[test]
 fn clap_stays_in_the_mains() {
-    // The tools' modules take plain options structs; only `bin/` knows the command line.
+    // The tools' libraries take plain options structs; only their mains know the command line.
+    let mains = tool_mains();
     let mut files = Vec::new();
-    rust_files(&root().join("tools/src"), &mut files);
-    let bin = root().join("tools/src/bin");
+    for t in TOOL_CRATES.iter().chain(&["cli"]) {
+        rust_files(&root().join("tools").join(t).join("src"), &mut files);
+    }
     let offenders: Vec<String> = files
         .iter()
-        .filter(|f| !f.starts_with(&bin))
+        .filter(|f| !mains.contains(f))
         .filter(|f| std::fs::read_to_string(f).unwrap().contains("clap::"))
         .map(|f| f.display().to_string())
         .collect();
-    assert!(offenders.is_empty(), "clap outside tools/src/bin: {offenders:?}");
+    assert!(offenders.is_empty(), "clap outside the tools' mains: {offenders:?}");
 }
 
 #[test]
@@ -235,15 +360,21 @@ fn library_code_returns_typed_errors() {
         "src/config",
         "src/io",
         "src/log",
-        "tools/src",
+        "tools/cli/src",
+        "tools/feed/src",
+        "tools/replay/src",
+        "tools/kin/src",
+        "tools/plan/src",
+        "tools/sim/src",
+        "tools/bench/src",
         "tools/driver/src",
     ] {
         rust_files(&root().join(dir), &mut files);
     }
     files.extend(["src/lib.rs", "src/config.rs"].map(|f| root().join(f)));
+    let mains = tool_mains();
     let mut offenders = Vec::new();
-    for file in files.iter().filter(|f| !f.starts_with(root().join("tools/src/bin")) && !f.starts_with(root().join("tools/driver/src/bin")))
-    {
+    for file in files.iter().filter(|f| !mains.contains(f) && !f.starts_with(root().join("tools/driver/src/bin"))) {
         let text = std::fs::read_to_string(file).unwrap();
         let code = text.split("#[cfg(test)]").next().unwrap_or("");
         for (n, line) in code.lines().enumerate() {

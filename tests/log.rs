@@ -8,7 +8,8 @@ mod common;
 use std::path::{Path, PathBuf};
 
 use common::cell::{Cell, IIWA_START, config, line, square_job};
-use common::{Rng, temp_dir};
+use common::{Rng};
+use strand_testkit::temp_dir;
 use strand::config::Config;
 use strand::core::{TickInput, TickOutput};
 use strand::log::cdr::{CdrType, CdrWriter, Scalar, decode, encode};
@@ -104,7 +105,7 @@ fn eventful_run(cfg: &Config, path: &Path) -> (u64, Vec<ipc::Segment>) {
 fn eventful_log() -> (PathBuf, u64) {
     static ONCE: std::sync::OnceLock<(PathBuf, u64)> = std::sync::OnceLock::new();
     ONCE.get_or_init(|| {
-        let dir = temp_dir("eventful");
+        let dir = temp_dir("core", "eventful");
         let path = dir.join("run.mcap");
         let (ticks, _) = eventful_run(&config(|_| {}), &path);
         (path, ticks)
@@ -272,7 +273,7 @@ fn message_keys(log: &LogFile) -> Vec<(String, u64, Vec<u8>)> {
 #[test]
 fn a_file_cut_anywhere_is_recovered_up_to_its_last_closed_chunk() {
     // A log with many small chunks.
-    let dir = temp_dir("recover");
+    let dir = temp_dir("core", "recover");
     let cfg = config(|_| {});
     let model = cfg.robot.build_model().unwrap();
     let path = dir.join("run.mcap");
@@ -331,7 +332,7 @@ fn a_file_cut_anywhere_is_recovered_up_to_its_last_closed_chunk() {
 
 #[test]
 fn rotated_parts_replay_together_and_a_later_part_alone_is_refused() {
-    let dir = temp_dir("rotate");
+    let dir = temp_dir("core", "rotate");
     let cfg = config(|_| {});
     let model = cfg.robot.build_model().unwrap();
     let path = dir.join("run.mcap");
@@ -363,7 +364,7 @@ fn rotated_parts_replay_together_and_a_later_part_alone_is_refused() {
 
 #[test]
 fn a_full_queue_is_counted_and_never_waited_on() {
-    let dir = temp_dir("queue");
+    let dir = temp_dir("core", "queue");
     let cfg = config(|_| {});
     let model = cfg.robot.build_model().unwrap();
     let logger = Logger::start_at(&log_cfg(|c| c.queue_ticks = 64), LogContext::new(&cfg, &model), &dir.join("q.mcap")).unwrap();
@@ -384,7 +385,7 @@ fn a_full_queue_is_counted_and_never_waited_on() {
 
 #[test]
 fn a_log_that_cannot_be_created_names_the_path() {
-    let dir = temp_dir("bad");
+    let dir = temp_dir("core", "bad");
     let file = dir.join("not-a-dir");
     std::fs::write(&file, b"x").unwrap();
     let cfg = config(|_| {});
@@ -415,7 +416,7 @@ fn the_effective_config_reads_back_to_the_same_values() {
 #[test]
 fn bad_segments_keep_their_reasons_in_the_log() {
     let cfg = config(|_| {});
-    let dir = temp_dir("reasons");
+    let dir = temp_dir("core", "reasons");
     let model = cfg.robot.build_model().unwrap();
     let path = dir.join("r.mcap");
     let logger = Logger::start_at(&log_cfg(|_| {}), LogContext::new(&cfg, &model), &path).unwrap();

@@ -9,7 +9,7 @@ use std::path::Path;
 use std::process::{Command, Stdio};
 use std::time::Duration;
 
-use common::temp_dir;
+use strand_testkit::temp_dir;
 use mcap::read::{LinearReader, Options};
 use mcap::records::Record;
 use strand::log::reader::LogFile;
@@ -28,7 +28,7 @@ fn strand(prefix: &str, log: &Path, extra: &[&str]) -> Command {
 
 #[test]
 fn a_killed_service_leaves_a_log_recovered_to_its_last_chunk_that_replays_identically() {
-    let dir = temp_dir("kill");
+    let dir = temp_dir("core", "kill");
     let log = dir.join("killed.mcap");
     let prefix = format!("strand/logkill-{}", std::process::id());
     let mut child = strand(&prefix, &log, &["--clock", "timer"]).stdout(Stdio::null()).stderr(Stdio::null()).spawn().unwrap();
@@ -72,7 +72,7 @@ fn a_killed_service_leaves_a_log_recovered_to_its_last_chunk_that_replays_identi
 
 #[test]
 fn a_log_that_hits_the_file_size_limit_stops_and_control_goes_on() {
-    let dir = temp_dir("full");
+    let dir = temp_dir("core", "full");
     let log = dir.join("full.mcap");
     let prefix = format!("strand/logfull-{}", std::process::id());
     let cmd = strand(&prefix, &log, &["--clock", "free-run", "--ticks", "20000"]);

@@ -32,7 +32,7 @@ const FILES: [&str; 13] = [
 fn lookahead_holds_every_limit_on_every_corpus_file() {
     let config = PathConfig::default();
     for name in FILES {
-        let file = common::root().join("tests/data/gcode").join(name);
+        let file = strand_testkit::root().join("tests/data/gcode").join(name);
         let parser = parse_file(&file, GcodeOptions::for_path(&file)).unwrap();
         let mut worst_speed: f64 = 0.0;
         let mut last_s = 0.0;
@@ -75,7 +75,7 @@ fn lookahead_holds_every_limit_on_every_corpus_file() {
 
 /// The first outer wall (PrusaSlicer's first "External perimeter" block) of the 35 mm box.
 fn first_outer_wall() -> Vec<Segment> {
-    let file = common::root().join("tests/data/gcode/prusaslicer/box35.gcode");
+    let file = strand_testkit::root().join("tests/data/gcode/prusaslicer/box35.gcode");
     let mut out = Vec::new();
     let mut started = false;
     for g in parse_file(&file, GcodeOptions::for_path(&file)).unwrap() {

@@ -5,13 +5,13 @@
 //! within a tick bound computed from its lengths, feeds and limits, and every tick keeps the speed,
 //! acceleration, jerk, centripetal, feed, deviation and flow limits.
 //!
-//! Cases: `PROPTEST_CASES` (default 300 in debug, 3000 in release), seed `PROPTEST_RNG_SEED` (default
-//! fixed). A long run: `PROPTEST_CASES=100000 PROPTEST_RNG_SEED=N cargo test --release --test
+//! Cases: `PROPTEST_CASES` (default 300 in debug, 3000 in release), seed `PROPTEST_RNG_SEED` (default: a
+//! fresh seed each run, printed first, so a failure names the seed that replays it). A long run: `PROPTEST_CASES=100000 PROPTEST_RNG_SEED=N cargo test --release --test
 //! path_engine_props`.
 
 use nalgebra::{UnitQuaternion, Vector3};
 use proptest::prelude::*;
-use proptest::test_runner::{Config, TestRunner};
+use proptest::test_runner::{Config, RngSeed, TestRunner};
 use strand::core::arc_geometry;
 use strand::core::{Motion, PathConfig, PathEngine, PlanningMode, Segment, SegmentFlags, SegmentKind};
 
@@ -339,12 +339,9 @@ fn cases() -> u32 {
 
 #[test]
 fn every_stream_finishes_within_its_bound_and_keeps_every_limit() {
-    // A fixed seed unless PROPTEST_RNG_SEED says otherwise, so that CI sees the same streams on
-    // every run (the long runs set their own seed).
-    let mut config = Config { cases: cases(), failure_persistence: None, ..Config::default() };
-    if std::env::var_os("PROPTEST_RNG_SEED").is_none() {
-        config.rng_seed = proptest::test_runner::RngSeed::Fixed(20_261_125);
-    }
+    // A fresh seed each run (printed; PROPTEST_RNG_SEED replays one): CI explores new cases every time.
+    let seed = RngSeed::Fixed(strand_testkit::proptest_seed("path_engine_props"));
+    let config = Config { cases: cases(), failure_persistence: None, rng_seed: seed, ..Config::default() };
     let mut runner = TestRunner::new(config);
     let strategy = (
         prop::collection::vec(op_strategy(), 0..200),

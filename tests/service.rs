@@ -9,6 +9,8 @@
 
 use std::io::{BufRead, BufReader};
 use std::process::{Child, Command, Stdio};
+
+use strand_testkit::Reaped;
 use std::time::{Duration, Instant};
 
 use strand::io::clock::monotonic_ns;
@@ -23,16 +25,7 @@ fn prefix(name: &str) -> String {
     format!("strand/svc-test-{}-{name}", std::process::id())
 }
 
-struct Service(Child);
-
-impl Drop for Service {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
-}
-
-fn service(prefix: &str, extra: &[&str]) -> Service {
+fn service(prefix: &str, extra: &[&str]) -> Reaped {
     let mut args = vec!["run", "--config", "config/default.toml", "--prefix", prefix];
     args.extend_from_slice(extra);
     if !extra.contains(&"--log") {
@@ -46,7 +39,7 @@ fn service(prefix: &str, extra: &[&str]) -> Service {
         .stderr(Stdio::inherit())
         .spawn()
         .expect("start strand");
-    Service(child)
+    Reaped(child)
 }
 
 /// Re-runs this test binary as a child in `role`, waiting until it prints READY.

@@ -38,7 +38,7 @@ const MAX_FLOW_ERROR: f64 = 0.005;
 const SLACK: f64 = 1e-6;
 
 fn corpus_files() -> Vec<PathBuf> {
-    let base = common::root().join("tests/data/gcode");
+    let base = strand_testkit::root().join("tests/data/gcode");
     let mut files = Vec::new();
     for dir in DIRS {
         let Ok(entries) = std::fs::read_dir(base.join(dir)) else { continue };
@@ -99,7 +99,7 @@ fn check(config: &Config, r: &TimingReport) -> Vec<String> {
 
 #[test]
 fn every_slicer_file_finishes_within_the_limits() {
-    let root = common::root();
+    let root = strand_testkit::root();
     let config = Config::load(&root.join("config/default.toml")).unwrap_or_else(|e| panic!("{e}"));
     let files = corpus_files();
     assert!(!files.is_empty(), "no corpus files under tests/data/gcode/{{{}}}", DIRS.join(","));

@@ -135,24 +135,21 @@ fn joint_state_wait_blocks_times_out_and_drains() {
     let client = ClientPorts::open(&n, "test-client", ClientRoles { driver: true, ..Default::default() }).unwrap();
     let service = ServicePorts::open(&n, "test-service").unwrap();
 
-    // Nothing sent: times out, after blocking (not spinning, not forever).
+    // Nothing sent: times out, after blocking for its timeout (a wait that returns early spins).
+    // Only lower bounds here: how fast a wait wakes is a measurement, strand-bench latency's.
     let t = Instant::now();
     assert!(!service.wait_joint_state(5_000_000).unwrap());
     let waited = t.elapsed();
-    assert!(waited >= Duration::from_millis(4) && waited < Duration::from_secs(1), "{waited:?}");
+    assert!(waited >= Duration::from_millis(4), "{waited:?}");
     assert!(!service.wait_joint_state(0).unwrap());
-    // Below one microsecond: rounded up, not "block forever" (SO_RCVTIMEO 0).
-    let t = Instant::now();
+    // Below one microsecond: rounded up, not "block forever" (SO_RCVTIMEO 0): it returns.
     assert!(!service.wait_joint_state(500).unwrap());
-    assert!(t.elapsed() < Duration::from_secs(1));
 
     // Several sends before the wait: one wake-up, and every announcement drained.
     for seq in 1..=3 {
         client.send_joint_state(&joint_state(seq)).unwrap();
     }
-    let t = Instant::now();
     assert!(service.wait_joint_state(1_000_000_000).unwrap());
-    assert!(t.elapsed() < Duration::from_secs(1));
     let t = Instant::now();
     assert!(!service.wait_joint_state(5_000_000).unwrap(), "announcements were not drained");
     assert!(t.elapsed() >= Duration::from_millis(4));
@@ -163,7 +160,6 @@ fn joint_state_wait_blocks_times_out_and_drains() {
     // thread opens its own. The sender stays open until the sample is received: a publisher dropped
     // before the subscriber's next receive takes its unread samples with it.)
     let (done_tx, done_rx) = std::sync::mpsc::channel::<()>();
-    let t = Instant::now();
     let names = &n;
     std::thread::scope(|s| {
         s.spawn(move || {
@@ -173,7 +169,6 @@ fn joint_state_wait_blocks_times_out_and_drains() {
             done_rx.recv().unwrap();
         });
         assert!(service.wait_joint_state(5_000_000_000).unwrap());
-        assert!(t.elapsed() < Duration::from_secs(4));
         assert_eq!(service.receive_joint_state().unwrap().map(|s| s.seq), Some(4));
         done_tx.send(()).unwrap();
     });

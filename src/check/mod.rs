@@ -15,7 +15,19 @@
 //! as the fault the run would latch. Any other fault (approach failed, stalled path) ends the check
 //! as it would end the run.
 
+/// Drawn only with the `plots` feature (on by default): the operator's tools that never draw
+/// (strand-feed) build without plotters.
+#[cfg(feature = "plots")]
 pub mod plot;
+
+/// No font to draw text with: plotters needs a TrueType file. Outside `plot` so that the tools'
+/// error type names it in a build without plots.
+#[derive(Clone, Debug, thiserror::Error)]
+#[error("no TrueType font found (tried {tried}); install fonts-dejavu-core or set STRAND_PLOT_FONT")]
+pub struct NoFont {
+    /// The files tried, comma-separated.
+    pub tried: String,
+}
 
 use nalgebra::{UnitQuaternion, Vector3};
 use serde::Serialize;

@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 use plotters::prelude::*;
 use plotters::style::FontStyle;
 
-use super::{CheckReport, CheckSeries};
+use super::{CheckReport, CheckSeries, NoFont};
 use crate::core::kin::JointLimits;
 
 /// Font files tried in order (plotters draws text with ab_glyph from a TTF).
@@ -17,14 +17,6 @@ const FONT_PATHS: &[&str] = &[
     "/usr/share/fonts/TTF/DejaVuSans.ttf",
     "/usr/share/fonts/truetype/liberation/LiberationSans-Regular.ttf",
 ];
-
-/// No font to draw text with: plotters needs a TrueType file.
-#[derive(Clone, Debug, thiserror::Error)]
-#[error("no TrueType font found (tried {tried}); install fonts-dejavu-core or set STRAND_PLOT_FONT")]
-pub struct NoFont {
-    /// The files tried, comma-separated.
-    pub tried: String,
-}
 
 /// Registers the first TrueType font found (`$STRAND_PLOT_FONT`, then [`FONT_PATHS`]) as plotters'
 /// "sans-serif"; an error names every file tried.

@@ -3,7 +3,7 @@
 //! ω = Ė/r_w (002 Eq. 19), pressure advance adds K·Ë, and the filament is retracted when the motion
 //! stops unplanned (an underrun) and primed again when it resumes.
 //!
-//! What the bead needs on a real plant (the sim's truth measures it, `strand_tools::bead`):
+//! What the bead needs on a real plant (the sim's truth measures it, `strand_replay::bead`):
 //! - **The arm's delay.** The nozzle moves `motion_delay` after its joint command (the robot's dead
 //!   time and servo lag); the extruder would not wait, so its command is delayed by as much: bead
 //!   and motion meet.

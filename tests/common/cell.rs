@@ -6,7 +6,7 @@ use strand::config::Config;
 use strand::core::{Controller, MAX_SEGMENTS_PER_TICK, TickInput, TickOutput};
 use strand_ipc as ipc;
 
-use super::root;
+use strand_testkit::root;
 
 /// Nozzle pointing down in W (π about y).
 pub const DOWN: [f64; 4] = [0.0, 0.0, 1.0, 0.0];

@@ -3,27 +3,14 @@
 
 pub mod cell;
 
-use std::path::PathBuf;
 
 use strand::config::RobotConfig;
 use strand::core::kin::{ClikStep, JointVector, RobotModel};
 
 pub const ROBOTS: [&str; 7] = ["iiwa7", "iiwa14", "vp6242", "meca500", "irb140", "kr6r900", "ur5e"];
 
-/// A fresh, empty folder for one test's files (named after the process and the test).
-pub fn temp_dir(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("strand-test-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
-}
-
-pub fn root() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-}
-
 pub fn robot(name: &str) -> RobotModel {
-    let path = root().join("config/robots").join(format!("{name}.toml"));
+    let path = strand_testkit::root().join("config/robots").join(format!("{name}.toml"));
     RobotConfig::load(&path).and_then(|c| c.build_model()).unwrap_or_else(|e| panic!("{e}"))
 }
 

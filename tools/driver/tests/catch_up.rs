@@ -20,7 +20,6 @@
 mod common;
 
 use std::net::SocketAddr;
-use std::path::PathBuf;
 
 use strand::config::Config;
 use strand::config::driver::{DriverConfig, DriverProtocol};
@@ -63,10 +62,6 @@ const STALL_TCP_ERROR: f64 = 0.05e-3;
 /// How far past the derived bound a catch-up may end (s): one cycle (the Meca500 after ten misses
 /// ends 1.4 ms past it).
 const BOUND_TOLERANCE: f64 = PERIOD;
-
-fn root() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..")
-}
 
 /// What one run did.
 #[derive(Debug, Default)]
@@ -543,7 +538,7 @@ fn robot_config(name: &str) -> Config {
         // ends the program after four: `the_ur_programs_read_timeout_ends_the_job_named`).
         sets.push(format!("driver.read_timeout={UR_READ_TIMEOUT}"));
     }
-    Config::load_with(&root().join(format!("config/{name}.toml")), &sets).unwrap()
+    Config::load_with(&strand_testkit::root().join(format!("config/{name}.toml")), &sets).unwrap()
 }
 
 /// The UR5e's read timeout in these runs (s): ten missed 4 ms answers and one more in time.
@@ -700,7 +695,7 @@ fn a_miss_on_the_approach_is_planned_again_from_the_robot_not_caught_up() {
 /// timeout named, which the connecting drivers' loop turns into the service's emergency stop.
 #[test]
 fn the_ur_programs_read_timeout_ends_the_job_named() {
-    let cfg = Config::load_with(&root().join("config/ur5e.toml"), &["controller.rate_hz=250".to_string()]).unwrap();
+    let cfg = Config::load_with(&strand_testkit::root().join("config/ur5e.toml"), &["controller.rate_hz=250".to_string()]).unwrap();
     assert_eq!(cfg.driver.as_ref().map(|d| d.read_timeout), Some(0.02), "the bundled default");
     let segments = segments(&cfg);
     let start = far_start(&cfg);

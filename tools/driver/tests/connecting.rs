@@ -17,11 +17,12 @@
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 mod common;
 
-use common::{Kid, bin, cell_job, cells_run_here, root, temp_dir, wait_for};
+use common::{cell_job, cells_run_here, wait_for};
+use strand_testkit::{Reaped, bin, root};
 use strand::config::Config;
 use strand_driver::fake::FakeReport;
 use strand_driver::fake::bcap::{BcapOptions, BcapReport, BcapWatch, FakeBcap};
@@ -71,8 +72,8 @@ struct Cell {
     config: PathBuf,
     prefix: String,
     rate_hz: f64,
-    service: Kid,
-    driver: Kid,
+    service: Reaped,
+    driver: Reaped,
     fake: Option<Fake>,
 }
 
@@ -93,14 +94,14 @@ impl Cell {
     fn start(protocol: &str, name: &str) -> Cell {
         let one = ONE_CELL.lock().unwrap_or_else(|e| e.into_inner());
         let (robot, rate_hz) = robot_of(protocol);
-        let dir = temp_dir(&format!("connect-{name}"));
+        let dir = strand_testkit::temp_dir("driver", &format!("connect-{name}"));
         let config = root().join(format!("config/{robot}.toml"));
         let prefix = format!("strand/cntest-{}-{name}", std::process::id());
         let cfg = Config::load(&config).unwrap();
         let start_deg: Vec<f64> = cfg.service.initial_joints.iter().map(|q| q.to_degrees()).collect();
         let limits = limits_deg(&config);
         let rate = format!("controller.rate_hz={rate_hz}");
-        let service = Kid(Command::new(bin("strand"))
+        let service = Reaped(Command::new(bin("strand"))
             .args(["run", "--clock", "robot", "--no-log", "--prefix", &prefix, "--set", &rate, "--config"])
             .arg(&config)
             .env("RUST_LOG", "warn")
@@ -167,7 +168,7 @@ impl Cell {
             // fault, so that the tests check behaviour, not the build.
             driver.args(["--set", "driver.max_late_cycles=10"]);
         }
-        let driver = Kid(driver
+        let driver = Reaped(driver
             .args(["--prefix", &prefix, "--set", &rate, "--robot", &robot_addr.to_string(), "--config"])
             .arg(&config)
             .args(&extra)
@@ -232,7 +233,7 @@ impl Cell {
     /// code, its stats and log, and what the fake saw.
     fn finish(mut self) -> (Option<i32>, serde_json::Value, String, Seen) {
         self.driver.signal(libc::SIGTERM);
-        let code = self.driver.wait_exit(Duration::from_secs(20));
+        let code = self.driver.wait_until(Instant::now() + Duration::from_secs(20));
         self.collect(code)
     }
 
@@ -286,8 +287,8 @@ fn a_job_streams_through(protocol: &str) {
     let cell = Cell::start(protocol, &format!("job-{protocol}"));
     let feed_log = cell.dir.join("feed.log");
     let (job, args) = cell_job(&cell.dir);
-    let mut feed = Kid(cell.feed(&job).args(args).stdout(Stdio::null()).stderr(std::fs::File::create(&feed_log).unwrap()).spawn().unwrap());
-    let code = feed.wait_exit(Duration::from_secs(300));
+    let mut feed = Reaped(cell.feed(&job).args(args).stdout(Stdio::null()).stderr(std::fs::File::create(&feed_log).unwrap()).spawn().unwrap());
+    let code = feed.wait_until(Instant::now() + Duration::from_secs(300));
     if code != Some(0) {
         panic!("{protocol}: strand-feed ended {code:?}\n{}", cell.logs());
     }
@@ -375,7 +376,7 @@ fn the_ur_speed_slider_slows_the_services_path() {
     let cell = Cell::start("ur", "slider-ur");
     let job = job(&cell.dir);
     let feed_log = cell.dir.join("feed.log");
-    let mut feed = Kid(cell.feed(&job).stdout(Stdio::null()).stderr(std::fs::File::create(&feed_log).unwrap()).spawn().unwrap());
+    let mut feed = Reaped(cell.feed(&job).stdout(Stdio::null()).stderr(std::fs::File::create(&feed_log).unwrap()).spawn().unwrap());
     wait_for(&cell.dir.join("driver.log"), "Holding → Following", Duration::from_secs(30));
     let ctl = |args: &[&str]| {
         let out = Command::new(bin("strand")).args(["ctl", "--prefix", &cell.prefix, "--timeout", "5"]).args(args).output().unwrap();
@@ -389,7 +390,7 @@ fn the_ur_speed_slider_slows_the_services_path() {
     std::thread::sleep(Duration::from_millis(100));
     let status: serde_json::Value = serde_json::from_str(ctl(&["status", "--json"]).lines().next().unwrap()).unwrap();
     assert_eq!(status["feed_override"].as_f64(), Some(0.8), "the operator's override stays: {status}");
-    let code = feed.wait_exit(Duration::from_secs(240));
+    let code = feed.wait_until(Instant::now() + Duration::from_secs(240));
     let logs = cell.logs();
     assert_eq!(code, Some(0), "the job finishes at 40 %:\n{logs}");
     assert!(logs.contains("speed scaling 40 %"), "the driver told the service:\n{logs}");
@@ -408,7 +409,7 @@ fn killed_service(protocol: &str) {
     let mut cell = Cell::start(protocol, &format!("kill-{protocol}"));
     let job = job(&cell.dir);
     let feed_log = cell.dir.join("feed.log");
-    let _feed = Kid(cell.feed(&job).stdout(Stdio::null()).stderr(std::fs::File::create(&feed_log).unwrap()).spawn().unwrap());
+    let _feed = Reaped(cell.feed(&job).stdout(Stdio::null()).stderr(std::fs::File::create(&feed_log).unwrap()).spawn().unwrap());
     wait_for(&cell.dir.join("driver.log"), "Holding → Following", Duration::from_secs(30));
     std::thread::sleep(Duration::from_millis(3000));
     cell.service.signal(libc::SIGKILL);
@@ -470,7 +471,7 @@ fn a_stalled_strand_meca_pays_the_service_the_ticks_the_meca500_ran_on() {
     let mut cell = Cell::start("meca", "stall-meca");
     let job = job(&cell.dir);
     let feed_log = cell.dir.join("feed.log");
-    let mut feed = Kid(cell.feed(&job).stdout(Stdio::null()).stderr(std::fs::File::create(&feed_log).unwrap()).spawn().unwrap());
+    let mut feed = Reaped(cell.feed(&job).stdout(Stdio::null()).stderr(std::fs::File::create(&feed_log).unwrap()).spawn().unwrap());
     wait_for(&cell.dir.join("driver.log"), "Holding → Following", Duration::from_secs(30));
     for _ in 0..3 {
         std::thread::sleep(Duration::from_millis(1000));
@@ -478,7 +479,7 @@ fn a_stalled_strand_meca_pays_the_service_the_ticks_the_meca500_ran_on() {
         std::thread::sleep(Duration::from_millis(20));
         cell.driver.signal(libc::SIGCONT);
     }
-    let code = feed.wait_exit(Duration::from_secs(180));
+    let code = feed.wait_until(Instant::now() + Duration::from_secs(180));
     if code != Some(0) {
         panic!("strand-feed ended {code:?}\n{}", cell.logs());
     }
@@ -502,7 +503,7 @@ fn robot_error(protocol: &str, code: u32, named: &[&str]) {
     let mut cell = Cell::start(protocol, &format!("error-{protocol}"));
     let job = job(&cell.dir);
     let feed_log = cell.dir.join("feed.log");
-    let mut feed = Kid(cell.feed(&job).stdout(Stdio::null()).stderr(std::fs::File::create(&feed_log).unwrap()).spawn().unwrap());
+    let mut feed = Reaped(cell.feed(&job).stdout(Stdio::null()).stderr(std::fs::File::create(&feed_log).unwrap()).spawn().unwrap());
     wait_for(&cell.dir.join("driver.log"), "Holding → Following", Duration::from_secs(30));
     std::thread::sleep(Duration::from_millis(2000));
     match protocol {
@@ -510,8 +511,8 @@ fn robot_error(protocol: &str, code: u32, named: &[&str]) {
         "ur" => cell.ur().protective_stop(),
         _ => cell.meca().inject_error(code),
     }
-    let exit = cell.driver.wait_exit(Duration::from_secs(20));
-    let fed = feed.wait_exit(Duration::from_secs(30));
+    let exit = cell.driver.wait_until(Instant::now() + Duration::from_secs(20));
+    let fed = feed.wait_until(Instant::now() + Duration::from_secs(30));
     let logs = cell.logs();
     let (_, stats, log, seen) = cell.collect(exit);
     assert_eq!(exit, Some(1), "{protocol}: the driver exits with 1 when the robot stops it:\n{logs}");

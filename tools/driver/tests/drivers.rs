@@ -21,11 +21,12 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 mod common;
 
-use common::{Kid, bin, cell_job, cells_run_here, root, temp_dir, wait_for};
+use common::{cell_job, cells_run_here, wait_for};
+use strand_testkit::{Reaped, bin, root};
 
 use strand::config::Config;
 use strand_driver::fake::egm::FakeEgm;
@@ -54,8 +55,8 @@ struct Cell {
     dir: PathBuf,
     config: PathBuf,
     prefix: String,
-    service: Kid,
-    driver: Kid,
+    service: Reaped,
+    driver: Reaped,
     stop_fake: Arc<AtomicBool>,
     fake: Option<std::thread::JoinHandle<FakeReport>>,
     /// The fake Sunrise cabinet's FRI session (FRI only).
@@ -71,11 +72,11 @@ fn cell_settings(protocol: &str) -> Vec<String> {
 impl Cell {
     fn start(protocol: &str, robot: &str, name: &str) -> Cell {
         let one = ONE_CELL.lock().unwrap_or_else(|e| e.into_inner());
-        let dir = temp_dir(name);
+        let dir = strand_testkit::temp_dir("driver", name);
         let config = root().join(format!("config/{robot}.toml"));
         let prefix = format!("strand/drvtest-{}-{name}", std::process::id());
         let settings: Vec<String> = cell_settings(protocol).iter().flat_map(|s| ["--set".to_string(), s.clone()]).collect();
-        let service = Kid(Command::new(bin("strand"))
+        let service = Reaped(Command::new(bin("strand"))
             .args(["run", "--clock", "robot", "--no-log", "--prefix", &prefix, "--config"])
             .arg(&config)
             .args(&settings)
@@ -96,7 +97,7 @@ impl Cell {
             driver.args(["--set", "driver.reply_deadline=0.002", "--set", "driver.max_late_cycles=3"]);
         }
         driver.args(&settings);
-        let driver = Kid(driver
+        let driver = Reaped(driver
             .args(["--prefix", &prefix, "--bind", &format!("127.0.0.1:{port}"), "--config"])
             .arg(&config)
             .arg("--stats")
@@ -169,7 +170,7 @@ impl Cell {
         self.stop_fake.store(true, Ordering::Relaxed);
         let report = self.fake.take().unwrap().join().unwrap();
         self.driver.signal(libc::SIGTERM);
-        let code = self.driver.wait_exit(Duration::from_secs(10));
+        let code = self.driver.wait_until(Instant::now() + Duration::from_secs(10));
         let log = std::fs::read_to_string(self.dir.join("driver.log")).unwrap_or_default();
         assert_eq!(code, Some(0), "the driver exits cleanly on SIGTERM:\n{log}");
         let stats: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(self.dir.join("driver.json")).unwrap()).unwrap();
@@ -217,8 +218,8 @@ fn a_job_streams_through(protocol: &str, robot: &str) {
     // test run that hangs until CI's own limit.
     let feed_log = cell.dir.join("feed.log");
     let (job, args) = cell_job(&cell.dir);
-    let mut feed = Kid(cell.feed(&job).args(args).stdout(Stdio::null()).stderr(std::fs::File::create(&feed_log).unwrap()).spawn().unwrap());
-    let code = feed.wait_exit(Duration::from_secs(300));
+    let mut feed = Reaped(cell.feed(&job).args(args).stdout(Stdio::null()).stderr(std::fs::File::create(&feed_log).unwrap()).spawn().unwrap());
+    let code = feed.wait_until(Instant::now() + Duration::from_secs(300));
     if code.is_none() {
         panic!("{protocol}: strand-feed did not end within 300 s\n{}", cell.logs());
     }
@@ -304,12 +305,14 @@ fn a_killed_service_leaves_the_iiwa_held_over_fri_without_a_jump() {
 fn killed_service(protocol: &str, robot: &str) {
     let mut cell = Cell::start(protocol, robot, &format!("kill-{protocol}"));
     let job = job(&cell.dir);
-    let mut feed = Kid(cell.feed(&job).stdout(Stdio::null()).stderr(Stdio::null()).spawn().unwrap());
-    // Into the job (the approach and the first squares), then the service dies.
-    std::thread::sleep(Duration::from_millis(3000));
+    let mut feed = Reaped(cell.feed(&job).stdout(Stdio::null()).stderr(Stdio::null()).spawn().unwrap());
+    // Into the job: the arm follows the service's commands (the approach is under way), then the
+    // service dies, and the driver holds the arm for a second.
+    wait_for(&cell.dir.join("driver.log"), "Holding → Following", Duration::from_secs(30));
     cell.service.signal(libc::SIGKILL);
+    wait_for(&cell.dir.join("driver.log"), "HeldAfterFault", Duration::from_secs(10));
     std::thread::sleep(Duration::from_millis(1000));
-    let _ = feed.wait_exit(Duration::from_secs(5));
+    let _ = feed.wait_until(Instant::now() + Duration::from_secs(5));
     let config = cell.config.clone();
     let fri = cell.fri.clone();
     let (report, stats, log) = cell.finish();

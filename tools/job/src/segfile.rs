@@ -70,7 +70,7 @@ const FLAG_NAMES: [(SegmentFlags, &str); 4] = [
 pub struct SegfileError {
     /// File name as given.
     pub file: String,
-    /// Line (1-based; 0 if the file could not be opened or read).
+    /// Line (1-based; 0 if the file could not be opened, read or written).
     pub line: usize,
     /// What is wrong, naming the key.
     pub message: String,
@@ -357,9 +357,9 @@ pub fn write<W: Write>(out: W, segments: &[Segment], note: &str) -> io::Result<(
     out.flush()
 }
 
-/// [`write`] to a file; the error names it.
-pub fn write_path(path: &Path, segments: &[Segment], note: &str) -> Result<(), crate::load::JobError> {
-    let failed = |e: std::io::Error| crate::load::JobError::File { file: path.display().to_string(), message: e.to_string() };
+/// [`write`] to a file; the error names it (line 0: the file as a whole).
+pub fn write_path(path: &Path, segments: &[Segment], note: &str) -> Result<(), SegfileError> {
+    let failed = |e: std::io::Error| SegfileError { file: path.display().to_string(), line: 0, message: format!("cannot write: {e}") };
     let f = File::create(path).map_err(failed)?;
     write(f, segments, note).map_err(failed)
 }

@@ -1,9 +1,8 @@
-//! What the driver tests share: the job every cell prints, the workspace's binaries, child
-//! processes killed when dropped, and waiting for a log line.
+//! What the driver tests share beyond `strand_testkit`: the job every cell prints and waiting for a
+//! log line.
 #![allow(dead_code)]
 
 use std::path::{Path, PathBuf};
-use std::process::Child;
 use std::time::{Duration, Instant};
 
 /// Two layers of three 10 mm squares at 30 mm/s in the middle of the bundled robots' beds (G-code).
@@ -21,63 +20,17 @@ pub fn squares_gcode() -> String {
 
 /// The job the drivers' job tests print, and `strand-feed`'s arguments for it: the shared squares
 /// (`squares_gcode`, written into `dir`: seconds), or with `STRAND_DEMO_JOB=1` the demo's job —
-/// `strand-demo`'s 35 mm box sliced by Slic3r (`strand_tools::jobs::DEMO_BOX`) to its first layer,
+/// `strand-demo`'s 35 mm box sliced by Slic3r (`strand_cli::jobs::DEMO_BOX`) to its first layer,
 /// about two minutes a driver (the long mode; CI runs the squares).
 pub fn cell_job(dir: &Path) -> (PathBuf, Vec<&'static str>) {
     if std::env::var_os("STRAND_DEMO_JOB").is_some_and(|v| v == "1") {
-        return (root().join("tests/data/gcode/slic3r/box35.gcode"), vec!["--layers", "1"]);
+        return (strand_testkit::root().join("tests/data/gcode/slic3r/box35.gcode"), vec!["--layers", "1"]);
     }
     let p = dir.join("squares.gcode");
     std::fs::write(&p, squares_gcode()).unwrap();
     (p, Vec::new())
 }
 
-pub fn root() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..")
-}
-
-pub fn bin(name: &str) -> PathBuf {
-    let p = Path::new(env!("CARGO_BIN_EXE_strand-rsi")).with_file_name(name);
-    assert!(p.exists(), "{} missing: build the workspace first (cargo build --workspace)", p.display());
-    p
-}
-
-pub fn temp_dir(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("strand-driver-test-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
-}
-
-/// A child process killed when dropped.
-pub struct Kid(pub Child);
-
-impl Drop for Kid {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
-}
-
-impl Kid {
-    pub fn signal(&mut self, sig: libc::c_int) {
-        // SAFETY: kill(2) on our own child.
-        unsafe {
-            libc::kill(self.0.id() as libc::pid_t, sig);
-        }
-    }
-
-    pub fn wait_exit(&mut self, within: Duration) -> Option<i32> {
-        let end = Instant::now() + within;
-        while Instant::now() < end {
-            if let Ok(Some(s)) = self.0.try_wait() {
-                return Some(s.code().unwrap_or(-1));
-            }
-            std::thread::sleep(Duration::from_millis(20));
-        }
-        None
-    }
-}
 
 pub fn wait_for(file: &Path, text: &str, within: Duration) {
     let end = Instant::now() + within;

@@ -4,6 +4,7 @@
 
 use super::block::Block;
 use super::dialect::Dialect;
+use super::limits::LimitM;
 use super::{INCH, MM};
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -167,25 +168,6 @@ pub(super) enum FirmwareM {
     RetractSettings,
     /// A motion limit (see the `limits` module).
     Limit(LimitM),
-}
-
-/// A firmware M-code that sets a motion limit.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub(super) enum LimitM {
-    /// M203: per-axis maximum feed (units/s).
-    AxisFeeds,
-    /// M201: per-axis maximum acceleration (units/s²).
-    AxisAccelerations,
-    /// M204: print / travel acceleration (units/s²).
-    Accelerations,
-    /// M205: jerk (units/s) and junction deviation (units).
-    Jerk,
-    /// M566: RepRapFirmware jerk (units/min).
-    JerkPerMinute,
-    /// M900: Marlin linear advance K (s).
-    LinearAdvance,
-    /// M572: RepRapFirmware pressure advance (s).
-    PressureAdvance,
 }
 
 /// What an M-code does here.

@@ -378,3 +378,16 @@ pub(super) fn code_tenths(value: f64) -> Option<u32> {
 pub(super) fn code_name(letter: char, tenths: u32) -> String {
     if tenths.is_multiple_of(10) { format!("{letter}{}", tenths / 10) } else { format!("{letter}{}.{}", tenths / 10, tenths % 10) }
 }
+
+/// A number that is finite, else a fault at its column.
+pub(super) fn finite(value: f64, column: usize) -> Result<f64, Fault> {
+    if value.is_finite() { Ok(value) } else { Err(Fault::new(column, "value out of range (not finite)")) }
+}
+
+/// A length (m): finite and within ±[`MAX_COORDINATE`](super::MAX_COORDINATE), so later arithmetic cannot overflow.
+pub(super) fn bounded(value: f64, column: usize) -> Result<f64, Fault> {
+    match finite(value, column)? {
+        v if v.abs() <= super::MAX_COORDINATE => Ok(v),
+        v => Err(Fault::new(column, format!("value out of range: {v:e} m is beyond ±{:e} m", super::MAX_COORDINATE))),
+    }
+}

@@ -6,8 +6,26 @@
 
 use super::MM;
 use super::block::Block;
-use super::codes::LimitM;
 use super::lexer::Fault;
+
+/// A firmware M-code that sets a motion limit.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(super) enum LimitM {
+    /// M203: per-axis maximum feed (units/s).
+    AxisFeeds,
+    /// M201: per-axis maximum acceleration (units/s²).
+    AxisAccelerations,
+    /// M204: print / travel acceleration (units/s²).
+    Accelerations,
+    /// M205: jerk (units/s) and junction deviation (units).
+    Jerk,
+    /// M566: RepRapFirmware jerk (units/min).
+    JerkPerMinute,
+    /// M900: Marlin linear advance K (s).
+    LinearAdvance,
+    /// M572: RepRapFirmware pressure advance (s).
+    PressureAdvance,
+}
 
 /// A value the program requested and where.
 #[derive(Clone, Copy, Debug, PartialEq)]

@@ -127,7 +127,6 @@ mod interpreter;
 mod lexer;
 mod limits;
 mod report;
-mod tags;
 
 pub use arc::segment_length;
 use block::Block;

@@ -1,23 +1,10 @@
-//! The control port's text API: the `[CCCC][payload]\0` message format, a frame parsed into a
-//! command with its arguments checked, and each command run against the robot's state.
+//! The control port's commands: a frame parsed into a command with its arguments checked, and each
+//! command run against the robot's state (the `[CCCC][payload]\0` format itself is the parent's).
 
 use std::collections::BTreeSet;
 
 use super::robot::State;
-use super::{DEFAULT_JOINT_ACC, DEFAULT_VEL_TIMEOUT, JOINTS, R3_LIMITS_DEG, R3_SPEED_DEG, RT_CODES};
-
-/// One message on the wire.
-pub(super) fn msg(code: u32, payload: &str) -> Vec<u8> {
-    format!("[{code:04}][{payload}]\0").into_bytes()
-}
-
-pub(super) fn list(values: &[f64]) -> String {
-    values.iter().map(|v| format!("{v:.6}")).collect::<Vec<_>>().join(",")
-}
-
-pub(super) fn stamped(t_us: u64, values: &[f64]) -> String {
-    format!("{t_us},{}", list(values))
-}
+use super::{list, msg, stamped, DEFAULT_JOINT_ACC, DEFAULT_VEL_TIMEOUT, JOINTS, R3_LIMITS_DEG, R3_SPEED_DEG, RT_CODES};
 
 /// The command names the fake knows (lower case).
 const KNOWN: [&str; 34] = [

@@ -38,8 +38,23 @@ pub mod virtual_time;
 mod tests;
 
 use super::{FakeReport, every, real_time};
-use commands::msg;
 use robot::State;
+
+/// One message on the wire: `[CCCC][payload]` and the NUL that ends it.
+fn msg(code: u32, payload: &str) -> Vec<u8> {
+    format!("[{code:04}][{payload}]\0").into_bytes()
+}
+
+/// Values as the robot prints them: comma-separated, six decimals.
+fn list(values: &[f64]) -> String {
+    values.iter().map(|v| format!("{v:.6}")).collect::<Vec<_>>().join(",")
+}
+
+/// A real-time monitoring payload: the timestamp (µs) and the values.
+fn stamped(t_us: u64, values: &[f64]) -> String {
+    format!("{t_us},{}", list(values))
+}
+
 
 /// The Meca500's joints.
 pub const JOINTS: usize = 6;

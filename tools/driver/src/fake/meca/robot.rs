@@ -4,8 +4,7 @@
 
 use std::collections::BTreeSet;
 
-use super::commands::{list, msg, stamped};
-use super::{DEFAULT_JOINT_ACC, DEFAULT_MONITORING_INTERVAL, DEFAULT_VEL_TIMEOUT, JOINTS, MecaOptions, MecaReport, Out, R3_LIMITS_DEG};
+use super::{list, msg, stamped, DEFAULT_JOINT_ACC, DEFAULT_MONITORING_INTERVAL, DEFAULT_VEL_TIMEOUT, JOINTS, MecaOptions, MecaReport, Out, R3_LIMITS_DEG};
 
 /// "major.minor.patch" as a comparable triple (missing or unreadable parts 0).
 fn parse_version(v: &str) -> (u32, u32, u32) {

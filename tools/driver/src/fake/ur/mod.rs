@@ -34,6 +34,7 @@ use strand::io::clock::monotonic_ns;
 mod controller;
 mod program;
 mod rtde;
+mod rtde_server;
 pub mod virtual_time;
 
 #[cfg(test)]
@@ -42,7 +43,8 @@ mod tests;
 use super::{FakeReport, every, real_time};
 use controller::State;
 use program::read_scripts;
-use rtde::{Conn, Outputs, Session, rtde_session};
+use rtde::{Conn, Outputs, Session};
+use rtde_server::rtde_session;
 
 /// The arm's joints.
 pub const JOINTS: usize = 6;

@@ -1,0 +1,195 @@
+//! The sim as a process: the plant ([`Sim`]) talking to the service over iceoryx2 as the real
+//! drivers would. Its JointStates drive the service's `robot` clock; in lockstep (the default) it
+//! answers each command as soon as it arrives, so a job runs as fast as the two processes can
+//! exchange messages, with every stamp on the sim's own clock; `realtime` paces it at the robot's
+//! rate instead. It writes the truth (actual nozzle, base, melt flow) as CSV for the demo.
+
+use std::fs::File;
+use std::io::{BufWriter, Write};
+use std::path::PathBuf;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::{Duration, Instant};
+
+use strand::config::Config;
+use strand::io::clock::{TimerClock, monotonic_ns};
+use strand::io::histogram::Histogram;
+use strand_ipc::ServiceNames;
+use strand_ipc::ports::{ClientPorts, ClientRoles};
+
+use super::config::SimConfig;
+use super::{Sim, Truth};
+use strand_cli::error::{Result, ToolError};
+
+/// How the sim runs, as `strand-sim`'s options say it.
+#[derive(Clone, Debug)]
+pub struct SimOptions {
+    /// Service prefix (None: the service config's).
+    pub prefix: Option<String>,
+    /// Write one truth row per cycle to this CSV.
+    pub truth: Option<PathBuf>,
+    /// Pace at the robot's rate instead of answering in lockstep.
+    pub realtime: bool,
+    /// Write the run's counters and the state → command round trip as JSON to this file.
+    pub stats: Option<PathBuf>,
+    /// Exit after this long without a command once commands have come (s); 0: never.
+    pub exit_after_silence: f64,
+    /// Lockstep: longest wait for the answer to one JointState before cycling on (s).
+    pub answer_timeout: f64,
+}
+
+/// Runs the plant against the service named by `opts.prefix` (None: the config's) until `stop` is
+/// set or the service has been silent for `opts.exit_after_silence`; writes the truth and the stats
+/// as `opts` asks, and prints its counters on stderr.
+pub fn run(opts: &SimOptions, cfg: &Config, sim_cfg: &SimConfig, stop: &AtomicBool) -> Result<()> {
+    let model = cfg.robot.build_model()?;
+    let start: Vec<f64> =
+        (0..model.dof()).map(|i| cfg.service.initial_joints.get(i).copied().unwrap_or_else(|| model.limits(i).middle())).collect();
+    let start_ns = monotonic_ns();
+    let mut sim = Sim::new(cfg, sim_cfg, &start, start_ns)?;
+    let prefix = opts.prefix.clone().unwrap_or_else(|| cfg.service.prefix.clone());
+    let ports = ClientPorts::open(
+        &ServiceNames::new(&prefix),
+        "strand-sim",
+        ClientRoles { driver: true, tracker: true, monitor: true, ..Default::default() },
+    )?;
+    let truth_path = opts.truth.clone().unwrap_or_default();
+    let mut truth_out = match &opts.truth {
+        Some(p) => {
+            let f = File::create(p).map_err(ToolError::file(p))?;
+            let mut w = BufWriter::with_capacity(1 << 20, f);
+            writeln!(w, "{}", Truth::CSV_HEADER).map_err(ToolError::file(p))?;
+            Some(w)
+        }
+        None => None,
+    };
+    let mut timer = TimerClock::new(sim.dt_ns(), 0, u64::MAX);
+    if opts.realtime {
+        timer.start(monotonic_ns());
+    }
+    let answer_timeout = Duration::from_secs_f64(opts.answer_timeout);
+    let mut state_seq = 0u64;
+    let mut pose_seq = 0u64;
+    let mut poses = Vec::new();
+    let mut last_command: Option<Instant> = None;
+    let (mut cycles, mut answered, mut unanswered) = (0u64, 0u64, 0u64);
+    let started = Instant::now();
+    let mut round_trip = Histogram::new();
+    while !stop.load(Ordering::Relaxed) {
+        // Tracking first: the JointState that follows wakes the service, which then drains both.
+        poses.clear();
+        sim.base_poses(&mut pose_seq, &mut poses);
+        for p in &poses {
+            ports.send_base_pose(p)?;
+        }
+        state_seq += 1;
+        let js = sim.joint_state(state_seq);
+        let sent = Instant::now();
+        ports.send_joint_state(&js)?;
+        // The answer: lockstep waits for the command that answers this state; real time sleeps
+        // to the next cycle and takes whatever came.
+        let mut answer_tick = None;
+        if opts.realtime {
+            timer.wait();
+            drain_commands(&ports, &mut sim, state_seq, &mut answer_tick)?;
+        } else {
+            let deadline = Instant::now() + answer_timeout;
+            loop {
+                drain_commands(&ports, &mut sim, state_seq, &mut answer_tick)?;
+                if answer_tick.is_some() || stop.load(Ordering::Relaxed) {
+                    break;
+                }
+                let now = Instant::now();
+                if now >= deadline {
+                    break;
+                }
+                let _ = ports.wait_joint_command((deadline - now).as_nanos().min(5_000_000) as u64);
+            }
+        }
+        // The extruder command of the same tick is published right after the joint command.
+        if let Some(tick) = answer_tick {
+            if !opts.realtime {
+                round_trip.record(sent.elapsed().as_nanos() as u64);
+            }
+            answered += 1;
+            last_command = Some(Instant::now());
+            let until = Instant::now() + Duration::from_millis(2);
+            let mut got = false;
+            while !got && Instant::now() < until {
+                while let Ok(Some(e)) = ports.receive_extruder_command() {
+                    sim.command_extruder(&e);
+                    got |= e.tick >= tick;
+                }
+                if !got {
+                    std::hint::spin_loop();
+                }
+            }
+        } else {
+            unanswered += 1;
+            while let Ok(Some(e)) = ports.receive_extruder_command() {
+                sim.command_extruder(&e);
+            }
+        }
+        let _ = ports.receive_status();
+        let truth = sim.step();
+        cycles += 1;
+        if let Some(w) = truth_out.as_mut() {
+            writeln!(w, "{}", truth.csv_row()).map_err(ToolError::file(&truth_path))?;
+        }
+        if opts.exit_after_silence > 0.0 && last_command.is_some_and(|t| t.elapsed().as_secs_f64() > opts.exit_after_silence) {
+            eprintln!("strand-sim: no command for {} s: the service has gone", opts.exit_after_silence);
+            break;
+        }
+    }
+    if let Some(mut w) = truth_out {
+        w.flush().map_err(ToolError::file(&truth_path))?;
+    }
+    let wall = started.elapsed().as_secs_f64();
+    let sim_s = (sim.time_ns() - start_ns) as f64 * 1e-9;
+    eprintln!(
+        "strand-sim: {cycles} cycles, {sim_s:.2} s simulated in {wall:.2} s ({:.1}× real time), {answered} answered, {unanswered} without an answer",
+        sim_s / wall.max(1e-9)
+    );
+    if let Some((measured, dropped)) = sim.tracker_counts() {
+        eprintln!("strand-sim: tracker {measured} samples, {dropped} dropped");
+    }
+    if round_trip.count() > 0 {
+        eprintln!(
+            "strand-sim: JointState → JointCommand round trip p50 {:.1} µs, p99 {:.1} µs, max {:.1} µs",
+            round_trip.percentile(50.0) as f64 * 1e-3,
+            round_trip.percentile(99.0) as f64 * 1e-3,
+            round_trip.max() as f64 * 1e-3
+        );
+    }
+    if let Some(p) = &opts.stats {
+        let (measured, dropped) = sim.tracker_counts().unwrap_or((0, 0));
+        let stats = serde_json::json!({
+            "cycles": cycles,
+            "answered": answered,
+            "unanswered": unanswered,
+            "sim_s": sim_s,
+            "wall_s": wall,
+            "tracker_samples": measured,
+            "tracker_dropped": dropped,
+            "round_trip": {
+                "samples": round_trip.count(),
+                "p50_ns": round_trip.percentile(50.0),
+                "p99_ns": round_trip.percentile(99.0),
+                "p999_ns": round_trip.percentile(99.9),
+                "max_ns": round_trip.max(),
+            },
+        });
+        std::fs::write(p, format!("{stats:#}\n")).map_err(ToolError::file(p))?;
+    }
+    Ok(())
+}
+
+/// Applies every joint command that arrived; notes the tick of the one answering `state_seq`.
+fn drain_commands(ports: &ClientPorts, sim: &mut Sim, state_seq: u64, answer_tick: &mut Option<u64>) -> Result<()> {
+    while let Some(cmd) = ports.receive_joint_command()? {
+        sim.command_joints(&cmd);
+        if cmd.state_seq >= state_seq {
+            *answer_tick = Some(cmd.tick);
+        }
+    }
+    Ok(())
+}

@@ -1,0 +1,79 @@
+//! The tests' common ground, in one place: the repository, the built binaries, scratch folders, a
+//! small G-code job, and the child-process guard (`strand_cli::child::Reaped`, the tools' own).
+//! A dev-dependency only: no library or binary links it.
+
+use std::path::{Path, PathBuf};
+
+pub use strand_cli::child::Reaped;
+
+/// The repository root (configs and data are relative to it).
+pub fn root() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..")
+}
+
+/// A binary of the workspace (`strand`, `strand-feed`, `strand-egm`...), built beside the running
+/// test (`target/<profile>/`): `cargo test --workspace` builds every binary before it runs a test;
+/// a test of one package needs the others built first, and the panic says so.
+pub fn bin(name: &str) -> PathBuf {
+    let exe = std::env::current_exe().expect("the running test's path");
+    // target/<profile>/deps/<test>-<hash>
+    let dir = exe.parent().and_then(Path::parent).expect("a test runs from target/<profile>/deps");
+    let p = dir.join(name);
+    assert!(p.is_file(), "{} missing: build the workspace first (cargo build --workspace, or cargo test --workspace)", p.display());
+    p
+}
+
+/// An empty scratch folder for one test of one suite.
+pub fn temp_dir(suite: &str, name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("strand-{suite}-test-{}-{name}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+/// `layers` layers (0.2 mm, PrusaSlicer-style layer comments) of `loops` 10 mm squares at `feed`
+/// mm/min, in bed coordinates (mm) near the iiwa7's start: per layer one travel and 4 × `loops`
+/// extruding lines.
+pub fn square_program(dir: &Path, layers: usize, loops: usize, feed: f64) -> PathBuf {
+    let mut g = String::from("G21\nG90\nM83\n");
+    for l in 0..layers {
+        let z = 0.2 * (l + 1) as f64;
+        g += &format!(";LAYER_CHANGE\n;Z:{z:.1}\nG0 X0 Y-20 Z{z:.1} F6000\nG1 F{feed}\n");
+        for _ in 0..loops {
+            g += "G1 X10 Y-20 E0.4\nG1 X10 Y-10 E0.4\nG1 X0 Y-10 E0.4\nG1 X0 Y-20 E0.4\n";
+        }
+    }
+    let p = dir.join("square.gcode");
+    std::fs::write(&p, g).unwrap();
+    p
+}
+
+/// The number at `path` (object keys) in a JSON value; panics naming the path if it is missing.
+pub fn json_f64(v: &serde_json::Value, path: &[&str]) -> f64 {
+    let mut x = v;
+    for k in path {
+        x = &x[*k];
+    }
+    x.as_f64().unwrap_or_else(|| panic!("{path:?} missing in {v}"))
+}
+
+/// The seed of a property test's run: `PROPTEST_RNG_SEED` when set (to replay a run), else a fresh
+/// one each run, so CI explores new cases every time instead of replaying one fixed set. The seed
+/// is printed first: the test harness shows a failing test's output, so a failure names the seed
+/// that reproduces it (`PROPTEST_RNG_SEED=<seed> cargo test --test <test>`). Pinned regressions
+/// stay as their own tests beside the random one.
+pub fn proptest_seed(test: &str) -> u64 {
+    let seed = match std::env::var("PROPTEST_RNG_SEED") {
+        Ok(v) => v.trim().parse().unwrap_or_else(|_| panic!("PROPTEST_RNG_SEED={v:?}: not a whole number")),
+        Err(_) => {
+            // std's per-process random keys (the OS's entropy), mixed with the clock and the pid.
+            use std::hash::{BuildHasher, Hasher};
+            let mut h = std::collections::hash_map::RandomState::new().build_hasher();
+            h.write_u128(std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_nanos()));
+            h.write_u32(std::process::id());
+            h.finish()
+        }
+    };
+    eprintln!("{test}: PROPTEST_RNG_SEED={seed} (set it to replay this run)");
+    seed
+}
