@@ -4,7 +4,6 @@
 //! (m, rad, s); quaternions are (w, x, y, z).
 
 // Index loops read like the matrix formulas they implement; iterator chains would hide the indices.
-#![allow(clippy::needless_range_loop)]
 
 /// The deterministic core, its own crate (`src/core`, `strand-core`): see its façade.
 pub use strand_core as core;

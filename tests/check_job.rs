@@ -10,10 +10,10 @@
 
 mod common;
 
-use strand_testkit::root;
 use strand::check::{CheckJob, CheckReport, ProblemKind, Severity, check_job};
 use strand::config::Config;
 use strand_job::load::{BaseTrajectory, load_segments, wire_job};
+use strand_testkit::root;
 
 fn config(name: &str) -> Config {
     Config::load(&root().join("config").join(format!("{name}.toml"))).unwrap()

@@ -579,7 +579,7 @@ fn the_approach_is_jerk_limited_and_synchronised_without_extruding() {
     cell.send(&square_job(1, [0.5, 0.15, 0.25], 0.02, 1, 0.03));
     cell.control(Command::Start, 0.0);
     let mut moving_ticks = Vec::new();
-    let mut max_jerk = vec![0.0f64; 7];
+    let mut max_jerk = [0.0f64; 7];
     let mut prev_acc: Option<[f64; 8]> = None;
     let dt = 1e-3;
     run(&mut cell, 60_000, |c| {

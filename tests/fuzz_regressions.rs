@@ -5,6 +5,7 @@
 //! fuzz/regressions/README.md).
 
 #[path = "../fuzz/src/checks.rs"]
+#[allow(unreachable_pub, reason = "the fuzz crate's public checks, included here as a private module")]
 mod checks;
 
 use std::panic::{AssertUnwindSafe, catch_unwind};

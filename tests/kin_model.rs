@@ -49,7 +49,8 @@ fn fk_matches_the_published_dimensions() {
     // The TCP's z axis points along the approach direction on every arm (tool transforms in config).
     let m = robot("irb140");
     let flange =
-        strand::config::robot_model_from_urdf_file(&strand_testkit::root().join("config/robots/irb140.urdf"), "base_link", "tool0").unwrap();
+        strand::config::robot_model_from_urdf_file(&strand_testkit::root().join("config/robots/irb140.urdf"), "base_link", "tool0")
+            .unwrap();
     let q = jv(&[0.3, 0.2, -0.4, 0.5, 0.6, 0.7]);
     let (tcp, fl) = (m.forward_kinematics(&q), flange.forward_kinematics(&q));
     let approach = fl.rotation * nalgebra::Vector3::x();

@@ -172,7 +172,8 @@ fn module_of(member: &Path, src: &Path, file: &Path, members: &[(PathBuf, PathBu
 /// prefix that is a module of the crate).
 fn references(text: &str, here: &[String], is_dir_module: bool, modules: &BTreeSet<Vec<String>>) -> BTreeSet<Vec<String>> {
     let mut out = BTreeSet::new();
-    let code: String = text.split("#[cfg(test)]").next().unwrap_or("").lines().map(|l| l.split("//").next().unwrap_or("")).collect::<Vec<_>>().join("\n");
+    let code: String =
+        text.split("#[cfg(test)]").next().unwrap_or("").lines().map(|l| l.split("//").next().unwrap_or("")).collect::<Vec<_>>().join("\n");
     let bytes = code.as_bytes();
     let ident = |i: usize| bytes[i].is_ascii_alphanumeric() || bytes[i] == b'_';
     for (start, word) in [("crate::", true), ("super::", false)] {
@@ -259,7 +260,11 @@ fn no_crate_has_an_import_loop() {
             found: &mut Vec<String>,
         ) {
             if let Some(i) = stack.iter().position(|s| s == m) {
-                found.push(format!("{}{} -> {m}", if parent.is_empty() { String::new() } else { parent.join("::") + ": " }, stack[i..].join(" -> ")));
+                found.push(format!(
+                    "{}{} -> {m}",
+                    if parent.is_empty() { String::new() } else { parent.join("::") + ": " },
+                    stack[i..].join(" -> ")
+                ));
                 return;
             }
             if done.contains(m) {

@@ -7,9 +7,8 @@ mod common;
 
 use std::path::{Path, PathBuf};
 
+use common::Rng;
 use common::cell::{Cell, IIWA_START, config, line, square_job};
-use common::{Rng};
-use strand_testkit::temp_dir;
 use strand::config::Config;
 use strand::core::{TickInput, TickOutput};
 use strand::log::cdr::{CdrType, CdrWriter, Scalar, decode, encode};
@@ -21,6 +20,7 @@ use strand::log::writer::{LogContext, Logger};
 use strand::log::{LogConfig, topics};
 use strand_ipc as ipc;
 use strand_ipc::{Command, RunState};
+use strand_testkit::temp_dir;
 
 fn log_cfg(f: impl FnOnce(&mut LogConfig)) -> LogConfig {
     let mut c = LogConfig { queue_ticks: 65536, ..LogConfig::default() };

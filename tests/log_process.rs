@@ -9,12 +9,12 @@ use std::path::Path;
 use std::process::{Command, Stdio};
 use std::time::Duration;
 
-use strand_testkit::temp_dir;
 use mcap::read::{LinearReader, Options};
 use mcap::records::Record;
 use strand::log::reader::LogFile;
 use strand::log::replay::{Verdict, verify};
 use strand::log::{topics, unix_now_ns};
+use strand_testkit::temp_dir;
 
 fn strand(prefix: &str, log: &Path, extra: &[&str]) -> Command {
     let mut c = Command::new(env!("CARGO_BIN_EXE_strand"));

@@ -10,8 +10,8 @@
 use std::io::{BufRead, BufReader};
 use std::process::{Child, Command, Stdio};
 
-use strand_testkit::Reaped;
 use std::time::{Duration, Instant};
+use strand_testkit::Reaped;
 
 use strand::io::clock::monotonic_ns;
 use strand_ipc::ports::{ClientPorts, ClientRoles};

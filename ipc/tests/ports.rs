@@ -10,6 +10,7 @@ use strand_ipc::*;
 
 // The service's counting allocator, compiled in: this crate does not depend on the service.
 #[path = "../../src/io/alloc_count.rs"]
+#[allow(unreachable_pub, reason = "the service's public allocator, included here as a private module")]
 mod alloc_count;
 use alloc_count::allocations;
 

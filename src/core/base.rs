@@ -436,7 +436,7 @@ fn straight_line(e: &BaseState, dt: f64) -> BaseState {
 /// rotation uses the rotation vector of the (small) difference.
 fn blend_into(from: &BaseState, to: &BaseState, since: f64, length: f64) -> BaseState {
     let u = since / length;
-    if !(u < 1.0) {
+    if u.is_nan() || u >= 1.0 {
         return *to;
     }
     let u = u.max(0.0);

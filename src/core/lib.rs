@@ -17,10 +17,6 @@
 //!   benches that check a job or a robot.
 //! - The base estimator and the extruder model, for the simulator and the tools that predict them.
 
-#![warn(unreachable_pub, missing_docs)]
-// Index loops read like the matrix formulas they implement; iterator chains would hide the indices.
-#![allow(clippy::needless_range_loop)]
-
 mod base;
 mod controller;
 mod extrude;

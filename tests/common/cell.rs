@@ -9,19 +9,19 @@ use strand_ipc as ipc;
 use strand_testkit::root;
 
 /// Nozzle pointing down in W (π about y).
-pub const DOWN: [f64; 4] = [0.0, 0.0, 1.0, 0.0];
+pub(crate) const DOWN: [f64; 4] = [0.0, 0.0, 1.0, 0.0];
 /// A start posture for the iiwa7: elbow bent, wrist down, away from singularities.
-pub const IIWA_START: [f64; 7] = [0.0, 0.4, 0.0, -1.5, 0.0, 1.2, 0.0];
+pub(crate) const IIWA_START: [f64; 7] = [0.0, 0.4, 0.0, -1.5, 0.0, 1.2, 0.0];
 /// Filament per metre for a 0.4 × 0.2 mm bead of 1.75 mm filament (m/m).
-pub const FLOW: f64 = 0.4e-3 * 0.2e-3 / (std::f64::consts::PI * 0.875e-3 * 0.875e-3);
+pub(crate) const FLOW: f64 = 0.4e-3 * 0.2e-3 / (std::f64::consts::PI * 0.875e-3 * 0.875e-3);
 
-pub fn config(mutate: impl FnOnce(&mut Config)) -> Config {
+pub(crate) fn config(mutate: impl FnOnce(&mut Config)) -> Config {
     let mut c = Config::load(&root().join("config/default.toml")).unwrap_or_else(|e| panic!("{e}"));
     mutate(&mut c);
     c
 }
 
-pub struct Cell {
+pub(crate) struct Cell {
     pub ctl: Controller,
     pub tick: u64,
     pub dt_ns: u64,
@@ -41,7 +41,7 @@ pub struct Cell {
 }
 
 impl Cell {
-    pub fn new(cfg: &Config, q_start: &[f64]) -> Self {
+    pub(crate) fn new(cfg: &Config, q_start: &[f64]) -> Self {
         let model = cfg.robot.build_model().unwrap();
         let ctl = Controller::new(&cfg.controller_settings(), model).unwrap();
         let mut q_robot = [0.0; 8];
@@ -63,15 +63,15 @@ impl Cell {
         }
     }
 
-    pub fn iiwa() -> Self {
+    pub(crate) fn iiwa() -> Self {
         Cell::new(&config(|_| {}), &IIWA_START)
     }
 
-    pub fn now_ns(&self) -> u64 {
+    pub(crate) fn now_ns(&self) -> u64 {
         self.t0 + self.tick * self.dt_ns
     }
 
-    pub fn input(&mut self) -> TickInput {
+    pub(crate) fn input(&mut self) -> TickInput {
         let mut input = TickInput::new(self.tick, self.now_ns());
         if self.driver {
             self.state_seq += 1;
@@ -99,12 +99,12 @@ impl Cell {
     }
 
     /// One tick; the robot follows the command exactly.
-    pub fn step(&mut self) -> TickOutput {
+    pub(crate) fn step(&mut self) -> TickOutput {
         self.step_observed(&mut |_, _| {})
     }
 
     /// One tick, handing its input and output to `observe` (a logger).
-    pub fn step_observed(&mut self, observe: &mut dyn FnMut(&TickInput, &TickOutput)) -> TickOutput {
+    pub(crate) fn step_observed(&mut self, observe: &mut dyn FnMut(&TickInput, &TickOutput)) -> TickOutput {
         let input = self.input();
         let out = self.ctl.step(&input);
         observe(&input, &out);
@@ -116,21 +116,21 @@ impl Cell {
         out
     }
 
-    pub fn send(&mut self, segments: &[ipc::Segment]) {
+    pub(crate) fn send(&mut self, segments: &[ipc::Segment]) {
         self.segments.extend(segments.iter().copied());
     }
 
-    pub fn control(&mut self, command: ipc::Command, value: f64) {
+    pub(crate) fn control(&mut self, command: ipc::Command, value: f64) {
         self.control_seq += 1;
         self.controls.push(ipc::Control { seq: self.control_seq, stamp_ns: self.now_ns(), command: command as u32, value, _reserved: 0 });
     }
 
-    pub fn state(&self) -> ipc::RunState {
+    pub(crate) fn state(&self) -> ipc::RunState {
         self.ctl.run_state()
     }
 
     /// Steps until `until` holds for the output or `max` ticks pass; checks limits on every tick.
-    pub fn run_until(&mut self, max: u64, mut until: impl FnMut(&TickOutput) -> bool) -> Option<TickOutput> {
+    pub(crate) fn run_until(&mut self, max: u64, mut until: impl FnMut(&TickOutput) -> bool) -> Option<TickOutput> {
         for _ in 0..max {
             let out = self.step();
             check_limits(self.ctl.model(), &out);
@@ -143,7 +143,7 @@ impl Cell {
 }
 
 /// The command is finite and within position, velocity and acceleration limits.
-pub fn check_limits(model: &strand::core::kin::RobotModel, out: &TickOutput) {
+pub(crate) fn check_limits(model: &strand::core::kin::RobotModel, out: &TickOutput) {
     let jc = &out.joint_command;
     for i in 0..model.dof() {
         let l = model.limits(i);
@@ -157,14 +157,14 @@ pub fn check_limits(model: &strand::core::kin::RobotModel, out: &TickOutput) {
     assert!(e.motor_speed.is_finite() && e.filament_rate.is_finite() && e.filament_position.is_finite());
 }
 
-pub fn line(seq: u64, end: [f64; 3], feed: f64, filament: f64) -> ipc::Segment {
+pub(crate) fn line(seq: u64, end: [f64; 3], feed: f64, filament: f64) -> ipc::Segment {
     let flags = if filament > 0.0 { ipc::segment_flags::EXTRUDE } else { ipc::segment_flags::TRAVEL };
     ipc::Segment { seq, kind: ipc::SegmentKind::Line as u32, flags, end, orientation: DOWN, feed, filament, ..Default::default() }
 }
 
 /// A travel to `origin`, then `loops` squares of side `side` (m) extruding at `feed`, the last
 /// segment flagged LAST. Sequence numbers start at `seq0`.
-pub fn square_job(seq0: u64, origin: [f64; 3], side: f64, loops: usize, feed: f64) -> Vec<ipc::Segment> {
+pub(crate) fn square_job(seq0: u64, origin: [f64; 3], side: f64, loops: usize, feed: f64) -> Vec<ipc::Segment> {
     let mut v = vec![line(seq0, origin, 0.1, 0.0)];
     let [x, y, z] = origin;
     let corners = [[x + side, y, z], [x + side, y + side, z], [x, y + side, z], [x, y, z]];
@@ -179,6 +179,6 @@ pub fn square_job(seq0: u64, origin: [f64; 3], side: f64, loops: usize, feed: f6
 }
 
 /// Filament the job asks for (m).
-pub fn job_filament(job: &[ipc::Segment]) -> f64 {
+pub(crate) fn job_filament(job: &[ipc::Segment]) -> f64 {
     job.iter().map(|s| s.filament).sum()
 }

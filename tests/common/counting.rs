@@ -3,4 +3,4 @@
 //! `#[global_allocator] static GLOBAL: counting::Counting = counting::Counting;`.
 #![allow(unused_imports)]
 
-pub use strand::io::alloc_count::{Counting, allocations};
+pub(crate) use strand::io::alloc_count::{Counting, allocations};

@@ -1,24 +1,23 @@
 //! Helpers shared by the integration tests: the bundled robots, a seeded random source, paths.
 #![allow(dead_code)]
 
-pub mod cell;
-
+pub(crate) mod cell;
 
 use strand::config::RobotConfig;
 use strand::core::kin::{ClikStep, JointVector, RobotModel};
 
-pub const ROBOTS: [&str; 7] = ["iiwa7", "iiwa14", "vp6242", "meca500", "irb140", "kr6r900", "ur5e"];
+pub(crate) const ROBOTS: [&str; 7] = ["iiwa7", "iiwa14", "vp6242", "meca500", "irb140", "kr6r900", "ur5e"];
 
-pub fn robot(name: &str) -> RobotModel {
+pub(crate) fn robot(name: &str) -> RobotModel {
     let path = strand_testkit::root().join("config/robots").join(format!("{name}.toml"));
     RobotConfig::load(&path).and_then(|c| c.build_model()).unwrap_or_else(|e| panic!("{e}"))
 }
 
 /// SplitMix64: a small seeded generator, so test inputs are the same on every run.
-pub struct Rng(pub u64);
+pub(crate) struct Rng(pub u64);
 
 impl Rng {
-    pub fn next_u64(&mut self) -> u64 {
+    pub(crate) fn next_u64(&mut self) -> u64 {
         self.0 = self.0.wrapping_add(0x9E3779B97F4A7C15);
         let mut z = self.0;
         z = (z ^ (z >> 30)).wrapping_mul(0xBF58476D1CE4E5B9);
@@ -26,20 +25,20 @@ impl Rng {
         z ^ (z >> 31)
     }
     /// Uniform in [0, 1).
-    pub fn unit(&mut self) -> f64 {
+    pub(crate) fn unit(&mut self) -> f64 {
         (self.next_u64() >> 11) as f64 / (1u64 << 53) as f64
     }
     /// Standard normal (Box-Muller).
-    pub fn normal(&mut self) -> f64 {
+    pub(crate) fn normal(&mut self) -> f64 {
         let u = self.unit().max(1e-300);
         let v = self.unit();
         (-2.0 * u.ln()).sqrt() * (2.0 * std::f64::consts::PI * v).cos()
     }
-    pub fn range(&mut self, lo: f64, hi: f64) -> f64 {
+    pub(crate) fn range(&mut self, lo: f64, hi: f64) -> f64 {
         lo + (hi - lo) * self.unit()
     }
     /// A configuration inside the limits, kept `inset` (fraction of the range) away from them.
-    pub fn config(&mut self, model: &RobotModel, inset: f64) -> JointVector {
+    pub(crate) fn config(&mut self, model: &RobotModel, inset: f64) -> JointVector {
         let mut q = JointVector::zeros();
         for (i, j) in model.joints().iter().enumerate() {
             let (lo, hi) = if j.limits.lower.is_finite() { (j.limits.lower, j.limits.upper) } else { (-3.0, 3.0) };
@@ -50,7 +49,7 @@ impl Rng {
     }
 }
 
-pub fn jv(values: &[f64]) -> JointVector {
+pub(crate) fn jv(values: &[f64]) -> JointVector {
     let mut q = JointVector::zeros();
     q.as_mut_slice()[..values.len()].copy_from_slice(values);
     q
@@ -59,7 +58,7 @@ pub fn jv(values: &[f64]) -> JointVector {
 /// A 7-joint chain no bundled robot has: a prismatic rail along x carrying a 6-axis arm whose first
 /// and last joints are continuous and whose axes are skewed, so FK, the Jacobian and its derivative
 /// are exercised on every joint type and on non-principal axes.
-pub fn rail_arm() -> RobotModel {
+pub(crate) fn rail_arm() -> RobotModel {
     let urdf = r#"<robot name="rail_arm">
   <link name="floor"/><link name="carriage"/><link name="l1"/><link name="l2"/><link name="l3"/><link name="l4"/><link name="l5"/><link name="l6"/><link name="flange"/>
   <joint name="rail" type="prismatic"><parent link="floor"/><child link="carriage"/><origin xyz="0 0 0.05"/><axis xyz="1 0 0"/><limit lower="0" upper="2.0" velocity="0.5"/></joint>
@@ -83,7 +82,7 @@ pub fn rail_arm() -> RobotModel {
 }
 
 /// A well-conditioned start configuration of a bundled arm, away from its limits and singularities.
-pub fn start(name: &str) -> JointVector {
+pub(crate) fn start(name: &str) -> JointVector {
     match name {
         "iiwa7" => jv(&[0.2, 0.6, -0.1, -1.3, 0.2, 0.9, 0.3]),
         "vp6242" => jv(&[0.1, 0.0, 2.1, 0.3, 0.9, 0.2]),
@@ -94,7 +93,7 @@ pub fn start(name: &str) -> JointVector {
 
 /// Asserts that one step's command is finite and meets every joint's speed limit and, against the
 /// previous step's velocity `qd_prev`, its acceleration limit over `dt`.
-pub fn assert_within_limits(model: &RobotModel, step: &ClikStep, qd_prev: &JointVector, dt: f64, label: &str) {
+pub(crate) fn assert_within_limits(model: &RobotModel, step: &ClikStep, qd_prev: &JointVector, dt: f64, label: &str) {
     assert!(step.q.iter().chain(step.qd.iter()).all(|x| x.is_finite()), "{label}: not finite: {step:?}");
     for i in 0..model.dof() {
         let l = model.limits(i);

@@ -5,7 +5,7 @@ use nalgebra::{UnitQuaternion, Vector3};
 use strand::core::kin::{Clik, ClikStep, JointVector, RobotModel, TcpTarget};
 
 /// Quintic rest-to-rest profile: fraction of the path and its rate at time t of T.
-pub fn quintic(t: f64, total: f64) -> (f64, f64) {
+pub(crate) fn quintic(t: f64, total: f64) -> (f64, f64) {
     let tau = (t / total).clamp(0.0, 1.0);
     let s = tau * tau * tau * (10.0 - 15.0 * tau + 6.0 * tau * tau);
     let ds = 30.0 * tau * tau * (1.0 - tau) * (1.0 - tau) / total;
@@ -13,7 +13,7 @@ pub fn quintic(t: f64, total: f64) -> (f64, f64) {
 }
 
 #[derive(Clone, Copy, Debug)]
-pub enum Shape {
+pub(crate) enum Shape {
     /// From the start along `dir` (unit) for `length` m.
     Line { dir: Vector3<f64>, length: f64 },
     /// A full circle of `radius` m in the plane spanned by unit `a` (towards the centre) and `b`.
@@ -21,7 +21,7 @@ pub enum Shape {
 }
 
 /// Position and velocity of the path at time t, starting at `p0`.
-pub fn sample(shape: Shape, p0: Vector3<f64>, t: f64, total: f64) -> (Vector3<f64>, Vector3<f64>) {
+pub(crate) fn sample(shape: Shape, p0: Vector3<f64>, t: f64, total: f64) -> (Vector3<f64>, Vector3<f64>) {
     let (s, ds) = quintic(t, total);
     match shape {
         Shape::Line { dir, length } => (p0 + dir * (length * s), dir * (length * ds)),
@@ -38,7 +38,7 @@ pub fn sample(shape: Shape, p0: Vector3<f64>, t: f64, total: f64) -> (Vector3<f6
 
 /// What a tracking run saw.
 #[derive(Debug, Default)]
-pub struct Tracking {
+pub(crate) struct Tracking {
     pub max_pos_err: f64,
     pub max_axis_err: f64,
     pub max_rot_err: f64,
@@ -52,7 +52,7 @@ pub struct Tracking {
 
 /// Runs CLIK at `rate` Hz along `shape` for `total` s (plus a short hold), holding the start
 /// orientation, and measures the error of FK(q_{k+1}) against the target for t_{k+1}.
-pub fn track(model: &RobotModel, clik: &mut Clik, q0: JointVector, shape: Shape, total: f64, rate: f64) -> Tracking {
+pub(crate) fn track(model: &RobotModel, clik: &mut Clik, q0: JointVector, shape: Shape, total: f64, rate: f64) -> Tracking {
     let dt = 1.0 / rate;
     let start = model.forward_kinematics(&q0);
     let p0 = start.translation.vector;

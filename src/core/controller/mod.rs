@@ -773,7 +773,7 @@ impl Controller {
     fn extruder_command(&mut self) -> super::extrude::ExtruderCommand {
         match self.state {
             RunState::Running | RunState::Pausing | RunState::Paused | RunState::Stopping if !self.stop_by_brake => {
-                let mut s = self.last_sample.unwrap_or_else(|| rest_sample());
+                let mut s = self.last_sample.unwrap_or_else(rest_sample);
                 s.flow *= self.flow_override;
                 s.dwell_filament_rate *= self.flow_override;
                 self.extruder.step(&s)
@@ -993,7 +993,7 @@ mod tests {
         let timeout = settings.path.stall_timeout;
         assert_eq!(timeout, 0.5);
         let dof = model.dof();
-        let limits: Vec<_> = (0..dof).map(|i| model.limits(i).clone()).collect();
+        let limits: Vec<_> = (0..dof).map(|i| *model.limits(i)).collect();
         let mut ctl = Controller::new(&settings, model).unwrap();
         let dt_ns = (settings.controller.dt() * 1e9).round() as u64;
         let mut q = [0.0; 8];

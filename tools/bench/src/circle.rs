@@ -7,11 +7,11 @@ use nalgebra::{UnitQuaternion, Vector3};
 use strand::core::kin::{JointVector, RobotModel, TcpTarget};
 
 /// The iiwa7's start configuration (rad).
-pub const IIWA_Q0: [f64; 7] = [0.2, 0.6, -0.1, -1.3, 0.2, 0.9, 0.3];
+pub(crate) const IIWA_Q0: [f64; 7] = [0.2, 0.6, -0.1, -1.3, 0.2, 0.9, 0.3];
 
 /// The circle's targets from the tool pose at `q0`: 20 mm radius at 50 mm/s, 1 kHz, one period
 /// rounded down (2513 ticks for these figures), then the table wraps.
-pub fn circle(model: &RobotModel, q0: &JointVector) -> Vec<TcpTarget> {
+pub(crate) fn circle(model: &RobotModel, q0: &JointVector) -> Vec<TcpTarget> {
     let start = model.forward_kinematics(q0);
     let orientation = UnitQuaternion::from_rotation_matrix(&start.rotation);
     let (r, v) = (0.02, 0.05);

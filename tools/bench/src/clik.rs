@@ -244,7 +244,7 @@ impl ClikReport {
                 if round.cost.samples == 0 || round.cost.p50_ns == 0 || round.cost.p50_ns > round.cost.p99_ns {
                     return Err(ToolError::Measurement(format!("{side}: implausible distribution {:?}", round.cost)));
                 }
-                if !(round.max_position_error_m < 1e-6) {
+                if round.max_position_error_m.is_nan() || round.max_position_error_m >= 1e-6 {
                     return Err(ToolError::Measurement(format!("{side} does not track: error {:e} m", round.max_position_error_m)));
                 }
             }

@@ -308,7 +308,7 @@ fn run_connecting(opts: &DriverOptions) -> Result<DriverReport> {
         seconds: opts.seconds,
         cycle_s: cycle,
         rt: opts.rt_priority.is_some(),
-        round_trip: driver_dist.clone(),
+        round_trip: driver_dist,
         driver: driver_dist,
         cycles,
         in_time,

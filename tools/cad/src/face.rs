@@ -15,6 +15,9 @@ use truck_polymesh::PolylineCurve;
 use truck_stepio::r#in::alias::{Curve3D, ElementarySurface, Surface, SweptCurve};
 use truck_topology::compress::CompressedShell;
 
+/// A surface parameter's own range (min, max), where it has one.
+type ParameterRange = Option<(f64, f64)>;
+
 /// A shell as truck-stepio gives it.
 pub(crate) type ReadShell = CompressedShell<Point3, Curve3D, Surface>;
 
@@ -116,7 +119,7 @@ pub struct StepFace {
     /// m per file unit.
     scale: f64,
     /// The surface's own parameter range where it has one (B-splines); unbounded (planes) otherwise.
-    range: (Option<(f64, f64)>, Option<(f64, f64)>),
+    range: (ParameterRange, ParameterRange),
     /// Boundary loops in (u, v), the region on their left (outer counter-clockwise, holes clockwise).
     loops: Vec<Vec<[f64; 2]>>,
     /// The loops' bounding rectangle in (u, v): [(u_min, u_max), (v_min, v_max)].

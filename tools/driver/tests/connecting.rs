@@ -22,12 +22,12 @@ use std::time::{Duration, Instant};
 mod common;
 
 use common::{cell_job, cells_run_here, wait_for};
-use strand_testkit::{Reaped, bin, root};
 use strand::config::Config;
 use strand_driver::fake::FakeReport;
 use strand_driver::fake::bcap::{BcapOptions, BcapReport, BcapWatch, FakeBcap};
 use strand_driver::fake::meca::{FakeMeca, MecaOptions, MecaReport, MecaWatch};
 use strand_driver::fake::ur::{FakeUr, UrOptions, UrReport, UrWatch};
+use strand_testkit::{Reaped, bin, root};
 
 /// One cell at a time (a real-time loop in three processes on a 2-core machine).
 static ONE_CELL: std::sync::Mutex<()> = std::sync::Mutex::new(());
@@ -101,14 +101,16 @@ impl Cell {
         let start_deg: Vec<f64> = cfg.service.initial_joints.iter().map(|q| q.to_degrees()).collect();
         let limits = limits_deg(&config);
         let rate = format!("controller.rate_hz={rate_hz}");
-        let service = Reaped(Command::new(bin("strand"))
-            .args(["run", "--clock", "robot", "--no-log", "--prefix", &prefix, "--set", &rate, "--config"])
-            .arg(&config)
-            .env("RUST_LOG", "warn")
-            .stdout(Stdio::null())
-            .stderr(std::fs::File::create(dir.join("service.log")).unwrap())
-            .spawn()
-            .unwrap());
+        let service = Reaped(
+            Command::new(bin("strand"))
+                .args(["run", "--clock", "robot", "--no-log", "--prefix", &prefix, "--set", &rate, "--config"])
+                .arg(&config)
+                .env("RUST_LOG", "warn")
+                .stdout(Stdio::null())
+                .stderr(std::fs::File::create(dir.join("service.log")).unwrap())
+                .spawn()
+                .unwrap(),
+        );
         // The controller: it stops the arm (an error) on a command faster than the robot's limits
         // (the URDF's speeds, the robot file's accelerations, 1 % over for rounding).
         let (fake, robot_addr, extra) = match protocol {
@@ -168,16 +170,18 @@ impl Cell {
             // fault, so that the tests check behaviour, not the build.
             driver.args(["--set", "driver.max_late_cycles=10"]);
         }
-        let driver = Reaped(driver
-            .args(["--prefix", &prefix, "--set", &rate, "--robot", &robot_addr.to_string(), "--config"])
-            .arg(&config)
-            .args(&extra)
-            .arg("--stats")
-            .arg(dir.join("driver.json"))
-            .stdout(Stdio::null())
-            .stderr(std::fs::File::create(dir.join("driver.log")).unwrap())
-            .spawn()
-            .unwrap());
+        let driver = Reaped(
+            driver
+                .args(["--prefix", &prefix, "--set", &rate, "--robot", &robot_addr.to_string(), "--config"])
+                .arg(&config)
+                .args(&extra)
+                .arg("--stats")
+                .arg(dir.join("driver.json"))
+                .stdout(Stdio::null())
+                .stderr(std::fs::File::create(dir.join("driver.log")).unwrap())
+                .spawn()
+                .unwrap(),
+        );
         let cell = Cell { _one: one, dir, config, prefix, rate_hz, service, driver, fake: Some(fake) };
         wait_for(&cell.dir.join("driver.log"), "Holding", Duration::from_secs(30));
         cell
@@ -287,7 +291,8 @@ fn a_job_streams_through(protocol: &str) {
     let cell = Cell::start(protocol, &format!("job-{protocol}"));
     let feed_log = cell.dir.join("feed.log");
     let (job, args) = cell_job(&cell.dir);
-    let mut feed = Reaped(cell.feed(&job).args(args).stdout(Stdio::null()).stderr(std::fs::File::create(&feed_log).unwrap()).spawn().unwrap());
+    let mut feed =
+        Reaped(cell.feed(&job).args(args).stdout(Stdio::null()).stderr(std::fs::File::create(&feed_log).unwrap()).spawn().unwrap());
     let code = feed.wait_until(Instant::now() + Duration::from_secs(300));
     if code != Some(0) {
         panic!("{protocol}: strand-feed ended {code:?}\n{}", cell.logs());
@@ -519,7 +524,7 @@ fn robot_error(protocol: &str, code: u32, named: &[&str]) {
     assert!(named.iter().any(|n| log.contains(n)), "{protocol}: the error is named ({named:?}):\n{log}");
     assert!(log.contains("the stream ended"), "{log}");
     assert_ne!(fed, Some(0), "the job did not report success:\n{logs}");
-    assert_eq!(stats["robot_ended"].as_str().is_some(), true, "{stats}");
+    assert!(stats["robot_ended"].as_str().is_some(), "{stats}");
     if let Seen::Bcap(r) = &seen {
         // Given back: slave mode off (the controller left it), motor off, the arm given back.
         assert!(r.calls.iter().any(|c| c.contains("GiveArm")), "{:?}", r.calls);

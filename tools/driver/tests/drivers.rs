@@ -76,15 +76,17 @@ impl Cell {
         let config = root().join(format!("config/{robot}.toml"));
         let prefix = format!("strand/drvtest-{}-{name}", std::process::id());
         let settings: Vec<String> = cell_settings(protocol).iter().flat_map(|s| ["--set".to_string(), s.clone()]).collect();
-        let service = Reaped(Command::new(bin("strand"))
-            .args(["run", "--clock", "robot", "--no-log", "--prefix", &prefix, "--config"])
-            .arg(&config)
-            .args(&settings)
-            .env("RUST_LOG", "warn")
-            .stdout(Stdio::null())
-            .stderr(std::fs::File::create(dir.join("service.log")).unwrap())
-            .spawn()
-            .unwrap());
+        let service = Reaped(
+            Command::new(bin("strand"))
+                .args(["run", "--clock", "robot", "--no-log", "--prefix", &prefix, "--config"])
+                .arg(&config)
+                .args(&settings)
+                .env("RUST_LOG", "warn")
+                .stdout(Stdio::null())
+                .stderr(std::fs::File::create(dir.join("service.log")).unwrap())
+                .spawn()
+                .unwrap(),
+        );
         let port = free_udp_port();
         let mut driver = Command::new(bin(&format!("strand-{protocol}")));
         if cfg!(debug_assertions) {
@@ -97,15 +99,17 @@ impl Cell {
             driver.args(["--set", "driver.reply_deadline=0.002", "--set", "driver.max_late_cycles=3"]);
         }
         driver.args(&settings);
-        let driver = Reaped(driver
-            .args(["--prefix", &prefix, "--bind", &format!("127.0.0.1:{port}"), "--config"])
-            .arg(&config)
-            .arg("--stats")
-            .arg(dir.join("driver.json"))
-            .stdout(Stdio::null())
-            .stderr(std::fs::File::create(dir.join("driver.log")).unwrap())
-            .spawn()
-            .unwrap());
+        let driver = Reaped(
+            driver
+                .args(["--prefix", &prefix, "--bind", &format!("127.0.0.1:{port}"), "--config"])
+                .arg(&config)
+                .arg("--stats")
+                .arg(dir.join("driver.json"))
+                .stdout(Stdio::null())
+                .stderr(std::fs::File::create(dir.join("driver.log")).unwrap())
+                .spawn()
+                .unwrap(),
+        );
         // The driver binds before it opens its ports; give it a moment, then start the robot.
         let cfg = Config::load(&config).unwrap();
         let start_deg: Vec<f64> = cfg.service.initial_joints.iter().map(|q| q.to_degrees()).collect();
@@ -218,7 +222,8 @@ fn a_job_streams_through(protocol: &str, robot: &str) {
     // test run that hangs until CI's own limit.
     let feed_log = cell.dir.join("feed.log");
     let (job, args) = cell_job(&cell.dir);
-    let mut feed = Reaped(cell.feed(&job).args(args).stdout(Stdio::null()).stderr(std::fs::File::create(&feed_log).unwrap()).spawn().unwrap());
+    let mut feed =
+        Reaped(cell.feed(&job).args(args).stdout(Stdio::null()).stderr(std::fs::File::create(&feed_log).unwrap()).spawn().unwrap());
     let code = feed.wait_until(Instant::now() + Duration::from_secs(300));
     if code.is_none() {
         panic!("{protocol}: strand-feed did not end within 300 s\n{}", cell.logs());

@@ -20,8 +20,8 @@ use std::time::Instant;
 
 use clap::Parser;
 use strand::config::{Config, locate};
-use strand_ipc as ipc;
 use strand_feed::{Ending, Keys, LayerResume, StreamOptions, check, load_gcode, stream};
+use strand_ipc as ipc;
 
 #[derive(Parser)]
 #[command(

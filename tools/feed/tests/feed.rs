@@ -4,17 +4,16 @@
 //! (exit 2); `--resume-from` starts with a travel to where the segment starts; a segment file with
 //! orientations (from `strand-plan tilt`) streams and finishes like G-code.
 
-
-use strand_testkit::{Reaped, bin, root, square_program, temp_dir};
 use std::path::Path;
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
+use strand_testkit::{Reaped, bin, root, square_program, temp_dir};
 
 use strand::config::Config;
 use strand::log::reader::LogFile;
 use strand::log::replay::{Verdict, verify};
-use strand_ipc as ipc;
 use strand_feed::load_gcode;
+use strand_ipc as ipc;
 
 fn service(prefix: &str, clock: &str, log: &Path) -> Reaped {
     let child = Command::new(bin("strand"))
@@ -71,13 +70,7 @@ fn a_segment_file_with_orientation_streams_like_g_code() {
     let program = square_program(&dir, 2, 5, 3000.0);
     // The same job on a bed tilted 10° about x, written with its orientations by strand-plan tilt.
     let tilted = dir.join("square_tilted.jsonl");
-    let out = Command::new(bin("strand-plan"))
-        .arg("tilt")
-        .arg(&program)
-        .args(["--angle", "10", "-o"])
-        .arg(&tilted)
-        .output()
-        .unwrap();
+    let out = Command::new(bin("strand-plan")).arg("tilt").arg(&program).args(["--angle", "10", "-o"]).arg(&tilted).output().unwrap();
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let cfg = Config::load(&root().join("config/default.toml")).unwrap();
     let job = load_gcode(&tilted, &cfg, None).unwrap();

@@ -9,7 +9,6 @@
 //! - [`timing`]: a job timed by the controller's own path engine, tick by tick (`strand-plan time`).
 
 // Index loops read like the matrix formulas they implement; iterator chains would hide the indices.
-#![allow(clippy::needless_range_loop)]
 
 pub mod bed;
 pub mod gcode;

@@ -67,7 +67,14 @@ pub enum TimingError {
     Gcode(#[from] GcodeError),
     /// The engine refused a segment.
     #[error("{file}:{line}: {message}")]
-    Segment { file: String, line: usize, message: String },
+    Segment {
+        /// The program.
+        file: String,
+        /// Its line (1-based).
+        line: usize,
+        /// Why the engine refused it.
+        message: String,
+    },
     /// The run did not finish within the tick cap.
     #[error("the run did not finish within {0} ticks")]
     Timeout(u64),

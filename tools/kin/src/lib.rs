@@ -11,8 +11,8 @@ use nalgebra::{UnitQuaternion, Vector3};
 use serde_json::{Value, json};
 use strand::core::kin::{ChainState, JointKind, JointVector, RobotModel, Task, TaskJacobian, manipulability_gradient};
 
-use strand_cli::error::{Result, ToolError};
 use robot::LoadedRobot;
+use strand_cli::error::{Result, ToolError};
 
 /// An angle in degrees for the table (∞ for an unlimited joint).
 fn deg(x: f64) -> String {

@@ -9,8 +9,8 @@
 
 use std::path::PathBuf;
 
-use strand_cli::error::{Result, ToolError};
 use strand::core::{Segment, SegmentFlags};
+use strand_cli::error::{Result, ToolError};
 use strand_job::bed::BedConfig;
 use strand_job::bed::BedTransform;
 use strand_job::gcode::{GcodeOptions, parse_file};

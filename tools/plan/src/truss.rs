@@ -12,8 +12,8 @@
 //! - layer 2: the cross beams, post – diagonal – post … from x = 0 to the far end;
 //! - layer 3: the chords again, starting where layer 2 ended.
 
-use strand_cli::error::{Result, ToolError};
 use std::fmt::Write;
+use strand_cli::error::{Result, ToolError};
 
 /// Truss dimensions and process (SI units).
 #[derive(Clone, Copy, Debug, PartialEq)]

@@ -4,10 +4,9 @@
 //! `$STRAND_CONFIG_DIR`, `./config` and `<prefix>/share/strand/config` come first, in that order;
 //! a config the user names that does not exist is an error naming it.
 
-
-use strand_testkit::{root, temp_dir};
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
+use strand_testkit::{root, temp_dir};
 
 /// A scratch folder with `bin/` (copies of the binaries), `work/` (the working directory) and
 /// `cache/` (`$XDG_CACHE_HOME`).

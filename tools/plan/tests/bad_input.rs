@@ -5,14 +5,13 @@
 //! `panicked`. The inputs are made at test time in a scratch folder (the 50 MB line too), and the
 //! tools run there, outside the repository.
 
-
-use strand_testkit::{bin, root, temp_dir};
 use std::fs::File;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output, Stdio};
 use std::sync::OnceLock;
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::time::{Duration, Instant};
+use strand_testkit::{bin, root, temp_dir};
 
 /// One bad input: a label, the file, and the line an error must name (None: the file alone).
 struct Bad {
@@ -152,7 +151,6 @@ fn first_chunk_middle(mcap: &[u8]) -> usize {
     }
     panic!("no chunk in the log");
 }
-
 
 /// Runs a tool in the inputs' folder (outside the repository), with the built-in config; a run
 /// that outlasts a minute is killed (and then fails its check: killed, nothing named).

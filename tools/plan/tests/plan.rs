@@ -2,9 +2,8 @@
 //! the reach at which 000's arm runs out), `finish` and `tilt` writing segment files that read back,
 //! and bad input refused with the flag named.
 
-
-use strand_testkit::{root, temp_dir};
 use std::process::{Command, Output};
+use strand_testkit::{root, temp_dir};
 
 use strand_job::segfile::read_path;
 

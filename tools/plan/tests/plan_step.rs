@@ -2,7 +2,6 @@
 //! built-in shape is (003's curved rectangle from a file reproduces the built-in one), checked on the
 //! robot in the same command, and bad input named.
 
-
 use std::path::PathBuf;
 use std::process::{Command, Output};
 

@@ -1,7 +1,6 @@
 //! `strand-plan surface` as a user runs it: 003's findings on the curved rectangle in the `--json`
 //! report, a segment file that reads back, a PNG, and errors that name the flag.
 
-
 use std::process::Command;
 
 fn bin() -> Command {

@@ -7,8 +7,8 @@ use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
 use strand::log::replay::{Verdict, verify};
-use strand_replay::bead;
 use strand_cli::error::ToolError;
+use strand_replay::bead;
 use strand_replay::{open_all, plot as replay_plot};
 
 #[derive(Parser)]

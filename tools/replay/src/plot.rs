@@ -46,12 +46,15 @@ fn stride(len: usize, n: usize) -> usize {
     len.div_ceil(n).max(1)
 }
 
+/// One picture drawn into the file it is given.
+type Plotter<'a> = dyn Fn(&Path) -> PlotResult + 'a;
+
 /// Draws every plot into `dir`; returns the files written.
 pub fn plot_all(s: &Series, model: &RobotModel, dir: &Path) -> Result<Vec<PathBuf>> {
     register_font()?;
     std::fs::create_dir_all(dir).map_err(ToolError::file(dir))?;
     let mut files = Vec::new();
-    let jobs: [(&str, &dyn Fn(&Path) -> PlotResult); 5] = [
+    let jobs: [(&str, &Plotter); 5] = [
         ("tcp_path_top.png", &|p| tcp_path(s, p)),
         ("tcp_error.png", &|p| tcp_error(s, p)),
         ("speed_flow.png", &|p| speed_flow(s, p)),

@@ -23,11 +23,11 @@ use strand::core::BaseMode;
 use strand::core::kin::{JointVector, RobotModel};
 use strand_ipc as ipc;
 
-use strand_cli::error::{Result, ToolError};
-use strand_replay::truth::Truth;
 use config::SimConfig;
 use flyer::{BaseTrajectory, Flyer};
 use plant::{ExtruderPlant, JointPlant};
+use strand_cli::error::{Result, ToolError};
+use strand_replay::truth::Truth;
 use tracker::{Sample, Tracker};
 
 /// Seeded noise: standard normal and uniform draws.

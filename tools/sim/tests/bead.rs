@@ -18,13 +18,13 @@ mod closed_loop {
 
     /// A short program with what a bead goes through: a retraction before the first travel and
     /// its prime, speed changes at corners, a travel with a retraction between two beads.
-    pub const PROGRAM: &str = "G21\nG90\nM83\nG1 Z0.3 F3000\nG1 E-1 F2100\nG1 X100 Y100 F6000\nG1 E1 F2100\n\
+    pub(crate) const PROGRAM: &str = "G21\nG90\nM83\nG1 Z0.3 F3000\nG1 E-1 F2100\nG1 X100 Y100 F6000\nG1 E1 F2100\n\
         G1 X130 Y100 E1.2 F1800\nG1 X130 Y115 E0.6 F1200\nG1 X100 Y115 E1.2 F2400\nG1 E-1 F2100\n\
         G1 X100 Y130 F6000\nG1 E1 F2100\nG1 X130 Y130 E1.2 F1500\nG1 X130 Y120 E0.4 F1500\n";
 
     /// What a run gave: the ticks, the program's sections, the truth, the commanded filament rate
     /// per tick (m/s) and the tick (ns).
-    pub struct Run {
+    pub(crate) struct Run {
         pub ticks: Vec<Executing>,
         pub sections: std::collections::HashMap<u64, f64>,
         pub truth: Vec<Truth>,
@@ -32,12 +32,12 @@ mod closed_loop {
         pub dt_ns: u64,
     }
 
-    pub fn root() -> std::path::PathBuf {
+    pub(crate) fn root() -> std::path::PathBuf {
         Path::new(env!("CARGO_MANIFEST_DIR")).join("../..")
     }
 
     /// Runs `program` on the default cell with `cfg` and the plant `sim_cfg` until the job ends.
-    pub fn run(program: &str, cfg: &Config, sim_cfg: &SimConfig) -> Run {
+    pub(crate) fn run(program: &str, cfg: &Config, sim_cfg: &SimConfig) -> Run {
         let dir = std::env::temp_dir().join(format!("strand-bead-test-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
         let file = dir.join(format!("job-{:x}.gcode", program.len() ^ (cfg.extruder.pressure_advance * 1e6) as usize));
@@ -106,7 +106,7 @@ mod closed_loop {
         panic!("the job did not end");
     }
 
-    pub fn configs() -> (Config, SimConfig) {
+    pub(crate) fn configs() -> (Config, SimConfig) {
         (Config::load(&root().join("config/default.toml")).unwrap(), SimConfig::load(&root().join("config/sim/default.toml")).unwrap())
     }
 }

@@ -6,17 +6,15 @@
 //!   forced through (`--no-check`) it faults at the line the check named, with `TcpErrorLimit`,
 //!   and no filament is pushed after the fault.
 
-
-use strand_testkit::{bin, json_f64, root, square_program, temp_dir};
 use std::path::Path;
 use std::process::Command;
+use strand_testkit::{bin, json_f64, root, square_program, temp_dir};
 
 use strand::core::Event;
 use strand::log::reader::LogFile;
 
 /// The approach at full joint speed (both sides use it): seconds of robot time saved per test.
 const FAST_APPROACH: &str = "controller.approach_speed_fraction=1.0";
-
 
 /// `strand check-job --json`: (exit code, report).
 fn check_job(job: &Path, config: &str) -> (i32, serde_json::Value) {

@@ -13,13 +13,12 @@
 //! - `strand-demo --view`: the whole cell (plant in real time) served live, and it still finishes
 //!   with a log that replays identically.
 
-
-use strand_testkit::{Reaped, bin, root, square_program, temp_dir};
 use std::io::{BufRead, BufReader, Write};
 use std::path::Path;
 use std::process::{ChildStdin, Command, Output, Stdio};
 use std::sync::mpsc;
 use std::time::{Duration, Instant};
+use strand_testkit::{Reaped, bin, root, square_program, temp_dir};
 
 /// The approach at full joint speed: seconds saved in every test (debug builds are slow).
 const FAST_APPROACH: &str = "controller.approach_speed_fraction=1.0";

@@ -11,18 +11,16 @@
 //!   (the sim refusing its plant) stops the demo at once with that child's own message, and no log
 //!   of idle ticks is left behind.
 
-
-use strand_testkit::{Reaped, bin, json_f64, root, square_program, temp_dir};
 use std::path::Path;
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
+use strand_testkit::{Reaped, bin, json_f64, root, square_program, temp_dir};
 
 use strand_ipc::ports::{ClientPorts, ClientRoles};
 use strand_ipc::{FaultCode, JobOutcome, RunState, ServiceNames, Status};
 
 /// The approach at full joint speed: seconds of robot time saved in every test (debug builds are slow).
 const FAST_APPROACH: &str = "controller.approach_speed_fraction=1.0";
-
 
 fn demo(dir: &Path, args: &[&str]) -> serde_json::Value {
     let out = Command::new(env!("CARGO_BIN_EXE_strand-demo"))

@@ -248,7 +248,7 @@ fn decode_variant(r: &mut Reader<'_>, depth: u32) -> Result<Variant, WireError> 
         vt::BSTR => {
             one(r)?;
             let len = r.u32()? as usize;
-            if len % 2 != 0 {
+            if !len.is_multiple_of(2) {
                 return bad(format!("BSTR of odd byte length {len}"));
             }
             let raw = r.take(len)?;

@@ -569,7 +569,7 @@ pub fn decode_command(bytes: &[u8]) -> Option<Command> {
 /// Appends the little-endian doubles of `bytes` (false if they are not whole).
 fn doubles_into(values: &mut Vec<f64>, bytes: &[u8]) -> bool {
     values.extend(bytes.chunks_exact(8).map(|c| f64::from_le_bytes(c.try_into().unwrap_or_default())));
-    bytes.len() % 8 == 0
+    bytes.len().is_multiple_of(8)
 }
 
 /// Calls `f` on each field of `b`: false if the bytes are malformed or `f` says so.

@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
 /// Two layers of three 10 mm squares at 30 mm/s in the middle of the bundled robots' beds (G-code).
-pub fn squares_gcode() -> String {
+pub(crate) fn squares_gcode() -> String {
     let mut g = String::from("G21\nG90\nM83\n");
     for l in 0..2 {
         let z = 0.2 * (l + 1) as f64;
@@ -22,7 +22,7 @@ pub fn squares_gcode() -> String {
 /// (`squares_gcode`, written into `dir`: seconds), or with `STRAND_DEMO_JOB=1` the demo's job —
 /// `strand-demo`'s 35 mm box sliced by Slic3r (`strand_cli::jobs::DEMO_BOX`) to its first layer,
 /// about two minutes a driver (the long mode; CI runs the squares).
-pub fn cell_job(dir: &Path) -> (PathBuf, Vec<&'static str>) {
+pub(crate) fn cell_job(dir: &Path) -> (PathBuf, Vec<&'static str>) {
     if std::env::var_os("STRAND_DEMO_JOB").is_some_and(|v| v == "1") {
         return (strand_testkit::root().join("tests/data/gcode/slic3r/box35.gcode"), vec!["--layers", "1"]);
     }
@@ -31,8 +31,7 @@ pub fn cell_job(dir: &Path) -> (PathBuf, Vec<&'static str>) {
     (p, Vec::new())
 }
 
-
-pub fn wait_for(file: &Path, text: &str, within: Duration) {
+pub(crate) fn wait_for(file: &Path, text: &str, within: Duration) {
     let end = Instant::now() + within;
     while Instant::now() < end {
         if std::fs::read_to_string(file).is_ok_and(|t| t.contains(text)) {
@@ -48,7 +47,7 @@ pub fn wait_for(file: &Path, text: &str, within: Duration) {
 /// service, a driver and a fake sharing two cores miss their cycles for the build's sake, and the
 /// fakes' timing rules then fail the run (drivers.rs saw it in 4 of 6 debug runs, connecting.rs'
 /// UR job once in CI's debug stage: ten late commands in a row); CI's release stages run them.
-pub fn cells_run_here(test: &str) -> bool {
+pub(crate) fn cells_run_here(test: &str) -> bool {
     let here = !cfg!(debug_assertions) || std::env::var_os("STRAND_DEBUG_CELLS").is_some_and(|v| v == "1");
     if !here {
         eprintln!("{test}: skipped in a debug build (real-time cells run with --release, or STRAND_DEBUG_CELLS=1)");

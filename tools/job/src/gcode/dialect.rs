@@ -7,8 +7,8 @@
 
 use std::path::Path;
 
-use super::limits::Limits;
 use super::MM;
+use super::limits::Limits;
 
 /// Which G-code language a program is written in. The two differ where the same code means
 /// different things: `G4 P` (milliseconds in firmware, seconds in RS274/NGC), `G10`/`G11`

@@ -1,8 +1,8 @@
 //! The paper's Eqs. 2-4 (W ≤ R/2, N ≤ ⌊W/L⌋, N ≤ ⌊R/(2L)⌋), checked per strip and reported together,
 //! so that a refused plan names every violated equation with its numbers.
 
-use strand_cli::error::{Result, ToolError};
 use serde::Serialize;
+use strand_cli::error::{Result, ToolError};
 
 /// Relative slack on the floors of Eqs. 3 and 4.
 const FLOOR_SLACK: f64 = 1e-9;
@@ -10,19 +10,26 @@ const FLOOR_SLACK: f64 = 1e-9;
 /// Eq. 2 for the widest strip.
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct Eq2 {
+    /// The widest strip (1-based).
     pub strip: usize,
+    /// Its width W (m).
     pub width_m: f64,
+    /// R/2 (m), which W may not exceed.
     pub half_reach_m: f64,
+    /// W ≤ R/2.
     pub ok: bool,
 }
 
 /// Eq. 3 for one strip.
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct Eq3 {
+    /// The strip (1-based).
     pub strip: usize,
+    /// Its width W (m).
     pub width_m: f64,
     /// ⌊W/L⌋.
     pub max_layers: u64,
+    /// N ≤ ⌊W/L⌋.
     pub ok: bool,
 }
 
@@ -31,6 +38,7 @@ pub struct Eq3 {
 pub struct Eq4 {
     /// ⌊R/(2L)⌋.
     pub max_layers: u64,
+    /// N ≤ ⌊R/(2L)⌋.
     pub ok: bool,
 }
 
@@ -39,8 +47,11 @@ pub struct Eq4 {
 pub struct Checks {
     /// N: layers of the job.
     pub layers: usize,
+    /// Eq. 2: the widest strip within half the reach.
     pub eq2: Eq2,
+    /// Eq. 3, strip by strip: the layers a strip's width allows.
     pub eq3: Vec<Eq3>,
+    /// Eq. 4: the layers the reach allows.
     pub eq4: Eq4,
 }
 

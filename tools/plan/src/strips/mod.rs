@@ -74,7 +74,6 @@ mod output;
 mod plot;
 mod read;
 
-use strand_cli::error::{Result, ToolError};
 pub use chaining::chain;
 pub use equations::{Checks, Eq2, Eq3, Eq4, check_equations};
 pub use joint::{BOUNDARY_EPS, cut, layer_bounds};
@@ -82,12 +81,15 @@ use output::mm;
 pub use output::{Travel, Written, write_gcode};
 pub use plot::plot_png;
 pub use read::{Job, Layer, Line, ReadOptions, flatten_arc, read_job};
+use strand_cli::error::{Result, ToolError};
 
 /// Direction the strips are measured along.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
 #[serde(rename_all = "lowercase")]
 pub enum Axis {
+    /// Along x.
     X,
+    /// Along y.
     Y,
 }
 
@@ -111,14 +113,18 @@ impl Axis {
 /// Strip widths: all equal (as many strips as the part needs) or given one by one.
 #[derive(Clone, Debug, PartialEq)]
 pub enum Widths {
+    /// Every strip this wide (m).
     Uniform(f64),
+    /// Strip by strip (m), from the origin.
     List(Vec<f64>),
 }
 
 /// What to split and how.
 #[derive(Clone, Debug, PartialEq)]
 pub struct StripSpec {
+    /// The direction the strips are measured along.
     pub axis: Axis,
+    /// Their widths.
     pub widths: Widths,
     /// Where strip 1 starts (m, along `axis`); None: the part's smallest coordinate.
     pub origin: Option<f64>,
@@ -137,9 +143,11 @@ pub struct StripSpec {
 pub struct StripLayer {
     /// Job layer (0-based).
     pub layer: usize,
+    /// Its height (m).
     pub z: f64,
     /// This layer's bounds of the strip along the axis (m): the nominal ones moved per Fig. 6.
     pub lo: f64,
+    /// The upper bound (m).
     pub hi: f64,
     /// Paths in print order.
     pub paths: Vec<Vec<Line>>,
@@ -150,12 +158,14 @@ pub struct StripLayer {
 pub struct Strip {
     /// Nominal bounds along the axis (m).
     pub lo: f64,
+    /// The upper nominal bound (m).
     pub hi: f64,
     /// Layers that have lines in this strip, bottom up.
     pub layers: Vec<StripLayer>,
 }
 
 impl Strip {
+    /// Its nominal width (m).
     pub fn width(&self) -> f64 {
         self.hi - self.lo
     }
@@ -167,13 +177,17 @@ impl Strip {
 /// A job split into strips.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Plan {
+    /// The direction the strips are measured along.
     pub axis: Axis,
     /// Nominal bounds: origin, the boundaries between strips, far end (m, ascending).
     pub bounds: Vec<f64>,
+    /// L, the overlap between neighbouring strips (m).
     pub overlap: f64,
     /// N.
     pub layers: usize,
+    /// The strips, in print order.
     pub strips: Vec<Strip>,
+    /// Eqs. 2-4 against this split.
     pub checks: Checks,
     /// Lines cut at a boundary.
     pub cuts: usize,

@@ -35,10 +35,12 @@ impl Default for Travel {
 }
 
 /// What the writer did.
+/// What a strip plan's G-code holds, counted as it was written.
 #[derive(Clone, Debug, Default, PartialEq, Serialize)]
 pub struct Written {
     /// Travel moves between paths (including the one from the start position).
     pub travels: usize,
+    /// Retractions before those travels.
     pub retractions: usize,
     /// Extruding `G1` moves.
     pub moves: usize,

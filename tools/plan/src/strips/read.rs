@@ -5,9 +5,9 @@
 use std::collections::HashMap;
 use std::io::BufRead;
 
-use strand_cli::error::{Result, ToolError};
 use nalgebra::Vector3;
 use strand::core::{Geometry, Segment, SegmentKind, arc_geometry};
+use strand_cli::error::{Result, ToolError};
 use strand_job::gcode::{GcodeOptions, Parser};
 
 /// One extruding straight line (m, G-code frame).
@@ -42,6 +42,7 @@ impl Line {
 pub struct Layer {
     /// Nominal height (m): the `;Z:` marker if the slicer wrote one, else the first line's end z.
     pub z: f64,
+    /// The layer's extruding lines, in job order.
     pub lines: Vec<Line>,
 }
 
@@ -58,10 +59,12 @@ pub struct Job {
     pub arcs_flattened: usize,
     /// Skirt/brim lines dropped, and their filament (m).
     pub skirt_lines: usize,
+    /// The filament of those lines (m).
     pub skirt_filament: f64,
 }
 
 impl Job {
+    /// Every extruding line, layer by layer.
     pub fn lines(&self) -> impl Iterator<Item = &Line> {
         self.layers.iter().flat_map(|l| l.lines.iter())
     }

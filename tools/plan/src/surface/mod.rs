@@ -44,8 +44,8 @@ use std::f64::consts::PI;
 use std::path::PathBuf;
 use std::time::Instant;
 
-use strand_cli::error::{Result, ToolError};
 use serde::Serialize;
+use strand_cli::error::{Result, ToolError};
 
 mod intersect;
 mod ordering;

@@ -100,7 +100,7 @@ impl Surface for StepSurface {
 }
 
 /// A strand-cad error as the planner reports it.
-pub fn cad(e: strand_cad::CadError) -> ToolError {
+pub(super) fn cad(e: strand_cad::CadError) -> ToolError {
     ToolError::Content(e.to_string())
 }
 

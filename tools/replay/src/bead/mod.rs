@@ -21,8 +21,8 @@ use serde::Serialize;
 use strand::log::reader::LogFile;
 use strand_ipc::RunState;
 
-use strand_cli::error::{Result, ToolError};
 use crate::truth::Truth;
+use strand_cli::error::{Result, ToolError};
 
 /// Length of a bin of actual nozzle travel (m).
 pub const BIN_LENGTH: f64 = 1e-3;

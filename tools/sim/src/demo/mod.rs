@@ -30,13 +30,13 @@ use strand::core::BaseMode;
 use strand_ipc::ServiceNames;
 use strand_ipc::ports::{ClientPorts, ClientRoles};
 
-pub use summary::{Report, Spread, report};
 use strand_replay::truth::read_truth;
+pub use summary::{Report, Spread, report};
 
-use strand_cli::error::{Result, ToolError};
-use strand_cli::jobs;
 use crate::config::SimConfig;
 use children::{Proc, program, report_child, sibling, tail};
+use strand_cli::error::{Result, ToolError};
+use strand_cli::jobs;
 use table::print_table;
 
 /// What to run, as `strand-demo`'s options say it.

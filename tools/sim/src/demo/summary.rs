@@ -13,10 +13,10 @@ use strand::log::reader::LogFile;
 use strand::log::replay::{Verdict, verify};
 use strand_ipc::RunState;
 
-use strand_replay::bead::{Bead, Features};
 use strand_cli::error::Result;
-use strand_replay::{PathTicks, tcp_world};
+use strand_replay::bead::{Bead, Features};
 use strand_replay::truth::Truth;
+use strand_replay::{PathTicks, tcp_world};
 
 /// Distribution of a quantity (SI unit as named by the field that holds it).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]

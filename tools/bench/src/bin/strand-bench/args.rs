@@ -7,13 +7,13 @@ use clap::{Parser, Subcommand};
 
 #[derive(Parser)]
 #[command(name = "strand-bench", version, about = "Benchmarks: distributions of cost, jitter and throughput")]
-pub struct Cli {
+pub(crate) struct Cli {
     #[command(subcommand)]
     pub command: Mode,
 }
 
 #[derive(Subcommand)]
-pub enum Mode {
+pub(crate) enum Mode {
     /// Wake-up lateness of the cycle runner (timer mode), idle or with a controller printing, next
     /// to an empty TimerClock loop and (with --cyclictest) cyclictest at the same period.
     Jitter {

@@ -188,7 +188,7 @@ impl FakeBcap {
     /// Binds, starts the tick and the accept threads, and returns at once.
     pub fn spawn(opts: BcapOptions) -> std::io::Result<FakeBcap> {
         let joints = opts.start_deg.len();
-        if joints == 0 || joints > MAX_JOINTS || !(opts.cycle > 0.0) {
+        if joints == 0 || joints > MAX_JOINTS || opts.cycle.is_nan() || opts.cycle <= 0.0 {
             return Err(std::io::Error::new(std::io::ErrorKind::InvalidInput, "1..=8 joints and a positive cycle"));
         }
         let listener = TcpListener::bind(opts.bind)?;

@@ -315,7 +315,7 @@ fn scalar(r: &mut Reader, t: u16) -> Option<Variant> {
         vt::UI8 => Ui8(u64::from_le_bytes(r.array()?)),
         vt::BSTR => {
             let n = r.u32()? as usize;
-            if n % 2 != 0 {
+            if !n.is_multiple_of(2) {
                 return None;
             }
             let units: Vec<u16> = r.take(n)?.chunks_exact(2).map(|c| u16::from_le_bytes([c[0], c[1]])).collect();

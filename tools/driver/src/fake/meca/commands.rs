@@ -4,7 +4,7 @@
 use std::collections::BTreeSet;
 
 use super::robot::State;
-use super::{list, msg, stamped, DEFAULT_JOINT_ACC, DEFAULT_VEL_TIMEOUT, JOINTS, R3_LIMITS_DEG, R3_SPEED_DEG, RT_CODES};
+use super::{DEFAULT_JOINT_ACC, DEFAULT_VEL_TIMEOUT, JOINTS, R3_LIMITS_DEG, R3_SPEED_DEG, RT_CODES, list, msg, stamped};
 
 /// The command names the fake knows (lower case).
 const KNOWN: [&str; 34] = [
@@ -52,7 +52,7 @@ impl State {
                 self.report.garbage += 1;
             }
         }
-        self.to_control(&msg(code, payload));
+        self.send_control(&msg(code, payload));
     }
 
     /// One frame from the control client (without its terminator), received at `now`.
@@ -330,7 +330,7 @@ impl State {
                     self.reply(2096, &on.to_string());
                     if self.ctrl_monitoring {
                         let m = msg(2007, &self.status_payload());
-                        self.to_control(&m);
+                        self.send_control(&m);
                     }
                 }
             }

@@ -55,7 +55,6 @@ fn stamped(t_us: u64, values: &[f64]) -> String {
     format!("{t_us},{}", list(values))
 }
 
-
 /// The Meca500's joints.
 pub const JOINTS: usize = 6;
 /// The Meca500 R3's joint ranges (deg, §4.1). Joint 6: ±100 turns (the turn configuration's
@@ -287,7 +286,7 @@ impl FakeMeca {
         let banner = msg(3000, &format!("Connected to Meca500 R3 v{}", opts.version));
         let mut threads = Vec::new();
         let s = shared.clone();
-        let tick_ns = ((opts.tick.is_finite() && opts.tick > 0.0).then_some(opts.tick).unwrap_or(0.001) * 1e9).round() as u64;
+        let tick_ns = ((if opts.tick.is_finite() && opts.tick > 0.0 { opts.tick } else { 0.001 }) * 1e9).round() as u64;
         let priority = opts.rt_priority;
         threads.push(std::thread::Builder::new().name("fake-meca-tick".into()).spawn(move || {
             real_time(priority);
@@ -389,7 +388,7 @@ fn accept_control(s: &Arc<Shared>, listener: &TcpListener, banner: &[u8]) {
         let generation = st.control_gen;
         st.control = Some(Out::new(stream));
         st.ctrl_monitoring = false;
-        st.to_control(banner);
+        st.send_control(banner);
         st.publish_status(false);
         drop(st);
         let s2 = s.clone();
@@ -450,7 +449,7 @@ fn read_control(s: &Shared, mut stream: TcpStream, generation: u64) {
                 if frame.len() > MAX_COMMAND_LEN {
                     st.report.errors.push(3003);
                     st.report.garbage += 1;
-                    st.to_control(&msg(3003, "Command too long."));
+                    st.send_control(&msg(3003, "Command too long."));
                     skipping = true;
                     frame.clear();
                 }

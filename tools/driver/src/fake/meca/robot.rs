@@ -4,7 +4,10 @@
 
 use std::collections::BTreeSet;
 
-use super::{list, msg, stamped, DEFAULT_JOINT_ACC, DEFAULT_MONITORING_INTERVAL, DEFAULT_VEL_TIMEOUT, JOINTS, MecaOptions, MecaReport, Out, R3_LIMITS_DEG};
+use super::{
+    DEFAULT_JOINT_ACC, DEFAULT_MONITORING_INTERVAL, DEFAULT_VEL_TIMEOUT, JOINTS, MecaOptions, MecaReport, Out, R3_LIMITS_DEG, list, msg,
+    stamped,
+};
 
 /// "major.minor.patch" as a comparable triple (missing or unreadable parts 0).
 fn parse_version(v: &str) -> (u32, u32, u32) {
@@ -112,19 +115,19 @@ impl State {
         (self.fw.0, self.fw.1) >= (major, minor)
     }
 
-    pub(super) fn to_control(&mut self, bytes: &[u8]) {
+    pub(super) fn send_control(&mut self, bytes: &[u8]) {
         if let Some(c) = self.control.as_mut() {
             c.push(bytes);
         }
     }
 
     /// To every monitoring client, and to the control client if it asked for the stream.
-    fn to_monitors(&mut self, bytes: &[u8]) {
+    fn send_monitors(&mut self, bytes: &[u8]) {
         for m in &mut self.monitors {
             m.push(bytes);
         }
         if self.ctrl_monitoring {
-            self.to_control(bytes);
+            self.send_control(bytes);
         }
     }
 
@@ -134,7 +137,7 @@ impl State {
         if force || status != self.last_status {
             self.last_status = status;
             let m = msg(2007, &self.status_payload());
-            self.to_monitors(&m);
+            self.send_monitors(&m);
         }
     }
 
@@ -149,7 +152,7 @@ impl State {
         self.paused = true;
         self.drop_velocity();
         self.report.errors.push(code);
-        self.to_control(&msg(code, text));
+        self.send_control(&msg(code, text));
         self.publish_status(true);
     }
 
@@ -183,7 +186,7 @@ impl State {
         {
             self.watchdog = None;
             self.report.errors.push(3086);
-            self.to_control(&msg(3086, "Connection watchdog expired."));
+            self.send_control(&msg(3086, "Connection watchdog expired."));
             if let Some(c) = self.control.as_mut() {
                 c.flush();
                 c.shutdown();
@@ -247,16 +250,16 @@ impl State {
         let busy = self.cmd_at.is_some() && self.cmd.iter().any(|w| *w != 0.0);
         let (eom, eob) = (!moving, !moving && !busy);
         if eom && !self.eom && self.eom_enabled {
-            self.to_control(&msg(3004, "End of movement."));
+            self.send_control(&msg(3004, "End of movement."));
         }
         if eob && !self.eob && self.eob_enabled {
-            self.to_control(&msg(3012, "End of block."));
+            self.send_control(&msg(3012, "End of block."));
         }
         (self.eom, self.eob) = (eom, eob);
         self.publish_status(false);
         if now >= self.next_monitor_ns {
             let cycle = self.cycle(now);
-            self.to_monitors(&cycle);
+            self.send_monitors(&cycle);
             if self.control.is_some() && self.activated && self.homed {
                 let r = &mut self.report.report;
                 r.axes.push(self.q.to_vec());

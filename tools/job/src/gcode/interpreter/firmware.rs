@@ -5,9 +5,9 @@ use std::collections::VecDeque;
 
 use super::super::block::Block;
 use super::super::codes::FirmwareM;
+use super::super::dialect::{Dialect, PERCENT_RANGE, SPECIAL_TOOLS};
 use super::super::lexer::{ExtendedParam, Fault, bounded};
 use super::super::limits::{self, FEED_LIMITED, Outcome, in_range, non_negative, positive};
-use super::super::dialect::{Dialect, PERCENT_RANGE, SPECIAL_TOOLS};
 use super::super::{GcodeSegment, MM};
 use super::Interpreter;
 use strand_core::{Segment, SegmentKind};

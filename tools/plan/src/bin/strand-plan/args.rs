@@ -584,6 +584,7 @@ mod tests {
     }
 
     #[derive(clap::Subcommand)]
+    #[allow(clippy::large_enum_variant, reason = "the test's command line, parsed once per case")]
     enum Planner {
         Surface(SurfaceArgs),
         Finish(FinishArgs),
