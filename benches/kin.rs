@@ -9,9 +9,7 @@ use std::path::PathBuf;
 use criterion::{Criterion, criterion_group, criterion_main};
 use nalgebra::SMatrix;
 use strand::config::RobotConfig;
-use strand::core::kin::{
-    ChainState, Clik, ClikConfig, JointVector, Priority, RobotModel, Task, TaskJacobian, manipulability_gradient, svd,
-};
+use strand_core::kin::{ChainState, Clik, ClikConfig, JointVector, Priority, RobotModel, Task, TaskJacobian, manipulability_gradient, svd};
 
 // The targets `strand-bench clik` and the Pinocchio bench track too: one table.
 #[path = "../tools/bench/src/circle.rs"]

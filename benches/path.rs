@@ -3,7 +3,7 @@
 
 use criterion::{Criterion, criterion_group, criterion_main};
 use nalgebra::{UnitQuaternion, Vector3};
-use strand::core::{PathConfig, PathEngine, Segment, SegmentKind};
+use strand_core::{PathConfig, PathEngine, Segment, SegmentKind};
 
 fn line(seq: u64, end: Vector3<f64>) -> Segment {
     Segment { seq, kind: SegmentKind::Line, end, feed: 0.04, orientation: UnitQuaternion::identity(), ..Segment::default() }

@@ -16,7 +16,7 @@ use std::io::Cursor;
 use std::path::PathBuf;
 
 use strand::config::Config;
-use strand::core::{PathEngine, SegmentFlags, SegmentKind};
+use strand_core::{PathEngine, SegmentFlags, SegmentKind};
 use strand_job::bed::BedTransform;
 use strand_job::gcode::{GcodeOptions, Parser, segment_length};
 

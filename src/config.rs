@@ -19,17 +19,17 @@ use std::path::{Path, PathBuf};
 use serde::{Deserialize, Serialize};
 use thiserror::Error;
 
-use crate::core::BaseConfig;
-pub use crate::core::ControllerConfig;
-use crate::core::ControllerSettings;
-use crate::core::ExtruderConfig;
-use crate::core::PathConfig;
-use crate::core::kin::{ClikConfig, Frame, ModelError, RobotModel, geom};
 use crate::io::rt::RealtimeConfig;
 use crate::io::runner::ServiceConfig;
 use check::CheckConfig;
 use driver::DriverConfig;
 use log::LogConfig;
+use strand_core::BaseConfig;
+pub use strand_core::ControllerConfig;
+use strand_core::ControllerSettings;
+use strand_core::ExtruderConfig;
+use strand_core::PathConfig;
+use strand_core::kin::{ClikConfig, Frame, ModelError, RobotModel, geom};
 use strand_job::bed::BedConfig;
 use strand_job::bed::BedTransform;
 use view::ViewConfig;
@@ -186,7 +186,7 @@ impl RobotConfig {
         let urdf = self.urdf_path();
         let model = RobotModel::from_urdf_str(&self.urdf_text, &urdf.display().to_string(), &self.root_link, &self.tip_link)
             .map_err(|e| ConfigError { file: self.file.display().to_string(), message: format!("urdf: {e}") })?;
-        let in_file = |e: crate::core::kin::ModelError| ConfigError::new(&self.file, e.to_string());
+        let in_file = |e: strand_core::kin::ModelError| ConfigError::new(&self.file, e.to_string());
         model
             .with_tool(self.tool.frame())
             .map_err(in_file)?

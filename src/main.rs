@@ -8,10 +8,10 @@ use std::sync::atomic::{AtomicBool, Ordering};
 
 use clap::{Parser, Subcommand};
 use strand::config::{Config, locate};
-use strand::core::Controller;
 use strand::io::clock::ClockMode;
 use strand::io::runner::{JointFeedback, NullSink, Runner, StopWhen};
 use strand::log::writer::{LogContext, Logger};
+use strand_core::Controller;
 
 #[derive(Parser)]
 #[command(name = "strand", version, about = "Real-time streaming motion controller for robot-arm additive manufacturing")]
@@ -340,7 +340,7 @@ fn check_job(file: &Path, config: Option<&Path>, set: &[String], json: bool, png
 }
 
 /// Starts the live view (`[view]`): warns when it listens beyond this machine or takes control.
-fn start_view(cfg: &Config, model: &strand::core::kin::RobotModel) -> Result<strand_view::LiveView, String> {
+fn start_view(cfg: &Config, model: &strand_core::kin::RobotModel) -> Result<strand_view::LiveView, String> {
     let address = cfg.view.socket_addr().map_err(|e| format!("{}: {e}", cfg.file.display()))?;
     if cfg.view.exposed() {
         tracing::warn!(

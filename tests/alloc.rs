@@ -10,7 +10,7 @@ mod common;
 mod paths;
 
 use nalgebra::UnitQuaternion;
-use strand::core::kin::{ChainState, Clik, ClikConfig, Task, TaskJacobian, TcpTarget, manipulability_gradient};
+use strand_core::kin::{ChainState, Clik, ClikConfig, Task, TaskJacobian, TcpTarget, manipulability_gradient};
 
 #[path = "common/counting.rs"]
 mod counting;
@@ -93,8 +93,8 @@ fn the_rare_paths_allocate_nothing_either() {
 #[test]
 fn path_engine_and_extruder_ticks_allocate_nothing() {
     use nalgebra::Vector3;
-    use strand::core::{Extruder, ExtruderConfig};
-    use strand::core::{PathConfig, PathEngine, PlanningMode};
+    use strand_core::{Extruder, ExtruderConfig};
+    use strand_core::{PathConfig, PathEngine, PlanningMode};
     use strand_job::gcode::{GcodeOptions, parse_file};
     let file = strand_testkit::root().join("tests/data/gcode/slic3r/vase_cyl_spiral.gcode");
     // The first 3,000 segments, read before counting; fed under back-pressure while counting.
@@ -187,7 +187,7 @@ fn controller_steps_allocate_nothing_with_a_live_viewer() {
 fn counted_cell_ticks(file: Option<&std::path::Path>, view: Option<strand_view::LiveView>) -> usize {
     use common::cell::{Cell, IIWA_START, config, square_job};
     use strand_ipc::{BasePose, Command, RunState};
-    let cfg = config(|c| c.base.mode = strand::core::BaseMode::Tracked);
+    let cfg = config(|c| c.base.mode = strand_core::BaseMode::Tracked);
     let mut cell = Cell::new(&cfg, &IIWA_START);
     let job = square_job(1, [0.45, -0.02, 0.2], 0.03, 3, 0.04);
     let second = square_job(100, [0.45, -0.02, 0.2], 0.02, 1, 0.04);
@@ -260,10 +260,10 @@ fn counted_cell_ticks(file: Option<&std::path::Path>, view: Option<strand_view::
 fn whole_runner_ticks_allocate_nothing() {
     use common::cell::{IIWA_START, config, square_job};
     use std::sync::atomic::{AtomicBool, Ordering};
-    use strand::core::{TickInput, TickOutput};
     use strand::io::clock::ClockMode;
     use strand::io::rt::RealtimeConfig;
     use strand::io::runner::{JointFeedback, Runner, StopWhen, TickSink, TickTiming};
+    use strand_core::{TickInput, TickOutput};
     use strand_ipc::ports::{ClientPorts, ClientRoles};
     use strand_ipc::{Command, Control, JobOutcome, SegmentBatch, ServiceNames};
 
@@ -295,7 +295,7 @@ fn whole_runner_ticks_allocate_nothing() {
     let job = square_job(1, [0.45, -0.02, 0.2], 0.02, 1, 0.04);
     let (first, last) = (job[0].seq, job[job.len() - 1].seq);
     let model = cfg.robot.build_model().unwrap();
-    let controller = strand::core::Controller::new(&cfg.controller_settings(), model).unwrap();
+    let controller = strand_core::Controller::new(&cfg.controller_settings(), model).unwrap();
     let mut runner = Runner::new(controller, &cfg.service, cfg.controller.joint_state_timeout, cfg.controller.rate_hz).unwrap();
     let mut sink = PerTick { last: None, counts: Vec::with_capacity(20_000) };
     let stop = AtomicBool::new(false);

@@ -7,7 +7,7 @@ mod paths;
 use common::{assert_within_limits, jv, robot, start};
 use nalgebra::{UnitQuaternion, Vector3};
 use paths::{Shape, track};
-use strand::core::kin::{Clik, ClikConfig, JointVector, RobotModel, Task, TcpTarget};
+use strand_core::kin::{Clik, ClikConfig, JointVector, RobotModel, Task, TcpTarget};
 
 fn clik(task: Task) -> Clik {
     Clik::new(ClikConfig { task, ..ClikConfig::default() }).unwrap()
@@ -26,7 +26,7 @@ fn shapes(model: &RobotModel, q0: &JointVector) -> [(&'static str, Shape, f64); 
 
 #[test]
 fn tracks_lines_and_circles_to_a_micrometre_at_1khz() {
-    use strand::core::kin::Priority::{None as Flat, PositionFirst};
+    use strand_core::kin::Priority::{None as Flat, PositionFirst};
     let cases = [
         ("iiwa7", Task::Pose6, Flat),
         ("iiwa7", Task::Print5, Flat),
@@ -69,9 +69,9 @@ fn print5_uses_the_free_roll_to_raise_manipulability() {
     // and the nozzle axis stay put. On the iiwa7 the null space is 2-D (elbow self-motion and roll). On a
     // 6-axis arm whose nozzle lies along J6 the free roll is J6 alone, which leaves w unchanged; a
     // nozzle mounted at an angle makes the roll a motion of the whole wrist, and then it pays off.
-    let tilted = robot("vp6242").with_tool(strand::core::kin::Frame::from_parts(
+    let tilted = robot("vp6242").with_tool(strand_core::kin::Frame::from_parts(
         nalgebra::Translation3::new(0.05, 0.0, 0.03),
-        strand::core::kin::geom::rpy(0.0, std::f64::consts::FRAC_PI_2 - 0.6, 0.0),
+        strand_core::kin::geom::rpy(0.0, std::f64::consts::FRAC_PI_2 - 0.6, 0.0),
     ));
     let cases = [
         ("iiwa7", robot("iiwa7"), jv(&[0.2, 0.6, 1.4, -1.3, 0.2, 0.9, 0.3])),
@@ -111,7 +111,7 @@ fn through_the_vp6242_wrist_singularity_speeds_stay_in_limits_and_error_is_bound
             let qt = qa + (qb - qa) * s;
             let qtd = (qb - qa) * ds;
             let pose = model.forward_kinematics(&qt);
-            let mut st = strand::core::kin::ChainState::new(6);
+            let mut st = strand_core::kin::ChainState::new(6);
             model.kinematics(&qt, &mut st);
             let twist = st.jacobian * qtd;
             let target = TcpTarget {
@@ -148,7 +148,7 @@ fn through_the_vp6242_wrist_singularity_speeds_stay_in_limits_and_error_is_bound
     }
 }
 
-fn hold(model: &RobotModel, solver: &mut Clik, q0: JointVector, target: TcpTarget, ticks: usize) -> Vec<strand::core::kin::ClikStep> {
+fn hold(model: &RobotModel, solver: &mut Clik, q0: JointVector, target: TcpTarget, ticks: usize) -> Vec<strand_core::kin::ClikStep> {
     let mut q = q0;
     let mut out = Vec::with_capacity(ticks);
     let mut qd_prev = JointVector::zeros();
@@ -219,10 +219,10 @@ fn identical_inputs_give_bit_identical_commands() {
 /// exactly would swing J4 and J6 by ~π within a few milliseconds (tens of rad/s against 1 rad/s). Path
 /// time advances at the rate each step achieved (its `scale`), as the path engine will do. Returns the
 /// largest nozzle-axis error (rad), position error (m), the smallest scale, and the near-singular ticks.
-fn grazing_sweep(priority: strand::core::kin::Priority) -> (f64, f64, f64, usize) {
+fn grazing_sweep(priority: strand_core::kin::Priority) -> (f64, f64, f64, usize) {
     let model = robot("vp6242");
     let qa = jv(&[0.0, 0.3, 1.6, 0.0, 0.35, 0.0]);
-    let mut st = strand::core::kin::ChainState::new(6);
+    let mut st = strand_core::kin::ChainState::new(6);
     model.kinematics(&qa, &mut st);
     let forearm = st.ang(3).normalize();
     let a0 = st.tcp.rotation * Vector3::z();
@@ -272,7 +272,7 @@ fn grazing_sweep(priority: strand::core::kin::Priority) -> (f64, f64, f64, usize
 
 #[test]
 fn a_nozzle_sweep_grazing_the_vp6242_wrist_singularity_is_slowed_and_damped_not_flipped() {
-    use strand::core::kin::Priority;
+    use strand_core::kin::Priority;
     let (axis_first, pos_first, _, near_first) = grazing_sweep(Priority::PositionFirst);
     let (axis_flat, pos_flat, _, _) = grazing_sweep(Priority::None);
     eprintln!(

@@ -9,7 +9,7 @@ mod paths;
 use common::{jv, rail_arm, robot};
 use nalgebra::{UnitQuaternion, Vector3};
 use paths::{Shape, track};
-use strand::core::kin::{Clik, ClikConfig, ClikStep, JointVector, PathVelocity, RobotModel, Task, TcpTarget};
+use strand_core::kin::{Clik, ClikConfig, ClikStep, JointVector, PathVelocity, RobotModel, Task, TcpTarget};
 
 fn clik(task: Task) -> Clik {
     Clik::new(ClikConfig { task, ..ClikConfig::default() }).unwrap()

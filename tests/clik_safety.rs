@@ -6,7 +6,7 @@ mod common;
 
 use nalgebra::{UnitQuaternion, Vector3};
 use proptest::prelude::*;
-use strand::core::kin::{Clik, ClikConfig, JointVector, Priority, RobotModel, Task, TcpTarget};
+use strand_core::kin::{Clik, ClikConfig, JointVector, Priority, RobotModel, Task, TcpTarget};
 
 fn models() -> Vec<RobotModel> {
     let mut v: Vec<RobotModel> = common::ROBOTS.iter().map(|n| common::robot(n)).collect();

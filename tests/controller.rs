@@ -7,8 +7,8 @@ mod common;
 
 use common::cell::{Cell, DOWN, FLOW, IIWA_START, check_limits, config, job_filament, line, square_job};
 use nalgebra::{UnitQuaternion, Vector3};
-use strand::core::Event;
-use strand::core::{BaseMode, EstimatorKind};
+use strand_core::Event;
+use strand_core::{BaseMode, EstimatorKind};
 use strand_ipc::{Command, FaultCode, JobOutcome, RejectReason, RunState};
 
 const ORIGIN: [f64; 3] = [0.45, -0.02, 0.2];
@@ -151,7 +151,7 @@ fn a_stop_right_after_the_start_ends_the_job_and_the_rest_in_flight_is_refused()
     cell.step();
     let stamp = cell.now_ns();
     let job: Vec<_> = square_job(1, ORIGIN, 0.04, 40, 0.03).into_iter().map(|s| strand_ipc::Segment { stamp_ns: stamp, ..s }).collect();
-    assert!(job.len() > 2 * strand::core::MAX_SEGMENTS_PER_TICK, "more than two ticks' worth: {}", job.len());
+    assert!(job.len() > 2 * strand_core::MAX_SEGMENTS_PER_TICK, "more than two ticks' worth: {}", job.len());
     cell.send(&job);
     cell.control(Command::Start, 0.0);
     cell.control(Command::Stop, 0.0);

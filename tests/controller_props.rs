@@ -25,7 +25,7 @@ mod common;
 use common::cell::{Cell, check_limits, square_job};
 use proptest::prelude::*;
 use proptest::test_runner::{Config, RngSeed, TestCaseError, TestRunner};
-use strand::core::Event;
+use strand_core::Event;
 use strand_ipc::{self as ipc, Command, JobOutcome, RunState};
 
 const ORIGIN: [f64; 3] = [0.45, -0.02, 0.2];

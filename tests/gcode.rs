@@ -13,7 +13,7 @@ use std::path::{Path, PathBuf};
 
 use nalgebra::{Unit, UnitQuaternion, Vector3};
 use proptest::prelude::*;
-use strand::core::{Segment, SegmentFlags, SegmentKind};
+use strand_core::{Segment, SegmentFlags, SegmentKind};
 use strand_job::gcode::{
     Dialect, GcodeError, GcodeOptions, GcodeSegment, MAX_REPORT_KINDS, OTHER_KIND, Parser, Warning, parse_file, segment_length,
 };

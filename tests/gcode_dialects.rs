@@ -9,7 +9,7 @@ use std::io::Cursor;
 use std::path::PathBuf;
 
 use proptest::prelude::*;
-use strand::core::{Segment, SegmentFlags, SegmentKind};
+use strand_core::{Segment, SegmentFlags, SegmentKind};
 use strand_job::gcode::{Dialect, FirmwareRetraction, GcodeError, GcodeOptions, GcodeSegment, Parser, ProgramLimits, Warning, parse_file};
 
 const MM: f64 = 1e-3;

@@ -4,7 +4,7 @@
 mod common;
 
 use common::{ROBOTS, Rng, rail_arm, robot};
-use strand::core::kin::{ChainState, JointVector, RobotModel, Task, TaskJacobian, geom, manipulability, manipulability_gradient};
+use strand_core::kin::{ChainState, JointVector, RobotModel, Task, TaskJacobian, geom, manipulability, manipulability_gradient};
 
 const H: f64 = 1e-6;
 

@@ -7,7 +7,7 @@ use std::path::Path;
 
 use common::{ROBOTS, jv, robot};
 use strand::config::{Config, RobotConfig};
-use strand::core::kin::{JointKind, ModelError, RobotModel};
+use strand_core::kin::{JointKind, ModelError, RobotModel};
 
 #[test]
 fn the_bundled_robots_load_with_their_chains() {
@@ -186,5 +186,5 @@ fn config_errors_name_the_file_and_the_key() {
 fn the_bundled_default_config_loads() {
     let cfg = Config::load(&strand_testkit::root().join("config/default.toml")).unwrap();
     assert_eq!(cfg.robot.build_model().unwrap().dof(), 7);
-    assert_eq!(cfg.clik, strand::core::kin::ClikConfig::default(), "default.toml and ClikConfig::default() agree");
+    assert_eq!(cfg.clik, strand_core::kin::ClikConfig::default(), "default.toml and ClikConfig::default() agree");
 }

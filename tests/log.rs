@@ -10,7 +10,6 @@ use std::path::{Path, PathBuf};
 use common::Rng;
 use common::cell::{Cell, IIWA_START, config, line, square_job};
 use strand::config::Config;
-use strand::core::{TickInput, TickOutput};
 use strand::log::cdr::{CdrType, CdrWriter, Scalar, decode, encode};
 use strand::log::dynamic::{Schema, Value};
 use strand::log::messages::{Tick, TickTiming};
@@ -18,6 +17,7 @@ use strand::log::reader::LogFile;
 use strand::log::replay::{ReplayError, Verdict, verify, verify_with};
 use strand::log::writer::{LogContext, Logger};
 use strand::log::{LogConfig, topics};
+use strand_core::{TickInput, TickOutput};
 use strand_ipc as ipc;
 use strand_ipc::{Command, RunState};
 use strand_testkit::temp_dir;
@@ -256,7 +256,7 @@ fn a_changed_gain_is_reported_at_the_first_divergent_tick() {
     // the first tick whose output differs from the log.
     let mut cfg = log.config().unwrap();
     change(&mut cfg);
-    let mut ctl = strand::core::Controller::new(&cfg.controller_settings(), cfg.robot.build_model().unwrap()).unwrap();
+    let mut ctl = strand_core::Controller::new(&cfg.controller_settings(), cfg.robot.build_model().unwrap()).unwrap();
     let first = log.ticks().map(Result::unwrap).find(|t| bytes(&ctl.step(&t.input)) != bytes(&t.output)).unwrap();
     assert_eq!(tick, first.input.tick);
     assert!(field.starts_with("output."), "{field}");
@@ -433,6 +433,6 @@ fn bad_segments_keep_their_reasons_in_the_log() {
         .ticks()
         .map(Result::unwrap)
         .flat_map(|t| t.output.events().to_vec())
-        .any(|e| matches!(e, strand::core::Event::SegmentRejected { seq: 1, reason: ipc::RejectReason::NonFinite, field: "end" }));
+        .any(|e| matches!(e, strand_core::Event::SegmentRejected { seq: 1, reason: ipc::RejectReason::NonFinite, field: "end" }));
     assert!(found);
 }

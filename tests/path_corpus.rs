@@ -6,8 +6,8 @@
 
 mod common;
 
-use strand::core::ExtruderConfig;
-use strand::core::{PathConfig, PlanningMode, Segment};
+use strand_core::ExtruderConfig;
+use strand_core::{PathConfig, PlanningMode, Segment};
 use strand_job::bed::BedTransform;
 use strand_job::gcode::{GcodeOptions, parse_file};
 use strand_job::timing::time_program;
@@ -105,7 +105,7 @@ fn rules_004_beats_stop_and_go_and_lookahead_beats_both_on_the_first_outer_wall(
             let mut s = *s;
             s.seq = i as u64 + 1;
             if i + 2 == wall.len() {
-                s.flags = s.flags.with(strand::core::SegmentFlags::LAST);
+                s.flags = s.flags.with(strand_core::SegmentFlags::LAST);
             }
             Ok(strand_job::gcode::GcodeSegment { segment: s, line: 0, tags: Default::default() })
         });

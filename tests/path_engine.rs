@@ -1,8 +1,8 @@
 //! The path engine on hand-made segment streams: limits, blending, underrun, dwell, override.
 
 use nalgebra::{UnitQuaternion, Vector3};
-use strand::core::{Extruder, ExtruderConfig};
-use strand::core::{Motion, PathConfig, PathEngine, PathSample, PlanningMode, Segment, SegmentError, SegmentFlags, SegmentKind};
+use strand_core::{Extruder, ExtruderConfig};
+use strand_core::{Motion, PathConfig, PathEngine, PathSample, PlanningMode, Segment, SegmentError, SegmentFlags, SegmentKind};
 use strand_job::bed::BedConfig;
 use strand_job::bed::BedTransform;
 
@@ -508,9 +508,9 @@ fn every_documented_planning_mode_loads() {
     let text = std::fs::read_to_string(&file).unwrap();
     let documented = text.lines().find(|l| l.starts_with("mode = ")).expect("the [path] mode line");
     for (name, mode) in [
-        ("stop-and-go", strand::core::PlanningMode::StopAndGo),
-        ("rules-004", strand::core::PlanningMode::KnowledgeRules),
-        ("lookahead", strand::core::PlanningMode::Lookahead),
+        ("stop-and-go", strand_core::PlanningMode::StopAndGo),
+        ("rules-004", strand_core::PlanningMode::KnowledgeRules),
+        ("lookahead", strand_core::PlanningMode::Lookahead),
     ] {
         assert!(documented.contains(&format!("\"{name}\"")), "{documented}");
         let cfg = strand::config::Config::load_with(&file, &[format!("path.mode={name}")]).unwrap();

@@ -12,8 +12,8 @@
 use nalgebra::{UnitQuaternion, Vector3};
 use proptest::prelude::*;
 use proptest::test_runner::{Config, RngSeed, TestRunner};
-use strand::core::arc_geometry;
-use strand::core::{Motion, PathConfig, PathEngine, PlanningMode, Segment, SegmentFlags, SegmentKind};
+use strand_core::arc_geometry;
+use strand_core::{Motion, PathConfig, PathEngine, PlanningMode, Segment, SegmentFlags, SegmentKind};
 
 /// One thing a slicer or planner may send.
 #[derive(Clone, Debug)]

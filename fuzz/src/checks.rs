@@ -16,7 +16,7 @@
 use std::io::Cursor;
 
 use nalgebra::Vector3;
-use strand::core::{Motion, PathConfig, PathEngine, PathSample, Segment, SegmentFlags, SegmentKind};
+use strand_core::{Motion, PathConfig, PathEngine, PathSample, Segment, SegmentFlags, SegmentKind};
 use strand_job::gcode::{GcodeError, GcodeOptions, GcodeSegment, Parser, segment_length};
 
 /// File name given to the parser.

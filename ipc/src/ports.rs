@@ -143,7 +143,7 @@ pub enum PortError {
 /// The quality of service of one publish-subscribe service. Fixed at creation; an opener's values
 /// are minimums the existing service must meet.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct Qos {
+pub(crate) struct Qos {
     /// Samples a subscriber queues (count).
     pub buffer: usize,
     /// Samples a late subscriber receives from the past (count).
@@ -155,15 +155,15 @@ pub struct Qos {
 }
 
 /// Segment batches: a deep buffer, bounded in use by credit-based flow control (module docs).
-pub const SEGMENTS_QOS: Qos = Qos { buffer: 256, history: 0, max_publishers: 4, max_subscribers: 8 };
+pub(crate) const SEGMENTS_QOS: Qos = Qos { buffer: 256, history: 0, max_publishers: 4, max_subscribers: 8 };
 /// Control commands.
-pub const CONTROL_QOS: Qos = Qos { buffer: 64, history: 0, max_publishers: 4, max_subscribers: 8 };
+pub(crate) const CONTROL_QOS: Qos = Qos { buffer: 64, history: 0, max_publishers: 4, max_subscribers: 8 };
 /// Measurements (joint state, base pose): only the latest matters.
-pub const MEASUREMENT_QOS: Qos = Qos { buffer: 16, history: 0, max_publishers: 4, max_subscribers: 8 };
+pub(crate) const MEASUREMENT_QOS: Qos = Qos { buffer: 16, history: 0, max_publishers: 4, max_subscribers: 8 };
 /// Controller outputs (joint command, extruder command, status): one publisher, last sample kept.
-pub const OUTPUT_QOS: Qos = Qos { buffer: 16, history: 1, max_publishers: 1, max_subscribers: 8 };
+pub(crate) const OUTPUT_QOS: Qos = Qos { buffer: 16, history: 1, max_publishers: 1, max_subscribers: 8 };
 /// Job progress from the feeder: the last one kept for a console that opens late.
-pub const JOB_PROGRESS_QOS: Qos = Qos { buffer: 4, history: 1, max_publishers: 4, max_subscribers: 8 };
+pub(crate) const JOB_PROGRESS_QOS: Qos = Qos { buffer: 4, history: 1, max_publishers: 4, max_subscribers: 8 };
 /// Nodes that may use one service (count).
 const MAX_NODES: usize = 20;
 /// Notifiers and listeners per event service (count).

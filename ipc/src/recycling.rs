@@ -69,13 +69,13 @@ impl iceoryx2::service::internal::ServiceInternal<Service> for Service {}
 
 /// Distinct block layouts the per-thread free list keeps (count). iceoryx2 uses the policy for a
 /// handful of types per port kind; a thread that meets more simply allocates for the rest.
-pub const LAYOUTS: usize = 8;
+pub(crate) const LAYOUTS: usize = 8;
 /// Blocks kept per layout and thread (count): more than the samples a publisher may hold on loan at
 /// once in strand (one), and than the ports of one kind a thread opens.
-pub const KEPT_PER_LAYOUT: usize = 64;
+pub(crate) const KEPT_PER_LAYOUT: usize = 64;
 /// Largest block kept (bytes): the per-sample states (40 bytes) and their kind. A port's own state,
 /// created once with the port, goes back to the allocator.
-pub const LARGEST_KEPT: usize = 64;
+pub(crate) const LARGEST_KEPT: usize = 64;
 
 /// The value and its handle count, in one block.
 struct Shared<T> {

@@ -51,7 +51,7 @@ impl JointLimits {
     /// `dt·((m+1)·v − Δv·m(m+1)/2)`, so a joint that follows it never brakes harder than the
     /// acceleration limit, which the continuous law `√(2·a·room)` would break near the end.
     /// Infinite for a continuous joint; 0 at or past the limit.
-    pub fn speed_to_stop_within(&self, room: f64, dt: f64) -> f64 {
+    pub(crate) fn speed_to_stop_within(&self, room: f64, dt: f64) -> f64 {
         let room = room.max(0.0);
         let dv = self.acceleration * dt;
         if !dv.is_finite() || !room.is_finite() {

@@ -35,9 +35,9 @@ use strand_ipc as ipc;
 use strand_ipc::{Command, FaultCode, JobOutcome, RunState};
 
 use crate::config::Config;
-use crate::core::BaseMode;
-use crate::core::kin::{JointVector, MAX_JOINTS};
-use crate::core::{Controller, Event, MAX_SEGMENTS_PER_TICK, TickInput};
+use strand_core::BaseMode;
+use strand_core::kin::{JointVector, MAX_JOINTS};
+use strand_core::{Controller, Event, MAX_SEGMENTS_PER_TICK, TickInput};
 use strand_job::bed::BedTransform;
 use strand_job::load::BaseTrajectory;
 use strand_job::timing::MAX_SEGMENT_SECONDS;
@@ -209,7 +209,7 @@ pub struct CheckReport {
 }
 
 /// Findings kept in a report; more are counted in `problems_omitted`.
-pub const MAX_PROBLEMS: usize = 500;
+pub(crate) const MAX_PROBLEMS: usize = 500;
 
 /// Series for `--png` (decimated to at most about [`SERIES_POINTS`] points).
 #[derive(Clone, Debug, Default)]
@@ -223,7 +223,7 @@ pub struct CheckSeries {
 }
 
 /// Points a series keeps.
-pub const SERIES_POINTS: usize = 4000;
+pub(crate) const SERIES_POINTS: usize = 4000;
 
 /// The job to check: wire segments in W (numbered, the last flagged LAST) and their layers.
 pub struct CheckJob<'a> {

@@ -8,7 +8,7 @@ use plotters::prelude::*;
 use plotters::style::FontStyle;
 
 use super::{CheckReport, CheckSeries, NoFont};
-use crate::core::kin::JointLimits;
+use strand_core::kin::JointLimits;
 
 /// Font files tried in order (plotters draws text with ab_glyph from a TTF).
 const FONT_PATHS: &[&str] = &[

@@ -32,7 +32,7 @@ pub enum DriverProtocol {
 impl DriverProtocol {
     /// The port the protocol's examples use (EGM 6510, RSI 49152, FRI 30200; the controller's
     /// b-CAP 5007, Meca500 control 10000, UR RTDE 30004).
-    pub fn default_port(self) -> u16 {
+    pub(crate) fn default_port(self) -> u16 {
         match self {
             DriverProtocol::Egm => 6510,
             DriverProtocol::Rsi => 49152,

@@ -34,7 +34,7 @@ mod bundled {
 pub const DEFAULT: &str = "default.toml";
 
 /// The environment variable of step 2.
-pub const ENV_DIR: &str = "STRAND_CONFIG_DIR";
+pub(crate) const ENV_DIR: &str = "STRAND_CONFIG_DIR";
 
 /// The built-in files: their NAME (`/`-separated path inside `config/`) and bytes.
 pub fn bundled_files() -> &'static [(&'static str, &'static [u8])] {
@@ -42,14 +42,14 @@ pub fn bundled_files() -> &'static [(&'static str, &'static [u8])] {
 }
 
 /// Names of the built-in service configs (`default`, `iiwa7`, `free-flyer`, …), for messages.
-pub fn bundled_configs() -> Vec<&'static str> {
+pub(crate) fn bundled_configs() -> Vec<&'static str> {
     bundled::FILES.iter().filter_map(|(n, _)| n.strip_suffix(".toml")).filter(|n| !n.contains('/')).collect()
 }
 
 /// True for a bare word (`iiwa7`): one normal path component without an extension. Such an argument
 /// is a NAME to search for unless a file or folder of that name is in the working directory;
 /// anything else is a path.
-pub fn is_name(arg: &Path) -> bool {
+pub(crate) fn is_name(arg: &Path) -> bool {
     let mut parts = arg.components();
     matches!((parts.next(), parts.next()), (Some(Component::Normal(_)), None))
         && arg.extension().is_none()
@@ -95,7 +95,7 @@ pub fn beside_or_find(file: &Path, name: &str) -> Result<PathBuf, ConfigError> {
 
 /// The folders of steps 2 to 4, in order, as far as they apply here; an error if
 /// `$STRAND_CONFIG_DIR` is set to something that is not a folder.
-pub fn search_dirs() -> Result<Vec<PathBuf>, ConfigError> {
+pub(crate) fn search_dirs() -> Result<Vec<PathBuf>, ConfigError> {
     let mut dirs = Vec::new();
     if let Some(d) = std::env::var_os(ENV_DIR).filter(|d| !d.is_empty()) {
         let d = PathBuf::from(d);
@@ -129,7 +129,7 @@ pub fn find(name: &str) -> Result<PathBuf, ConfigError> {
 }
 
 /// The built-in `config/` tree, written out (once per version and contents) to the cache folder.
-pub fn bundled_dir() -> Result<PathBuf, ConfigError> {
+pub(crate) fn bundled_dir() -> Result<PathBuf, ConfigError> {
     static DIR: OnceLock<Result<PathBuf, ConfigError>> = OnceLock::new();
     DIR.get_or_init(|| {
         let leaf = format!("config-{}-{}", env!("CARGO_PKG_VERSION"), bundled::HASH);
@@ -140,7 +140,7 @@ pub fn bundled_dir() -> Result<PathBuf, ConfigError> {
 
 /// Folders a built-in copy may be written to: `$XDG_CACHE_HOME/strand`, `$HOME/.cache/strand`,
 /// `<temp dir>/strand-<uid>`.
-pub fn cache_roots() -> Vec<PathBuf> {
+pub(crate) fn cache_roots() -> Vec<PathBuf> {
     let var = |k: &str| std::env::var_os(k).filter(|v| !v.is_empty()).map(PathBuf::from).filter(|p| p.is_absolute());
     let mut roots = Vec::new();
     if let Some(x) = var("XDG_CACHE_HOME") {

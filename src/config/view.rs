@@ -80,7 +80,7 @@ impl ViewConfig {
     }
 
     /// The rate for `topic` (Hz; 0: every message).
-    pub fn rate_for(&self, topic: &str) -> f64 {
+    pub(crate) fn rate_for(&self, topic: &str) -> f64 {
         self.rates.get(topic).copied().unwrap_or(self.default_rate_hz)
     }
 

@@ -246,7 +246,7 @@ impl BaseEstimator {
     }
 
     /// Whether this base needs tracking input.
-    pub fn is_tracked(&self) -> bool {
+    pub(crate) fn is_tracked(&self) -> bool {
         self.config.mode == BaseMode::Tracked
     }
 

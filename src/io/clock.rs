@@ -90,7 +90,7 @@ impl TimerClock {
 
     /// The deadline the next [`wait`](Self::wait) returns at (ns); after a `wait`, the deadline of
     /// the next tick, i.e. when the current tick's work must be done. 0 before `start`.
-    pub fn next_deadline_ns(&self) -> u64 {
+    pub(crate) fn next_deadline_ns(&self) -> u64 {
         self.next_deadline_ns
     }
 
@@ -123,7 +123,7 @@ impl TimerClock {
 
 /// Sleeps until `deadline_ns` (ns, `CLOCK_MONOTONIC`, absolute), retrying on `EINTR`. Returns at once
 /// for a deadline in the past. Tick-path safe.
-pub fn sleep_until_ns(deadline_ns: u64) {
+pub(crate) fn sleep_until_ns(deadline_ns: u64) {
     let ts =
         libc::timespec { tv_sec: (deadline_ns / 1_000_000_000) as libc::time_t, tv_nsec: (deadline_ns % 1_000_000_000) as libc::c_long };
     loop {
@@ -154,7 +154,7 @@ pub struct CycleStats {
 
 impl CycleStats {
     /// Counts a wake-up: late if `wake.lateness_ns > late_threshold_ns` (ns).
-    pub fn record_wake(&mut self, wake: &Wake, late_threshold_ns: u64) {
+    pub(crate) fn record_wake(&mut self, wake: &Wake, late_threshold_ns: u64) {
         self.ticks += 1;
         if wake.lateness_ns > late_threshold_ns {
             self.late_wakeups += 1;
@@ -165,7 +165,7 @@ impl CycleStats {
 
     /// Counts the end of a tick's work at `end_ns` (ns): an overrun if it is after
     /// `next_deadline_ns` (ns), the deadline of the following tick.
-    pub fn record_work_end(&mut self, end_ns: u64, next_deadline_ns: u64) {
+    pub(crate) fn record_work_end(&mut self, end_ns: u64, next_deadline_ns: u64) {
         if end_ns > next_deadline_ns {
             self.overruns += 1;
         }

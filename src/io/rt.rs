@@ -17,7 +17,7 @@ use strand_core::InvalidSetting;
 
 /// Largest stack pre-fault [`RealtimeConfig::validate`] accepts (bytes): 8 MiB, the usual main-thread
 /// stack limit.
-pub const MAX_PREFAULT_STACK_BYTES: usize = 8 * 1024 * 1024;
+pub(crate) const MAX_PREFAULT_STACK_BYTES: usize = 8 * 1024 * 1024;
 
 /// Stack left untouched below the pre-faulted region (bytes), for the frames of the pre-fault itself
 /// and whatever runs after it.
@@ -185,7 +185,7 @@ fn hold_cpu_latency(us: u32) -> RtOutcome {
 
 /// The scheduling policy and priority of the calling thread, e.g. `"SCHED_FIFO 80"` or
 /// `"SCHED_OTHER"`, for reports.
-pub fn current_policy() -> String {
+pub(crate) fn current_policy() -> String {
     let mut policy: libc::c_int = 0;
     let mut param = libc::sched_param { sched_priority: 0 };
     // SAFETY: pthread_self() is the calling thread; both out-pointers are valid locals.
@@ -205,7 +205,7 @@ pub fn current_policy() -> String {
 }
 
 /// Number of online CPUs (`sysconf(_SC_NPROCESSORS_ONLN)`, at least 1).
-pub fn online_cpus() -> usize {
+pub(crate) fn online_cpus() -> usize {
     // SAFETY: sysconf has no preconditions.
     let n = unsafe { libc::sysconf(libc::_SC_NPROCESSORS_ONLN) };
     if n < 1 { 1 } else { n as usize }

@@ -15,8 +15,8 @@ use strand_ipc::{JobOutcome, RunState, ServiceNames};
 use super::clock::{ClockMode, CycleStats, TimerClock, monotonic_ns};
 use super::histogram::Histogram;
 use super::rt::{self, RealtimeConfig};
-use crate::core::{Controller, Event, TickInput, TickOutput};
 use strand_core::InvalidSetting;
+use strand_core::{Controller, Event, TickInput, TickOutput};
 use strand_ipc::ports::{PortError, ServicePorts};
 
 /// Where the controller learns the joint positions.
@@ -455,7 +455,7 @@ pub fn take_segments(
 
 /// Moves the waiting controls into `input`, as many as a tick takes. Tick-path safe.
 pub fn take_controls(ports: &ServicePorts, input: &mut TickInput) -> Result<(), PortError> {
-    while input.control_count < crate::core::MAX_CONTROLS_PER_TICK as u32 {
+    while input.control_count < strand_core::MAX_CONTROLS_PER_TICK as u32 {
         match ports.receive_control()? {
             Some(c) => {
                 input.push_control(&c);
@@ -519,7 +519,7 @@ fn job_ended(status: &ipc::Status) -> bool {
 
 /// Most segments a tick takes in at `intake_rate` (segments/s) and `rate_hz` ticks/s: at least one.
 pub fn segments_per_tick(intake_rate: f64, rate_hz: f64) -> usize {
-    ((intake_rate / rate_hz).ceil() as usize).clamp(1, crate::core::MAX_SEGMENTS_PER_TICK)
+    ((intake_rate / rate_hz).ceil() as usize).clamp(1, strand_core::MAX_SEGMENTS_PER_TICK)
 }
 
 /// How often the housekeeper lets iceoryx2 forget dead peers (s).

@@ -12,7 +12,7 @@
 use std::fmt;
 
 /// Encapsulation header of little-endian plain CDR.
-pub const CDR_LE_HEADER: [u8; 4] = [0x00, 0x01, 0x00, 0x00];
+pub(crate) const CDR_LE_HEADER: [u8; 4] = [0x00, 0x01, 0x00, 0x00];
 
 /// Appends CDR to a reused buffer (no allocation once the buffer has grown to its working size).
 #[derive(Default)]
@@ -332,17 +332,17 @@ impl<T: CdrType + Copy + Default, const N: usize> CdrType for [T; N] {
 
 /// The ros2msg type of a field, found through an accessor (lets the macro below avoid repeating
 /// field types).
-pub fn ros_type_of<S, T: CdrType>(_: fn(&S) -> &T) -> String {
+pub(crate) fn ros_type_of<S, T: CdrType>(_: fn(&S) -> &T) -> String {
     T::ros_type()
 }
 
 /// The dependencies of a field's type.
-pub fn dependencies_of<S, T: CdrType>(_: fn(&S) -> &T, out: &mut Vec<(String, String)>) {
+pub(crate) fn dependencies_of<S, T: CdrType>(_: fn(&S) -> &T, out: &mut Vec<(String, String)>) {
     T::dependencies(out)
 }
 
 /// Adds a message definition to a dependency list unless it is there already.
-pub fn add_dependency(out: &mut Vec<(String, String)>, name: String, body: impl FnOnce() -> String) {
+pub(crate) fn add_dependency(out: &mut Vec<(String, String)>, name: String, body: impl FnOnce() -> String) {
     if !out.iter().any(|(n, _)| *n == name) {
         let body = body();
         out.push((name, body));
@@ -384,7 +384,7 @@ macro_rules! cdr_message {
 
 /// The full ros2msg schema text of a top-level message type: its own body, then each dependency
 /// after a line of 80 `=` and `MSG: pkg/Type`, as rosbag2 and the MCAP ros2msg profile expect.
-pub fn schema_text<T: CdrType>() -> String {
+pub(crate) fn schema_text<T: CdrType>() -> String {
     let mut deps = Vec::new();
     T::dependencies(&mut deps);
     let top = T::ros_type();

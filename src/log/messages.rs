@@ -13,8 +13,8 @@ use strand_ipc::{FaultCode, JobOutcome, RejectReason, RunState};
 
 use super::cdr::{CdrError, CdrReader, CdrType, CdrWriter, Scalar, add_dependency};
 use crate::cdr_message;
-use crate::core::BaseState;
-use crate::core::{
+use strand_core::BaseState;
+use strand_core::{
     CycleCounters, Event, MAX_BASE_POSES_PER_TICK, MAX_CONTROLS_PER_TICK, MAX_EVENTS, MAX_SEGMENTS_PER_TICK, TickDiagnostics, TickInput,
     TickOutput,
 };
@@ -360,9 +360,9 @@ pub mod ros {
     const SEPARATOR: &str = "================================================================================";
 
     /// `sensor_msgs/msg/JointState`.
-    pub const JOINT_STATE: &str = "sensor_msgs/msg/JointState";
+    pub(crate) const JOINT_STATE: &str = "sensor_msgs/msg/JointState";
     /// `geometry_msgs/msg/PoseStamped`.
-    pub const POSE_STAMPED: &str = "geometry_msgs/msg/PoseStamped";
+    pub(crate) const POSE_STAMPED: &str = "geometry_msgs/msg/PoseStamped";
 
     fn header_deps() -> String {
         format!(
@@ -372,12 +372,12 @@ pub mod ros {
     }
 
     /// The schema text of `sensor_msgs/msg/JointState`.
-    pub fn joint_state_schema() -> String {
+    pub(crate) fn joint_state_schema() -> String {
         format!("std_msgs/Header header\nstring[] name\nfloat64[] position\nfloat64[] velocity\nfloat64[] effort\n{}", header_deps())
     }
 
     /// The schema text of `geometry_msgs/msg/PoseStamped`.
-    pub fn pose_stamped_schema() -> String {
+    pub(crate) fn pose_stamped_schema() -> String {
         format!(
             "std_msgs/Header header\ngeometry_msgs/Pose pose\n{}\
              {SEPARATOR}\nMSG: geometry_msgs/Pose\ngeometry_msgs/Point position\ngeometry_msgs/Quaternion orientation\n\
@@ -410,7 +410,7 @@ pub mod ros {
     }
 
     /// Encodes a PoseStamped; `orientation` is (w, x, y, z) and goes out in ROS order (x, y, z, w).
-    pub fn pose_stamped(w: &mut CdrWriter, stamp_ns: u64, frame_id: &str, position: [f64; 3], orientation: [f64; 4]) {
+    pub(crate) fn pose_stamped(w: &mut CdrWriter, stamp_ns: u64, frame_id: &str, position: [f64; 3], orientation: [f64; 4]) {
         w.begin();
         header(w, stamp_ns, frame_id);
         for v in position {

@@ -18,7 +18,7 @@ pub mod messages;
 pub mod reader;
 pub mod recover;
 pub mod replay;
-pub mod scene;
+pub(crate) mod scene;
 pub mod writer;
 
 /// Channel topics.
@@ -30,9 +30,9 @@ pub mod topics {
     /// The path's TCP target in the world frame (`geometry_msgs/msg/PoseStamped`).
     pub const TCP_TARGET: &str = "/tcp/target";
     /// The TCP from the measured joints and the estimated base, world frame.
-    pub const TCP_ACTUAL: &str = "/tcp/actual";
+    pub(crate) const TCP_ACTUAL: &str = "/tcp/actual";
     /// Tracking samples as received (`geometry_msgs/msg/PoseStamped`).
-    pub const BASE_MEASURED: &str = "/base/measured";
+    pub(crate) const BASE_MEASURED: &str = "/base/measured";
     /// The base pose the controller used.
     pub const BASE_ESTIMATED: &str = "/base/estimated";
     /// Extruder commands (`strand_msgs/msg/ExtruderCommand`).
@@ -48,11 +48,11 @@ pub mod topics {
 /// Attachment and metadata names.
 pub mod names {
     /// The effective configuration (TOML, robot inline).
-    pub const EFFECTIVE_CONFIG: &str = "effective-config.toml";
+    pub(crate) const EFFECTIVE_CONFIG: &str = "effective-config.toml";
     /// The robot's URDF.
     pub const URDF: &str = "robot.urdf";
     /// The metadata record.
-    pub const METADATA: &str = "strand";
+    pub(crate) const METADATA: &str = "strand";
 }
 
 pub use crate::config::log::{LogCompression, LogConfig};
@@ -80,7 +80,7 @@ pub fn unix_now_ns() -> u64 {
 }
 
 /// The build's version: crate version and, when built from a git checkout, the commit.
-pub fn build_version() -> String {
+pub(crate) fn build_version() -> String {
     match option_env!("STRAND_GIT_COMMIT") {
         Some(c) if !c.is_empty() => format!("{} ({c})", env!("CARGO_PKG_VERSION")),
         _ => env!("CARGO_PKG_VERSION").to_string(),

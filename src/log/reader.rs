@@ -75,7 +75,7 @@ impl LogFile {
     }
 
     /// From bytes already read.
-    pub fn from_bytes(path: &Path, bytes: Vec<u8>) -> Result<Self, ReadError> {
+    pub(crate) fn from_bytes(path: &Path, bytes: Vec<u8>) -> Result<Self, ReadError> {
         if !bytes.starts_with(MAGIC) {
             return Err(ReadError::File { path: path.display().to_string(), message: "not an MCAP file (no magic)".to_string() });
         }

@@ -6,7 +6,7 @@
 use super::cdr::{CdrType, CdrWriter, Scalar, encode};
 use super::reader::{LogFile, ReadError};
 use crate::config::Config;
-use crate::core::Controller;
+use strand_core::Controller;
 
 /// The outcome of a replay.
 #[derive(Clone, Debug, PartialEq)]

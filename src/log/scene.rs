@@ -20,10 +20,10 @@ use strand_ipc as ipc;
 use super::cdr::CdrWriter;
 use super::messages::Tick;
 use crate::config::view::ViewConfig;
-use crate::core::kin::{JointVector, RobotModel, geom};
+use strand_core::kin::{JointVector, RobotModel, geom};
 
 /// Points a trail chunk holds before the next one starts.
-pub const CHUNK_POINTS: usize = 100;
+pub(crate) const CHUNK_POINTS: usize = 100;
 /// Shortest spacing of trail points (m): the trail follows corners without a point per tick.
 const TRAIL_SPACING: f64 = 0.0005;
 /// Line widths (m).
@@ -32,7 +32,7 @@ const PATH_WIDTH: f64 = 0.0003;
 
 /// The scene's channels, in the order [`SceneTopic::ALL`] lists them.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum SceneTopic {
+pub(crate) enum SceneTopic {
     /// `std_msgs/msg/String`: the URDF.
     RobotDescription,
     /// `tf2_msgs/msg/TFMessage`.
@@ -49,7 +49,7 @@ pub enum SceneTopic {
 
 impl SceneTopic {
     /// Every scene channel.
-    pub const ALL: [SceneTopic; 6] = [
+    pub(crate) const ALL: [SceneTopic; 6] = [
         SceneTopic::RobotDescription,
         SceneTopic::Tf,
         SceneTopic::JointsNormalized,
@@ -59,7 +59,7 @@ impl SceneTopic {
     ];
 
     /// Its topic.
-    pub fn topic(self) -> &'static str {
+    pub(crate) fn topic(self) -> &'static str {
         match self {
             SceneTopic::RobotDescription => "/robot_description",
             SceneTopic::Tf => "/tf",
@@ -71,7 +71,7 @@ impl SceneTopic {
     }
 
     /// Its schema name and text.
-    pub fn schema(self) -> (&'static str, String) {
+    pub(crate) fn schema(self) -> (&'static str, String) {
         match self {
             SceneTopic::RobotDescription => ("std_msgs/msg/String", "string data\n".to_string()),
             SceneTopic::Tf => ("tf2_msgs/msg/TFMessage", tf_schema()),
@@ -81,7 +81,7 @@ impl SceneTopic {
     }
 
     /// Its index in [`SceneTopic::ALL`].
-    pub fn index(self) -> usize {
+    pub(crate) fn index(self) -> usize {
         self as usize
     }
 }
@@ -241,7 +241,7 @@ fn dist(a: &[f64; 3], b: &[f64; 3]) -> f64 {
 /// so a kinematics-only URDF (strand's robots carry no meshes) still shows the arm, not just its
 /// frames. Kinematics are untouched (joints, origins, limits); an URDF that does not parse is
 /// returned as it is.
-pub fn with_stick_visuals(urdf: &str) -> String {
+pub(crate) fn with_stick_visuals(urdf: &str) -> String {
     let Ok(mut robot) = urdf_rs::read_from_string(urdf) else { return urdf.to_string() };
     let offsets: Vec<(String, Vector3<f64>)> =
         robot.joints.iter().map(|j| (j.parent.link.clone(), Vector3::from(j.origin.xyz.0))).collect();
@@ -280,7 +280,7 @@ pub fn with_stick_visuals(urdf: &str) -> String {
 }
 
 /// Builds the scene's messages from the ticks (see the module documentation).
-pub struct Scene {
+pub(crate) struct Scene {
     joints: Vec<TfJoint>,
     model: RobotModel,
     names: Vec<String>,
@@ -300,7 +300,7 @@ pub struct Scene {
 impl Scene {
     /// From the robot's URDF text and chain. An URDF that does not parse leaves `/tf` empty (the
     /// model was built from the same text, so it does).
-    pub fn new(urdf: &str, model: &RobotModel, cfg: &ViewConfig) -> Scene {
+    pub(crate) fn new(urdf: &str, model: &RobotModel, cfg: &ViewConfig) -> Scene {
         let chain: Vec<&str> = model.joints().iter().map(|j| j.name.as_str()).collect();
         let joints = urdf_rs::read_from_string(urdf)
             .map(|robot| {
@@ -345,7 +345,7 @@ impl Scene {
     }
 
     /// `/robot_description`: the URDF (sent once per file, and to each live client that subscribes).
-    pub fn robot_description(&mut self) -> &[u8] {
+    pub(crate) fn robot_description(&mut self) -> &[u8] {
         self.cdr.begin();
         self.cdr.string(&self.urdf);
         self.cdr.bytes()
@@ -353,7 +353,7 @@ impl Scene {
 
     /// Takes one tick (log time `stamp_ns`, Unix ns; `measured`: the last measured joints, when
     /// known) and emits the messages that are due.
-    pub fn tick<E>(
+    pub(crate) fn tick<E>(
         &mut self,
         t: &Tick,
         stamp_ns: u64,
@@ -430,7 +430,7 @@ impl Scene {
     /// The whole trail of `topic` (`/path/executed` or `/bead`) as one MarkerArray — every kept
     /// chunk with its own id, then the current one — for a viewer that subscribed late; `None`
     /// while there is none.
-    pub fn history(&self, topic: SceneTopic, stamp_ns: u64) -> Option<Vec<u8>> {
+    pub(crate) fn history(&self, topic: SceneTopic, stamp_ns: u64) -> Option<Vec<u8>> {
         let (trail, ns, width) = match topic {
             SceneTopic::Bead => (&self.bead, "bead", BEAD_WIDTH),
             _ => (&self.executed, "executed", PATH_WIDTH),
@@ -446,7 +446,7 @@ impl Scene {
         Some(w.into_bytes())
     }
 
-    fn encode_tf(&mut self, stamp_ns: u64, q: &JointVector, base: &crate::core::BaseState) {
+    fn encode_tf(&mut self, stamp_ns: u64, q: &JointVector, base: &strand_core::BaseState) {
         let w = &mut self.cdr;
         w.begin();
         let root = self.model.root_link().to_string();
@@ -475,7 +475,7 @@ impl Scene {
 
     fn encode_normalized(&mut self, stamp_ns: u64, q: &JointVector) {
         let n = self.model.dof();
-        let mut x = [0.0; crate::core::kin::MAX_JOINTS];
+        let mut x = [0.0; strand_core::kin::MAX_JOINTS];
         for (i, x) in x.iter_mut().enumerate().take(n) {
             let l = self.model.limits(i);
             let half = 0.5 * (l.upper - l.lower);

@@ -29,9 +29,9 @@ use super::scene::{Scene, SceneTopic};
 use super::{LogCompression, LogConfig, build_version, names, topics, unix_now_ns, utc_stamp};
 use crate::config::Config;
 use crate::config::view::ViewConfig;
-use crate::core::kin::{JointVector, RobotModel};
-use crate::core::{TickInput, TickOutput};
 use crate::io::runner::TickSink;
+use strand_core::kin::{JointVector, RobotModel};
+use strand_core::{TickInput, TickOutput};
 
 /// Why logging could not start or went wrong.
 #[derive(Debug, thiserror::Error)]

@@ -3,7 +3,7 @@
 #![allow(dead_code)]
 
 use strand::config::Config;
-use strand::core::{Controller, MAX_SEGMENTS_PER_TICK, TickInput, TickOutput};
+use strand_core::{Controller, MAX_SEGMENTS_PER_TICK, TickInput, TickOutput};
 use strand_ipc as ipc;
 
 use strand_testkit::root;
@@ -143,7 +143,7 @@ impl Cell {
 }
 
 /// The command is finite and within position, velocity and acceleration limits.
-pub(crate) fn check_limits(model: &strand::core::kin::RobotModel, out: &TickOutput) {
+pub(crate) fn check_limits(model: &strand_core::kin::RobotModel, out: &TickOutput) {
     let jc = &out.joint_command;
     for i in 0..model.dof() {
         let l = model.limits(i);

@@ -4,7 +4,7 @@
 pub(crate) mod cell;
 
 use strand::config::RobotConfig;
-use strand::core::kin::{ClikStep, JointVector, RobotModel};
+use strand_core::kin::{ClikStep, JointVector, RobotModel};
 
 pub(crate) const ROBOTS: [&str; 7] = ["iiwa7", "iiwa14", "vp6242", "meca500", "irb140", "kr6r900", "ur5e"];
 
@@ -72,9 +72,9 @@ pub(crate) fn rail_arm() -> RobotModel {
 </robot>"#;
     RobotModel::from_urdf_str(urdf, "rail_arm.urdf", "floor", "flange")
         .unwrap()
-        .with_tool(strand::core::kin::Frame::from_parts(
+        .with_tool(strand_core::kin::Frame::from_parts(
             nalgebra::Translation3::new(0.0, 0.01, 0.08),
-            strand::core::kin::geom::rpy(0.05, 0.0, 0.0),
+            strand_core::kin::geom::rpy(0.05, 0.0, 0.0),
         ))
         .unwrap()
         .with_dynamic_limits(&[2.0, 10.0, 10.0, 10.0, 20.0, 20.0, 20.0], &[20.0, 100.0, 100.0, 100.0, 200.0, 200.0, 200.0], ("acc", "jerk"))

@@ -2,7 +2,7 @@
 #![allow(dead_code)]
 
 use nalgebra::{UnitQuaternion, Vector3};
-use strand::core::kin::{Clik, ClikStep, JointVector, RobotModel, TcpTarget};
+use strand_core::kin::{Clik, ClikStep, JointVector, RobotModel, TcpTarget};
 
 /// Quintic rest-to-rest profile: fraction of the path and its rate at time t of T.
 pub(crate) fn quintic(t: f64, total: f64) -> (f64, f64) {
@@ -78,7 +78,7 @@ pub(crate) fn track(model: &RobotModel, clik: &mut Clik, q0: JointVector, shape:
         let za = reached.rotation * Vector3::z();
         let zt = orient * Vector3::z();
         out.max_axis_err = out.max_axis_err.max(za.cross(&zt).norm());
-        let rot_err = strand::core::kin::geom::rotation_vector(&(orient.to_rotation_matrix() * reached.rotation.inverse())).norm();
+        let rot_err = strand_core::kin::geom::rotation_vector(&(orient.to_rotation_matrix() * reached.rotation.inverse())).norm();
         out.max_rot_err = out.max_rot_err.max(rot_err);
         out.min_scale = out.min_scale.min(step.scale);
         if !step.status.is_ok() {

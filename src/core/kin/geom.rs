@@ -39,7 +39,7 @@ pub fn rotation_vector(r: &Rotation3<f64>) -> Vector3<f64> {
 }
 
 /// The rotation vector of a unit quaternion (w, x, y, z), taking the shorter of the two ways round.
-pub fn quaternion_log(q: &UnitQuaternion<f64>) -> Vector3<f64> {
+pub(crate) fn quaternion_log(q: &UnitQuaternion<f64>) -> Vector3<f64> {
     let (w, v) = (q.w, q.imag());
     let (w, v) = if w < 0.0 { (-w, -v) } else { (w, v) };
     let s = v.norm();
@@ -52,7 +52,7 @@ pub fn quaternion_log(q: &UnitQuaternion<f64>) -> Vector3<f64> {
 
 /// The smallest rotation vector that turns the unit vector `from` onto the unit vector `to`.
 /// When they are opposite, the turn is about `fallback` (any unit vector perpendicular to `from`).
-pub fn swing_vector(from: &Vector3<f64>, to: &Vector3<f64>, fallback: &Vector3<f64>) -> Vector3<f64> {
+pub(crate) fn swing_vector(from: &Vector3<f64>, to: &Vector3<f64>, fallback: &Vector3<f64>) -> Vector3<f64> {
     let c = from.cross(to);
     let s = c.norm();
     let d = from.dot(to);
@@ -79,7 +79,7 @@ pub fn any_perpendicular(a: &Unit<Vector3<f64>>) -> Unit<Vector3<f64>> {
 }
 
 /// The unit quaternion of a rotation vector (angle × axis), the inverse of [`quaternion_log`].
-pub fn quaternion_exp(rotation: &Vector3<f64>) -> UnitQuaternion<f64> {
+pub(crate) fn quaternion_exp(rotation: &Vector3<f64>) -> UnitQuaternion<f64> {
     let angle = rotation.norm();
     if angle < 1e-12 {
         let h = rotation * 0.5;

@@ -391,7 +391,7 @@ impl RobotModel {
     }
 
     /// Copies a slice into a [`JointVector`]; `None` if its length is not `dof()` or a value is not finite.
-    pub fn joint_vector(&self, q: &[f64]) -> Option<JointVector> {
+    pub(crate) fn joint_vector(&self, q: &[f64]) -> Option<JointVector> {
         if q.len() != self.n || q.iter().any(|x| !x.is_finite()) {
             return None;
         }

@@ -11,7 +11,7 @@
 use super::model::MAX_JOINTS;
 
 /// Largest task dimension.
-pub const MAX_TASK: usize = 6;
+pub(crate) const MAX_TASK: usize = 6;
 
 /// J = Σ_k σ_k u_k v_kᵀ, k < m, with σ sorted from largest to smallest.
 #[derive(Clone, Copy, Debug)]

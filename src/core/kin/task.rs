@@ -32,7 +32,7 @@ pub enum Task {
 impl Task {
     /// Number of task rows m.
     #[inline]
-    pub fn dim(self) -> usize {
+    pub(crate) fn dim(self) -> usize {
         match self {
             Task::Pose6 => 6,
             Task::Print5 => 5,
@@ -93,7 +93,7 @@ impl TaskJacobian {
 
     /// Zeroes column `j` (a joint taken out of the solve).
     #[inline]
-    pub fn remove_column(&mut self, j: usize) {
+    pub(crate) fn remove_column(&mut self, j: usize) {
         for row in self.rows.iter_mut() {
             row[j] = 0.0;
         }

@@ -4,7 +4,7 @@
 //! orientation held.
 
 use nalgebra::{UnitQuaternion, Vector3};
-use strand::core::kin::{JointVector, RobotModel, TcpTarget};
+use strand_core::kin::{JointVector, RobotModel, TcpTarget};
 
 /// The iiwa7's start configuration (rad).
 pub(crate) const IIWA_Q0: [f64; 7] = [0.2, 0.6, -0.1, -1.3, 0.2, 0.9, 0.3];

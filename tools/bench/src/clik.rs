@@ -16,8 +16,8 @@ use std::process::Command;
 
 use serde::{Deserialize, Serialize};
 use strand::config::Config;
-use strand::core::kin::{Clik, JointVector, RobotModel, Task, TcpTarget};
 use strand::io::clock::monotonic_ns;
+use strand_core::kin::{Clik, JointVector, RobotModel, Task, TcpTarget};
 
 use super::Dist;
 use super::circle::{IIWA_Q0, circle};
@@ -186,7 +186,7 @@ pub fn run(opts: &ClikOptions) -> Result<ClikReport> {
     q0.as_mut_slice()[..IIWA_Q0.len()].copy_from_slice(&IIWA_Q0);
     let targets = circle(&model, &q0);
     let settings = cfg.controller_settings();
-    let clik_config = strand::core::kin::ClikConfig { task: Task::Pose6, ..settings.clik };
+    let clik_config = strand_core::kin::ClikConfig { task: Task::Pose6, ..settings.clik };
     let urdf = cfg.robot.urdf_path();
     let (mut strand, mut pinocchio, mut version, mut all) = (Vec::new(), Vec::new(), None, Vec::new());
     for _ in 0..opts.rounds.max(1) {

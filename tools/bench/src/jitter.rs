@@ -10,11 +10,11 @@ use std::sync::atomic::{AtomicBool, Ordering};
 
 use serde::Serialize;
 use strand::config::Config;
-use strand::core::Controller;
 use strand::io::clock::{ClockMode, TimerClock, monotonic_ns};
 use strand::io::histogram::Histogram;
 use strand::io::rt::{self, RealtimeConfig};
 use strand::io::runner::{JointFeedback, NullSink, Runner, StopWhen};
+use strand_core::Controller;
 
 use super::{Dist, bench_job, ratio, stream_job};
 use strand_cli::error::{Result, ToolError};
@@ -220,7 +220,7 @@ fn empty_loop(period_ns: u64, spin_ns: u64, ticks: u64, rt_cfg: &RealtimeConfig)
 
 /// Runs `cyclictest` (one thread, CLOCK_MONOTONIC, absolute sleeps, like the runner) for `seconds`
 /// and reads its histogram (µs buckets) into a histogram of ns.
-pub fn run_cyclictest(period_ns: u64, seconds: f64, priority: Option<u32>) -> Result<Histogram> {
+pub(crate) fn run_cyclictest(period_ns: u64, seconds: f64, priority: Option<u32>) -> Result<Histogram> {
     let interval_us = (period_ns / 1000).max(1);
     let mut cmd = Command::new("cyclictest");
     cmd.args(["--threads=1", "--clock=0", "--quiet", "--histogram=10000"])
@@ -242,7 +242,7 @@ pub fn run_cyclictest(period_ns: u64, seconds: f64, priority: Option<u32>) -> Re
 /// cyclictest's `--histogram` output: `NNNNNN CCCCCC` lines (latency in µs, count), then `# ...`
 /// summary lines, among them `# Max Latencies: NNNNN` and `# Histogram Overflows: NNNNN`. Each
 /// count is recorded at the bucket's upper edge (µs + 1 − 1 ns), so a percentile never reads low.
-pub fn parse_cyclictest_histogram(text: &str) -> Result<Histogram> {
+pub(crate) fn parse_cyclictest_histogram(text: &str) -> Result<Histogram> {
     let mut h = Histogram::new();
     let mut max_us: Option<u64> = None;
     let mut overflows = 0u64;

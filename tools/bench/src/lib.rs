@@ -30,12 +30,12 @@ use strand_feed::{Job, batch, credit, load_gcode};
 
 /// The job a loaded controller prints in `jitter` and `latency`: 004's 35 mm box (PrusaSlicer),
 /// 16 k segments, 21 minutes of printing, far longer than any benchmark run.
-pub fn bench_job(root: &Path, cfg: &Config) -> Result<Job> {
+pub(crate) fn bench_job(root: &Path, cfg: &Config) -> Result<Job> {
     load_gcode(&root.join(BENCH_JOB), cfg, None)
 }
 
 /// [`bench_job`]'s program, relative to the repository root.
-pub const BENCH_JOB: &str = "tests/data/gcode/prusaslicer/box35.gcode";
+pub(crate) const BENCH_JOB: &str = "tests/data/gcode/prusaslicer/box35.gcode";
 
 /// The folder [`BENCH_JOB`] is relative to: the repository root when the working directory is
 /// one, else the built-in copy ([`strand_cli::jobs::root`]).
@@ -45,7 +45,7 @@ pub fn repo_root() -> Result<PathBuf> {
 
 /// Streams `job` to the service under `prefix` within its Status credit (a feeder, as strand-feed
 /// is), sends Start after the first batch, and returns when `stop` is set: the segments sent.
-pub fn stream_job(prefix: &str, job: &Job, stop: &AtomicBool) -> Result<usize> {
+pub(crate) fn stream_job(prefix: &str, job: &Job, stop: &AtomicBool) -> Result<usize> {
     let ports = ClientPorts::open(
         &ServiceNames::new(prefix),
         &format!("strand-bench-feed-{}", std::process::id()),
@@ -112,7 +112,7 @@ impl Dist {
     }
 
     /// Samples exist, the percentiles are positive and in order, and none passes the max.
-    pub fn is_sane(&self) -> bool {
+    pub(crate) fn is_sane(&self) -> bool {
         self.samples > 0
             && self.p50_ns > 0
             && self.p50_ns <= self.p99_ns
@@ -153,7 +153,7 @@ pub fn ratio(a: u64, b: u64) -> f64 {
 
 /// Draws the histograms of `series` (name, histogram) into a PNG: x the duration (µs, log scale), y the
 /// count per bucket (log scale), one line per series, so a measurement and its baseline overlay.
-pub fn plot_histograms(path: &Path, title: &str, series: &[(&str, &Histogram)]) -> Result<()> {
+pub(crate) fn plot_histograms(path: &Path, title: &str, series: &[(&str, &Histogram)]) -> Result<()> {
     let buckets: Vec<Vec<(f64, f64)>> = series
         .iter()
         .map(|(_, h)| h.iter_buckets().map(|(lo, hi, c)| (((lo + hi) as f64 * 0.5 * 1e-3).max(1e-3), c as f64)).collect())

@@ -8,11 +8,11 @@ use std::path::{Path, PathBuf};
 
 use serde::Serialize;
 use strand::config::Config;
-use strand::core::{Controller, MAX_SEGMENTS_PER_TICK, TickInput};
 use strand::io::clock::{TimerClock, monotonic_ns};
 use strand::io::histogram::Histogram;
 use strand::log::messages::TickTiming;
 use strand::log::writer::{LogContext, Logger, thread_cpu_s};
+use strand_core::{Controller, MAX_SEGMENTS_PER_TICK, TickInput};
 use strand_ipc as ipc;
 
 use super::Dist;

@@ -11,16 +11,16 @@ use std::path::PathBuf;
 use nalgebra::UnitQuaternion;
 use serde::Serialize;
 use strand::config::Config;
-use strand::core::BaseEstimator;
-use strand::core::Extruder;
-use strand::core::kin::{ChainState, Clik, PathVelocity, TaskJacobian, TcpTarget};
-use strand::core::{Controller, MAX_SEGMENTS_PER_TICK, TickInput};
-use strand::core::{PathEngine, Segment};
 use strand::io::clock::monotonic_ns;
 use strand::io::histogram::Histogram;
 use strand::io::runner::{StatusEvent, segments_per_tick, take_controls, take_segments};
 use strand::log::messages::TickTiming;
 use strand::log::writer::{LogContext, Logger};
+use strand_core::BaseEstimator;
+use strand_core::Extruder;
+use strand_core::kin::{ChainState, Clik, PathVelocity, TaskJacobian, TcpTarget};
+use strand_core::{Controller, MAX_SEGMENTS_PER_TICK, TickInput};
+use strand_core::{PathEngine, Segment};
 use strand_ipc as ipc;
 
 use super::{BENCH_JOB, Dist, bench_job};
@@ -260,7 +260,7 @@ const SHELL_STAGES: [&str; 12] = [
 /// Runs [`ShellReport`]'s ticks: the bench job streamed by a feeder within its credit, the driver
 /// echoing each command as the next joint state, the service side receiving, stepping, publishing
 /// and logging as the runner does.
-fn shell(opts: &TickOptions, cfg: &Config, model: &strand::core::kin::RobotModel) -> Result<ShellReport> {
+fn shell(opts: &TickOptions, cfg: &Config, model: &strand_core::kin::RobotModel) -> Result<ShellReport> {
     use strand_ipc::ServiceNames;
     use strand_ipc::ports::{ClientPorts, ClientRoles, ServicePorts};
     let alloc = opts.allocations;

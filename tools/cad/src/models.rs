@@ -110,12 +110,12 @@ fn boundary_wire(curves: &[Curve; 4], at: impl Fn(f64, f64) -> Point3) -> Wire {
 }
 
 /// The STEP text of a shell (an open shell: one or more loose faces).
-pub fn shell_step(shell: &Shell, name: &str) -> String {
+pub(crate) fn shell_step(shell: &Shell, name: &str) -> String {
     CompleteStepDisplay::new(StepModel::from(&shell.compress()), header(name)).to_string()
 }
 
 /// The STEP text of a solid (a manifold solid B-rep).
-pub fn solid_step(solid: &Solid, name: &str) -> String {
+pub(crate) fn solid_step(solid: &Solid, name: &str) -> String {
     CompleteStepDisplay::new(StepModel::from(&solid.compress()), header(name)).to_string()
 }
 

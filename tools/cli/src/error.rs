@@ -9,10 +9,10 @@ use std::path::{Path, PathBuf};
 
 use strand::check::CheckError;
 use strand::config::ConfigError;
-use strand::core::ControllerError;
 use strand::log::reader::ReadError;
 use strand::log::replay::ReplayError;
 use strand::log::writer::LogError;
+use strand_core::ControllerError;
 use strand_ipc::ports::PortError;
 use strand_job::JobError;
 use strand_job::gcode::GcodeError;
@@ -83,19 +83,19 @@ pub enum ToolError {
     Check(#[from] CheckError),
     /// A robot chain that could not be built from its URDF.
     #[error(transparent)]
-    Model(#[from] strand::core::kin::ModelError),
+    Model(#[from] strand_core::kin::ModelError),
     /// A controller that could not be built from its settings.
     #[error(transparent)]
     Controller(#[from] ControllerError),
     /// A configuration value out of its range (a section's `validate`).
     #[error(transparent)]
-    Setting(#[from] strand::core::InvalidSetting),
+    Setting(#[from] strand_core::InvalidSetting),
     /// A `[path]` value out of its range.
     #[error("[path] {0}")]
-    PathSetting(#[from] strand::core::InvalidPathConfig),
+    PathSetting(#[from] strand_core::InvalidPathConfig),
     /// A `[clik]` value out of its range.
     #[error("[clik] {0}")]
-    ClikSetting(#[from] strand::core::kin::InvalidClikConfig),
+    ClikSetting(#[from] strand_core::kin::InvalidClikConfig),
     /// The service's cycle runner.
     #[error(transparent)]
     Run(#[from] strand::io::runner::RunError),

@@ -47,7 +47,7 @@ pub enum SetupError {
         /// The config file.
         file: String,
         /// What is wrong.
-        source: strand::core::InvalidSetting,
+        source: strand_core::InvalidSetting,
     },
     /// The robot's joints cannot be carried by the protocol (a linear axis where it has none).
     #[error("{file}: the robot cannot be driven over {protocol}: {why}")]
@@ -152,7 +152,7 @@ pub fn session<P: RobotProtocol>(cfg: &Config, d: &DriverConfig, mut protocol: P
         "" => None,
         text => Some(text.parse().map_err(|e: strand_robot::BadRobotAddress| SetupError::Setting {
             file: cfg.file.display().to_string(),
-            source: strand::core::InvalidSetting::new("driver", e.to_string()),
+            source: strand_core::InvalidSetting::new("driver", e.to_string()),
         })?),
     };
     Ok(Session::new(

@@ -122,7 +122,7 @@ pub fn readable(fd: &impl AsRawFd, timeout_ns: u64) -> bool {
 }
 
 /// Sleeps until `deadline_ns` (`CLOCK_MONOTONIC`, absolute: no drift from one tick to the next).
-pub fn sleep_until(deadline_ns: u64) {
+pub(crate) fn sleep_until(deadline_ns: u64) {
     let ts =
         libc::timespec { tv_sec: (deadline_ns / 1_000_000_000) as libc::time_t, tv_nsec: (deadline_ns % 1_000_000_000) as libc::c_long };
     // SAFETY: clock_nanosleep with a valid timespec and no remainder pointer (absolute time).

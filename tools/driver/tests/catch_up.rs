@@ -23,7 +23,7 @@ use std::net::SocketAddr;
 
 use strand::config::Config;
 use strand::config::driver::{DriverConfig, DriverProtocol};
-use strand::core::{Controller, Event, MAX_SEGMENTS_PER_TICK, TickInput};
+use strand_core::{Controller, Event, MAX_SEGMENTS_PER_TICK, TickInput};
 use strand_driver::bcap::Bcap;
 use strand_driver::egm::Egm;
 use strand_driver::fake::FakeProtocol;
@@ -357,7 +357,7 @@ impl Service {
         segments: &[ipc::Segment],
         result: &mut Run,
         k: u64,
-    ) -> strand::core::TickOutput {
+    ) -> strand_core::TickOutput {
         let mut input = TickInput::new(self.ticks, time_ns);
         self.ticks += 1;
         state.seq = self.ticks;

@@ -14,7 +14,7 @@ use std::path::Path;
 
 use nalgebra::Vector3;
 use strand::config::Config;
-use strand::core::{Segment, SegmentFlags, SegmentKind};
+use strand_core::{Segment, SegmentFlags, SegmentKind};
 use strand_ipc as ipc;
 use strand_job::gcode::GcodeOptions;
 pub use strand_job::load::{LayeredSegments, load_segments, to_wire};

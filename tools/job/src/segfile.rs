@@ -52,7 +52,7 @@ use thiserror::Error;
 use strand_core::{MAX_ARC_SWEEP, Segment, SegmentFlags, SegmentKind};
 
 /// The header's `format` value.
-pub const FORMAT: &str = "strand-segments";
+pub(crate) const FORMAT: &str = "strand-segments";
 /// The format version this module reads and writes.
 pub const VERSION: u32 = 1;
 
@@ -136,7 +136,7 @@ pub fn tool_pointing(nozzle: &Vector3<f64>) -> UnitQuaternion<f64> {
 
 /// True if the file's first non-blank line is a segment-file header (so a caller can tell a
 /// segment file from G-code by content, whatever its name).
-pub fn is_segment_file(path: &Path) -> bool {
+pub(crate) fn is_segment_file(path: &Path) -> bool {
     let Ok(f) = File::open(path) else { return false };
     for line in BufReader::new(f).lines() {
         let Ok(line) = line else { return false };

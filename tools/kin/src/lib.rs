@@ -9,7 +9,7 @@ use std::path::Path;
 
 use nalgebra::{UnitQuaternion, Vector3};
 use serde_json::{Value, json};
-use strand::core::kin::{ChainState, JointKind, JointVector, RobotModel, Task, TaskJacobian, manipulability_gradient};
+use strand_core::kin::{ChainState, JointKind, JointVector, RobotModel, Task, TaskJacobian, manipulability_gradient};
 
 use robot::LoadedRobot;
 use strand_cli::error::{Result, ToolError};

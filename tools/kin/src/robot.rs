@@ -6,7 +6,7 @@
 use std::path::Path;
 
 use strand::config::{RobotConfig, locate};
-use strand::core::kin::RobotModel;
+use strand_core::kin::RobotModel;
 
 use strand_cli::error::{Result, ToolError};
 

@@ -29,9 +29,9 @@ use nalgebra::{Vector2, Vector3};
 use plotters::prelude::*;
 use serde::Serialize;
 use strand::config::{Config, locate};
-use strand::core::Geometry;
-use strand::core::arc_geometry;
-use strand::core::{Segment, SegmentKind};
+use strand_core::Geometry;
+use strand_core::arc_geometry;
+use strand_core::{Segment, SegmentKind};
 use strand_job::bed::BedTransform;
 use strand_job::gcode::{GcodeOptions, parse_file};
 use strand_job::timing::time_program;
@@ -79,7 +79,7 @@ impl TcpSeries {
 
 /// Samples a job's TCP path. `config` gives the path engine's limits and rate for
 /// [`Timing::Controller`]; the job stays in its own (bed) frame.
-pub fn sample_job(job: &Path, timing: Timing, dt: f64, config: &Config) -> Result<TcpSeries> {
+pub(crate) fn sample_job(job: &Path, timing: Timing, dt: f64, config: &Config) -> Result<TcpSeries> {
     if !(dt.is_finite() && dt > 0.0) {
         return Err(ToolError::Plan(format!("--dt {dt}: must be positive")));
     }
@@ -211,7 +211,7 @@ pub struct BasePlan {
 }
 
 /// Filters `tcp` at `fc_hz` and measures the result.
-pub fn plan_at(tcp: &TcpSeries, fc_hz: f64, reach: &Reach, mass_kg: f64) -> Result<BasePlan> {
+pub(crate) fn plan_at(tcp: &TcpSeries, fc_hz: f64, reach: &Reach, mass_kg: f64) -> Result<BasePlan> {
     let filter = Butterworth2::lowpass(fc_hz, 1.0 / tcp.dt)?;
     let base_x = filter.filtfilt(&tcp.x)?;
     let base_y = filter.filtfilt(&tcp.y)?;
@@ -310,7 +310,7 @@ pub fn sweep(tcp: &TcpSeries, reach: &Reach, mass_kg: f64, from: f64, to: f64, s
 }
 
 /// Writes t, tcp_x, tcp_y, base_x, base_y (s, m; base before the nominal-reach offset).
-pub fn write_csv(path: &Path, tcp: &TcpSeries, plan: &BasePlan) -> Result<()> {
+pub(crate) fn write_csv(path: &Path, tcp: &TcpSeries, plan: &BasePlan) -> Result<()> {
     let err = |e: &dyn std::fmt::Display| ToolError::Write { path: path.to_path_buf(), why: e.to_string() };
     let mut w = csv::Writer::from_path(path).map_err(|e| err(&e))?;
     w.write_record(["t", "tcp_x", "tcp_y", "base_x", "base_y"]).map_err(|e| err(&e))?;
@@ -325,7 +325,7 @@ pub fn write_csv(path: &Path, tcp: &TcpSeries, plan: &BasePlan) -> Result<()> {
 /// base_y (s, m, W). The base starts at the config's mount and moves as the filtered TCP does:
 /// base(t) = mount + filtered(t − delay) − filtered(0), held at the mount for the first `delay`
 /// seconds (the controller's approach to the first point; the job's clock starts after it).
-pub fn write_trajectory(path: &Path, tcp: &TcpSeries, plan: &BasePlan, mount: [f64; 2], delay: f64) -> Result<()> {
+pub(crate) fn write_trajectory(path: &Path, tcp: &TcpSeries, plan: &BasePlan, mount: [f64; 2], delay: f64) -> Result<()> {
     let err = |e: &dyn std::fmt::Display| ToolError::Write { path: path.to_path_buf(), why: e.to_string() };
     let mut w = csv::Writer::from_path(path).map_err(|e| err(&e))?;
     w.write_record(["t", "base_x", "base_y"]).map_err(|e| err(&e))?;
@@ -344,7 +344,7 @@ pub fn write_trajectory(path: &Path, tcp: &TcpSeries, plan: &BasePlan, mount: [f
 }
 
 /// 000 Fig. 4 as a PNG: a_max, r_max and W_FF against f_c, the chosen f_c marked.
-pub fn plot_sweep(path: &Path, rows: &[BasePlan], reach: &Reach, chosen: Option<f64>) -> Result<()> {
+pub(crate) fn plot_sweep(path: &Path, rows: &[BasePlan], reach: &Reach, chosen: Option<f64>) -> Result<()> {
     strand::check::plot::register_font()?;
     let e = |e: &dyn std::fmt::Display| ToolError::Plot { path: path.to_path_buf(), why: e.to_string() };
     let root = BitMapBackend::new(path, (1500, 450)).into_drawing_area();
@@ -379,7 +379,7 @@ pub fn plot_sweep(path: &Path, rows: &[BasePlan], reach: &Reach, chosen: Option<
 }
 
 /// 000 Fig. 5 as a PNG: the TCP path in x–y with the base path (filtered, offset removed) over it.
-pub fn plot_paths(path: &Path, tcp: &TcpSeries, plan: &BasePlan) -> Result<()> {
+pub(crate) fn plot_paths(path: &Path, tcp: &TcpSeries, plan: &BasePlan) -> Result<()> {
     strand::check::plot::register_font()?;
     let e = |e: &dyn std::fmt::Display| ToolError::Plot { path: path.to_path_buf(), why: e.to_string() };
     let root = BitMapBackend::new(path, (1400, 500)).into_drawing_area();

@@ -18,11 +18,11 @@
 use strand_cli::error::{Result, ToolError};
 
 /// Samples SciPy's `filtfilt` pads each end with for a second-order filter (3 · 3 taps).
-pub const PAD: usize = 9;
+pub(crate) const PAD: usize = 9;
 
 /// A second-order IIR filter `b / a` with `a[0] = 1` (transposed direct form II, as `lfilter`).
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Butterworth2 {
+pub(crate) struct Butterworth2 {
     /// Numerator coefficients b0, b1, b2.
     pub b: [f64; 3],
     /// Denominator coefficients 1, a1, a2.
@@ -33,7 +33,7 @@ impl Butterworth2 {
     /// The digital Butterworth low-pass of order 2 with −3 dB at `fc_hz`, sampled at `fs_hz`: SciPy's
     /// `butter(2, fc_hz / (fs_hz / 2))`. With K = tan(π·fc/fs) (the pre-warped cut-off):
     /// b = K²·(1, 2, 1)/D, a = (1, 2(K² − 1)/D, (1 − √2·K + K²)/D), D = 1 + √2·K + K².
-    pub fn lowpass(fc_hz: f64, fs_hz: f64) -> Result<Self> {
+    pub(crate) fn lowpass(fc_hz: f64, fs_hz: f64) -> Result<Self> {
         if !(fs_hz.is_finite() && fs_hz > 0.0) {
             return Err(ToolError::Usage(format!("sample rate {fs_hz} Hz must be positive")));
         }
@@ -50,7 +50,7 @@ impl Butterworth2 {
 
     /// The state (z0, z1) in which a constant input 1 gives a constant output `Σb / Σa` (SciPy's
     /// `lfilter_zi`): the solution of (I − Aᵀ)·z = b[1..] − a[1..]·b0.
-    pub fn steady_state(&self) -> [f64; 2] {
+    pub(crate) fn steady_state(&self) -> [f64; 2] {
         let [b0, b1, b2] = self.b;
         let [_, a1, a2] = self.a;
         let (c0, c1) = (b1 - a1 * b0, b2 - a2 * b0);
@@ -59,7 +59,7 @@ impl Butterworth2 {
     }
 
     /// Filters `x` in place, starting from state `z` (SciPy's `lfilter(b, a, x, zi=z)`).
-    pub fn run(&self, x: &mut [f64], mut z: [f64; 2]) {
+    pub(crate) fn run(&self, x: &mut [f64], mut z: [f64; 2]) {
         let [b0, b1, b2] = self.b;
         let [_, a1, a2] = self.a;
         for v in x.iter_mut() {
@@ -73,7 +73,7 @@ impl Butterworth2 {
 
     /// Zero-phase filtering with SciPy's `filtfilt` defaults (see the module doc). `x` must have
     /// more than [`PAD`] samples.
-    pub fn filtfilt(&self, x: &[f64]) -> Result<Vec<f64>> {
+    pub(crate) fn filtfilt(&self, x: &[f64]) -> Result<Vec<f64>> {
         let n = x.len();
         if n <= PAD {
             return Err(ToolError::Plan(format!("{n} samples: zero-phase filtering needs more than {PAD} (the edge padding)")));

@@ -13,7 +13,7 @@
 use std::path::PathBuf;
 
 use nalgebra::Vector3;
-use strand::core::{Segment, SegmentFlags, SegmentKind};
+use strand_core::{Segment, SegmentFlags, SegmentKind};
 use strand_job::segfile::{tool_pointing, write_path};
 
 use super::surface::{Bump, Surface};
@@ -112,7 +112,7 @@ impl Finish {
 
     /// Filament per metre of strand (m/m), [`super::filament_per_metre`] with the spacing as the
     /// strand width.
-    pub fn filament_per_m(&self) -> f64 {
+    pub(crate) fn filament_per_m(&self) -> f64 {
         super::filament_per_metre(self.spacing, self.layer_height, self.filament)
     }
 

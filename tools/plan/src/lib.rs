@@ -17,7 +17,7 @@ pub mod truss;
 /// Filament per metre of deposited bead (m/m): Slic3r's bead cross-section, a rectangle with round
 /// ends, A = h·(w − h) + π(h/2)², over the filament's section π(d/2)². `line_width` w, `layer_height`
 /// h and `filament_diameter` d in m.
-pub fn filament_per_metre(line_width: f64, layer_height: f64, filament_diameter: f64) -> f64 {
+pub(crate) fn filament_per_metre(line_width: f64, layer_height: f64, filament_diameter: f64) -> f64 {
     let (w, h, d) = (line_width, layer_height, filament_diameter);
     let pi = std::f64::consts::PI;
     (h * (w - h) + pi * (h / 2.0).powi(2)) / (pi * (d / 2.0).powi(2))

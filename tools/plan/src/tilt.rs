@@ -9,15 +9,15 @@
 
 use std::path::PathBuf;
 
-use strand::core::{Segment, SegmentFlags};
 use strand_cli::error::{Result, ToolError};
+use strand_core::{Segment, SegmentFlags};
 use strand_job::bed::BedConfig;
 use strand_job::bed::BedTransform;
 use strand_job::gcode::{GcodeOptions, parse_file};
 use strand_job::segfile::write_path;
 
 /// Eq. 7: the bed's angle from the bolts' height difference h over their distance d (rad).
-pub fn angle_from_bolts(h: f64, d: f64) -> f64 {
+pub(crate) fn angle_from_bolts(h: f64, d: f64) -> f64 {
     (h / d).atan()
 }
 
@@ -37,7 +37,7 @@ pub struct TiltOptions {
 }
 
 /// The job's segments on the tilted bed (the bed origin stays at the origin).
-pub fn tilt_job(job: &std::path::Path, alpha: f64) -> Result<(Vec<Segment>, Vec<String>)> {
+pub(crate) fn tilt_job(job: &std::path::Path, alpha: f64) -> Result<(Vec<Segment>, Vec<String>)> {
     let bed = BedTransform::new(&BedConfig { tilt: alpha, offset: [0.0; 3] })
         .map_err(|e| ToolError::Usage(e.message.replace("[bed] tilt", "--angle")))?;
     let mut parser = parse_file(job, GcodeOptions { first_seq: 1, ..GcodeOptions::for_path(job) })?;

@@ -5,7 +5,7 @@
 use std::path::PathBuf;
 
 use strand::config::Config;
-use strand::core::PlanningMode;
+use strand_core::PlanningMode;
 use strand_job::gcode::{GcodeOptions, parse_file};
 use strand_job::timing::time_program;
 

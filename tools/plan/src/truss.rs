@@ -58,7 +58,7 @@ impl Truss {
     }
 
     /// Panels between posts.
-    pub fn panels(&self) -> usize {
+    pub(crate) fn panels(&self) -> usize {
         ((self.length / self.pitch).round() as usize).max(1)
     }
 

@@ -7,7 +7,7 @@
 use std::f64::consts::PI;
 
 use nalgebra::{UnitQuaternion, Vector3};
-use strand::core::{Geometry, PathConfig, PathEngine, Segment, SegmentFlags, SegmentKind, arc_geometry, distance_to_arc};
+use strand_core::{Geometry, PathConfig, PathEngine, Segment, SegmentFlags, SegmentKind, arc_geometry, distance_to_arc};
 use strand_job::gcode::segment_length;
 use strand_plan::strips::flatten_arc;
 
@@ -48,7 +48,7 @@ fn engine_length(start: Vector3<f64>, s: &Segment) -> f64 {
     engine.push(s).unwrap();
     for _ in 0..200_000 {
         let sample = engine.step(1.0);
-        if sample.motion == strand::core::Motion::Finished {
+        if sample.motion == strand_core::Motion::Finished {
             assert!((sample.position - s.end).norm() < 1e-9, "finished at the arc's end");
             return sample.s;
         }

@@ -95,8 +95,8 @@ fn a_path_is_checked_on_the_robot_before_it_runs() {
     assert!(header.contains("placement centre") && header.contains("offset [-0.050000, -0.030000, -0.010000] m"), "{header}");
     // Two layers: the second 0.2 mm further out, starting right above where the first ended.
     let file = strand_job::segfile::read_path(&out, 0).unwrap();
-    let segs: Vec<strand::core::Segment> = file.segments.iter().map(|(s, _)| *s).collect();
-    let starts: Vec<usize> = (0..segs.len()).filter(|&k| segs[k].flags.contains(strand::core::SegmentFlags::LAYER_START)).collect();
+    let segs: Vec<strand_core::Segment> = file.segments.iter().map(|(s, _)| *s).collect();
+    let starts: Vec<usize> = (0..segs.len()).filter(|&k| segs[k].flags.contains(strand_core::SegmentFlags::LAYER_START)).collect();
     assert_eq!(starts.len(), 2, "{starts:?}");
     let (end, start) = (segs[starts[1] - 1].end, segs[starts[1]].end);
     assert!((start - end - nalgebra::Vector3::new(0.0, 0.0, 0.2e-3)).norm() < 1e-12, "{end:?} → {start:?}");
@@ -169,12 +169,12 @@ fn the_bead_never_leaves_the_face_holes_are_crossed_by_lifted_travels() {
             out.to_str().unwrap(),
         ]);
         assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
-        let segs: Vec<strand::core::Segment> =
+        let segs: Vec<strand_core::Segment> =
             strand_job::segfile::read_path(&out, 0).unwrap().segments.into_iter().map(|(s, _)| s).collect();
         let mut lifted = 0;
         for w in segs.windows(2) {
             let (a, b) = (w[0].end, w[1].end);
-            if w[1].flags.contains(strand::core::SegmentFlags::EXTRUDE) {
+            if w[1].flags.contains(strand_core::SegmentFlags::EXTRUDE) {
                 // Every bead on the top (z = 10 mm + 0.2 mm), no point of it over the hole.
                 for t in [0.0, 0.25, 0.5, 0.75, 1.0] {
                     let p = a + t * (b - a);
@@ -217,7 +217,7 @@ fn a_face_that_closes_on_itself_is_planned_across_its_seam() {
         out.to_str().unwrap(),
     ]);
     assert!(run.status.success());
-    let segs: Vec<strand::core::Segment> = strand_job::segfile::read_path(&out, 0).unwrap().segments.into_iter().map(|(s, _)| s).collect();
+    let segs: Vec<strand_core::Segment> = strand_job::segfile::read_path(&out, 0).unwrap().segments.into_iter().map(|(s, _)| s).collect();
     let mut angles: Vec<f64> = segs.iter().map(|s| s.end.y.atan2(s.end.x).rem_euclid(std::f64::consts::TAU)).collect();
     angles.sort_by(f64::total_cmp);
     angles.dedup_by(|a, b| (*a - *b).abs() < 1e-6);
@@ -230,7 +230,7 @@ fn a_face_that_closes_on_itself_is_planned_across_its_seam() {
     assert!(
         segs.iter()
             .skip(1)
-            .all(|s| s.flags.contains(strand::core::SegmentFlags::EXTRUDE) || s.flags.contains(strand::core::SegmentFlags::LAST)),
+            .all(|s| s.flags.contains(strand_core::SegmentFlags::EXTRUDE) || s.flags.contains(strand_core::SegmentFlags::LAST)),
         "no travels on a whole cylinder"
     );
 }

@@ -53,9 +53,9 @@ fn writes_a_segment_file_and_a_png() {
     assert!(back.note.unwrap().contains("--shape blade"));
     let segs: Vec<_> = back.segments.into_iter().map(|(s, _)| s).collect();
     assert!(segs.len() > 40);
-    assert!(segs[0].flags.contains(strand::core::SegmentFlags::TRAVEL));
+    assert!(segs[0].flags.contains(strand_core::SegmentFlags::TRAVEL));
     assert!(segs[1..].iter().all(|s| s.extrudes() && s.filament > 0.0));
-    assert!(segs.last().unwrap().flags.contains(strand::core::SegmentFlags::LAST));
+    assert!(segs.last().unwrap().flags.contains(strand_core::SegmentFlags::LAST));
     // The blade is twisted: the nozzle leans, by up to the pitch angle at the hub (atan(0.2/(2π·0.03)) ≈ 47°).
     let lean = segs.iter().map(|s| (s.orientation * -nalgebra::Vector3::z()).z.acos()).fold(0.0, f64::max);
     assert!(lean > 0.5 && lean < 1.0, "{lean}");

@@ -17,12 +17,12 @@ use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
 use nalgebra::{UnitQuaternion, Vector3};
-use strand::core::BaseState;
-use strand::core::kin::{JointVector, RobotModel};
-use strand::core::{Event, TickOutput};
 use strand::io::histogram::Histogram;
 use strand::log::dynamic::Schema;
 use strand::log::reader::LogFile;
+use strand_core::BaseState;
+use strand_core::kin::{JointVector, RobotModel};
+use strand_core::{Event, TickOutput};
 use strand_ipc::{FaultCode, JobOutcome, LogState, RunState};
 
 use strand_cli::error::{Result, ToolError};

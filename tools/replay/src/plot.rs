@@ -5,7 +5,7 @@
 use std::path::{Path, PathBuf};
 
 use plotters::prelude::*;
-use strand::core::kin::RobotModel;
+use strand_core::kin::RobotModel;
 
 use super::Series;
 use strand_cli::error::{Result, ToolError};

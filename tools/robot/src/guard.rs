@@ -138,7 +138,7 @@ impl ReplyGuard {
     /// Forgets the last target: the robot never got it (it came after the robot's cycle, and the
     /// robot kept the one before). The next target steps from the one before. (The service's
     /// command is kept: it is what the next answer catches up with.)
-    pub fn take_back(&mut self) {
+    pub(crate) fn take_back(&mut self) {
         if let Some((last, _)) = self.before.take() {
             // The robot held its previous target this cycle: it is at rest there.
             self.last = Some(last);
@@ -150,7 +150,7 @@ impl ReplyGuard {
     /// The robot went without an answer for one or more cycles that this guard never saw (a
     /// packet lost or skipped): it held its last target, which is the last answer sent, so it is
     /// at rest there. The next answer starts from rest (no step of two cycles' motion in one).
-    pub fn robot_stood_still(&mut self) {
+    pub(crate) fn robot_stood_still(&mut self) {
         self.velocity = [0.0; MAX_JOINTS];
         self.before = None;
         self.catching_up = self.last.is_some();
@@ -169,7 +169,7 @@ impl ReplyGuard {
     }
 
     /// The longest a hold takes to bring the robot to rest from full speed (s).
-    pub fn longest_stop(&self) -> f64 {
+    pub(crate) fn longest_stop(&self) -> f64 {
         self.bounds.iter().map(|b| b.velocity / b.acceleration.max(1e-9)).fold(0.0, f64::max)
     }
 
@@ -180,7 +180,7 @@ impl ReplyGuard {
 
     /// Whether the last target sent was not the service's command: a hold, a cycle the robot
     /// stood through, or an answer catching up.
-    pub fn catching_up(&self) -> bool {
+    pub(crate) fn catching_up(&self) -> bool {
         self.catching_up
     }
 

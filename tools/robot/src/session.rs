@@ -32,7 +32,7 @@ const START_LIMIT_TOLERANCE: f64 = 0.0087;
 
 /// Cycles without an accepted packet after which the robot's session is over (RSI off, EGM
 /// stopped, a restart): the next packet starts a new one.
-pub const SILENT_CYCLES: f64 = 25.0;
+pub(crate) const SILENT_CYCLES: f64 = 25.0;
 
 /// Polls in a row with the guard at rest that end a stop's hold.
 const REST_POLLS_TO_STOP: u32 = 5;

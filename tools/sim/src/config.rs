@@ -5,7 +5,7 @@
 use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
-use strand::core::InvalidSetting;
+use strand_core::InvalidSetting;
 
 /// A sim config file. Every section has defaults; units are SI.
 #[derive(Clone, Debug, PartialEq, Deserialize, Serialize)]
@@ -192,7 +192,7 @@ impl SimConfig {
     /// `sim/default.toml`, in the service config's folder if it is there, else by the search order
     /// of [`strand::config::locate`]. The error names the files tried.
     pub fn default_path(service: &strand::config::Config) -> Result<PathBuf, strand::config::ConfigError> {
-        let tracked = service.base.mode == strand::core::BaseMode::Tracked;
+        let tracked = service.base.mode == strand_core::BaseMode::Tracked;
         let name = if tracked { "sim/free-flyer.toml" } else { "sim/default.toml" };
         strand::config::locate::beside_or_find(&service.file, name)
     }

@@ -33,7 +33,7 @@ impl Pid {
 }
 
 /// The flyer's state and its control.
-pub struct Flyer {
+pub(crate) struct Flyer {
     cfg: FlyerConfig,
     trajectory: BaseTrajectory,
     /// Body wrench (Fx, Fy, τ) of unit thruster forces, one column per thruster.
@@ -63,7 +63,7 @@ pub struct Flyer {
 impl Flyer {
     /// A flyer at rest whose robot base stands at `base_pose` (x, y, θ) and height `z`, following
     /// `trajectory` (robot-base poses).
-    pub fn new(cfg: &FlyerConfig, trajectory: BaseTrajectory, z: f64) -> Self {
+    pub(crate) fn new(cfg: &FlyerConfig, trajectory: BaseTrajectory, z: f64) -> Self {
         let start = trajectory.at(0.0);
         // Eight thrusters: at each corner (±a, ±a) one pushing along x, one along y.
         let a = cfg.thruster_arm;
@@ -108,18 +108,18 @@ impl Flyer {
     }
 
     /// The robot base's pose: (x, y, z) (m, W) and heading θ (rad).
-    pub fn base_pose(&self) -> ([f64; 3], f64) {
+    pub(crate) fn base_pose(&self) -> ([f64; 3], f64) {
         let p = self.com + self.rotate(&Vector2::from(self.cfg.base_offset));
         ([p.x, p.y, self.z], self.theta)
     }
 
     /// The planned robot-base pose at `t` seconds.
-    pub fn planned(&self, t: f64) -> [f64; 3] {
+    pub(crate) fn planned(&self, t: f64) -> [f64; 3] {
         self.trajectory.at(t)
     }
 
     /// The table's residual acceleration at `p` (m/s², W).
-    pub fn residual_acceleration(&self, p: &Vector2<f64>) -> Vector2<f64> {
+    pub(crate) fn residual_acceleration(&self, p: &Vector2<f64>) -> Vector2<f64> {
         let mut a = Vector2::from(self.cfg.residual);
         for b in &self.cfg.bumps {
             let d2 = (p - Vector2::from(b.centre)).norm_squared();
@@ -131,7 +131,7 @@ impl Flyer {
     /// Advances `dt` seconds to time `t`. `measured` is the latest tracked robot-base pose (x, y, θ)
     /// the PID loops see; `tcp` and `tcp_accel` are the nozzle's position (m, W) and acceleration
     /// (m/s², W), whose reaction and filament tension push the flyer.
-    pub fn step(
+    pub(crate) fn step(
         &mut self,
         t: f64,
         dt: f64,

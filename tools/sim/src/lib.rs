@@ -19,8 +19,8 @@ use nalgebra::{UnitQuaternion, Vector3};
 use rand::rngs::StdRng;
 use rand::{RngExt, SeedableRng};
 use strand::config::Config;
-use strand::core::BaseMode;
-use strand::core::kin::{JointVector, RobotModel};
+use strand_core::BaseMode;
+use strand_core::kin::{JointVector, RobotModel};
 use strand_ipc as ipc;
 
 use config::SimConfig;
@@ -155,7 +155,7 @@ impl Sim {
     }
 
     /// The tracker's counters (measured, dropped), if the base is tracked.
-    pub fn tracker_counts(&self) -> Option<(u64, u64)> {
+    pub(crate) fn tracker_counts(&self) -> Option<(u64, u64)> {
         self.tracker.as_ref().map(|t| (t.measured, t.dropped))
     }
 

@@ -3,14 +3,14 @@
 
 use std::collections::VecDeque;
 
-use strand::core::kin::RobotModel;
+use strand_core::kin::RobotModel;
 use strand_ipc::MAX_JOINTS;
 
 use super::Gaussian;
 use super::config::{ExtruderPlantConfig, JointPlantConfig};
 
 /// Joint positions through a dead time and a first-order lag, clamped to the URDF limits.
-pub struct JointPlant {
+pub(crate) struct JointPlant {
     dof: usize,
     lower: [f64; MAX_JOINTS],
     upper: [f64; MAX_JOINTS],
@@ -32,7 +32,7 @@ pub struct JointPlant {
 
 impl JointPlant {
     /// A plant at rest at `start` (clamped to the limits), cycling every `dt` seconds.
-    pub fn new(model: &RobotModel, cfg: &JointPlantConfig, dt: f64, start: &[f64]) -> Self {
+    pub(crate) fn new(model: &RobotModel, cfg: &JointPlantConfig, dt: f64, start: &[f64]) -> Self {
         let dof = model.dof();
         let mut lower = [0.0; MAX_JOINTS];
         let mut upper = [0.0; MAX_JOINTS];
@@ -60,18 +60,18 @@ impl JointPlant {
     }
 
     /// Joints.
-    pub fn dof(&self) -> usize {
+    pub(crate) fn dof(&self) -> usize {
         self.dof
     }
 
     /// A command arrived this cycle.
-    pub fn command(&mut self, position: &[f64; MAX_JOINTS]) {
+    pub(crate) fn command(&mut self, position: &[f64; MAX_JOINTS]) {
         self.pending.push_back((self.cycle, *position));
     }
 
     /// Advances one cycle of `dt` seconds: commands that have waited out the dead time take effect,
     /// then each joint moves its lag's fraction of the way, never past a limit.
-    pub fn step(&mut self, dt: f64) {
+    pub(crate) fn step(&mut self, dt: f64) {
         // A command that arrived in cycle c acts from the step of cycle c + latency on.
         while self.pending.front().is_some_and(|(c, _)| c + self.latency as u64 <= self.cycle) {
             self.target = self.pending.pop_front().expect("non-empty").1;
@@ -86,7 +86,7 @@ impl JointPlant {
     }
 
     /// What the encoders report: the actual positions plus noise.
-    pub fn measured(&self, noise: &mut Gaussian) -> [f64; MAX_JOINTS] {
+    pub(crate) fn measured(&self, noise: &mut Gaussian) -> [f64; MAX_JOINTS] {
         let mut q = self.position;
         for v in q.iter_mut().take(self.dof) {
             *v += self.noise * noise.sample();
@@ -104,7 +104,7 @@ impl JointPlant {
 /// by stopping, and below empty it leaves a void (nothing flows) that the prime must refill before
 /// melt flows again. (Before, a retraction drew nothing back and the prime after it pushed its
 /// whole length out: every unplanned stop left a blob that no compensation could avoid.)
-pub struct ExtruderPlant {
+pub(crate) struct ExtruderPlant {
     motor_gain: f64,
     melt_gain: f64,
     /// The melt time constant (s).
@@ -125,7 +125,7 @@ pub struct ExtruderPlant {
 
 impl ExtruderPlant {
     /// An idle extruder for filament of `filament_diameter` (m), cycling every `dt` seconds.
-    pub fn new(cfg: &ExtruderPlantConfig, filament_diameter: f64, dt: f64) -> Self {
+    pub(crate) fn new(cfg: &ExtruderPlantConfig, filament_diameter: f64, dt: f64) -> Self {
         let gain = |tau: f64| if tau > 0.0 { 1.0 - (-dt / tau).exp() } else { 1.0 };
         ExtruderPlant {
             motor_gain: gain(cfg.motor_lag),
@@ -141,7 +141,7 @@ impl ExtruderPlant {
     }
 
     /// Advances one cycle towards the commanded filament speed (m/s; < 0 retracts).
-    pub fn step(&mut self, commanded_filament_rate: f64, dt: f64) {
+    pub(crate) fn step(&mut self, commanded_filament_rate: f64, dt: f64) {
         self.filament_rate += self.motor_gain * (commanded_filament_rate - self.filament_rate);
         self.filament_position += self.filament_rate * dt;
         let pushed = self.filament_rate * self.area;

@@ -18,7 +18,7 @@ pub struct Sample {
 }
 
 /// The tracker's schedule and its samples in flight.
-pub struct Tracker {
+pub(crate) struct Tracker {
     cfg: TrackerConfig,
     period_ns: u64,
     latency_ns: u64,
@@ -34,7 +34,7 @@ pub struct Tracker {
 
 impl Tracker {
     /// A tracker whose first measurement is at `start_ns`.
-    pub fn new(cfg: &TrackerConfig, start_ns: u64) -> Self {
+    pub(crate) fn new(cfg: &TrackerConfig, start_ns: u64) -> Self {
         Tracker {
             cfg: cfg.clone(),
             period_ns: (1e9 / cfg.rate_hz).round() as u64,
@@ -49,7 +49,7 @@ impl Tracker {
 
     /// At sim time `now_ns`, with the true pose `truth` (position, θ): takes the measurements that
     /// are due and returns the samples that arrive by now (oldest first).
-    pub fn poll(&mut self, now_ns: u64, truth: ([f64; 3], f64), noise: &mut Gaussian, out: &mut Vec<Sample>) {
+    pub(crate) fn poll(&mut self, now_ns: u64, truth: ([f64; 3], f64), noise: &mut Gaussian, out: &mut Vec<Sample>) {
         while self.next_ns <= now_ns {
             self.measured += 1;
             let lost = noise.uniform() < self.cfg.dropout;

@@ -8,7 +8,7 @@ mod closed_loop {
     use std::path::Path;
 
     use strand::config::Config;
-    use strand::core::{Controller, MAX_SEGMENTS_PER_TICK, TickInput};
+    use strand_core::{Controller, MAX_SEGMENTS_PER_TICK, TickInput};
     use strand_ipc::{self as ipc, Command, JobOutcome};
 
     use strand_replay::bead::{Executing, asked_sections};
@@ -59,7 +59,7 @@ mod closed_loop {
         };
         let mut sent = 0;
         let (mut pose_seq, mut poses) = (0u64, Vec::new());
-        let start_tick = if cfg.base.mode == strand::core::BaseMode::Tracked { 200 } else { 1 };
+        let start_tick = if cfg.base.mode == strand_core::BaseMode::Tracked { 200 } else { 1 };
         for tick in 0..200_000u64 {
             // Tracking first, as strand-sim sends it (a tracked base's samples; none for a fixed one).
             poses.clear();

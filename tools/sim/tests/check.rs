@@ -10,8 +10,8 @@ use std::path::Path;
 use std::process::Command;
 use strand_testkit::{bin, json_f64, root, square_program, temp_dir};
 
-use strand::core::Event;
 use strand::log::reader::LogFile;
+use strand_core::Event;
 
 /// The approach at full joint speed (both sides use it): seconds of robot time saved per test.
 const FAST_APPROACH: &str = "controller.approach_speed_fraction=1.0";

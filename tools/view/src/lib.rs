@@ -30,7 +30,7 @@ use serde::Deserialize;
 use strand_ipc as ipc;
 
 /// The client channel a viewer publishes control requests on (JSON, [`ControlRequest`]).
-pub const CONTROL_TOPIC: &str = "/strand/control";
+pub(crate) const CONTROL_TOPIC: &str = "/strand/control";
 
 /// Why the live view could not start or add a channel.
 #[derive(Debug, thiserror::Error)]
@@ -70,7 +70,7 @@ pub struct ViewOptions {
 /// A control request as a viewer publishes it on [`CONTROL_TOPIC`]:
 /// `{"command": "pause"}`, `{"command": "feed", "percent": 80}`.
 #[derive(Clone, Debug, PartialEq, Deserialize)]
-pub struct ControlRequest {
+pub(crate) struct ControlRequest {
     /// `pause`, `resume`, `stop`, `estop`, `clear-fault`, `feed` or `flow` (not `start`: a job
     /// starts from its feeder, which streams it).
     pub command: String,
@@ -81,7 +81,7 @@ pub struct ControlRequest {
 
 impl ControlRequest {
     /// The wire command and its value (a fraction for the overrides).
-    pub fn to_wire(&self) -> Result<(ipc::Command, f64), ViewError> {
+    pub(crate) fn to_wire(&self) -> Result<(ipc::Command, f64), ViewError> {
         let need_percent = || {
             self.percent
                 .filter(|p| p.is_finite())

@@ -410,7 +410,7 @@ impl PathEngine {
     /// Forgets everything queued and planned and rests at `start` (m, W) with `orientation`, as a
     /// fresh engine would, keeping the counters, the feed override and all memory. The path position
     /// starts again at 0. For a new job, or after a controlled stop has brought the tool to rest.
-    pub fn reset_at(&mut self, start: Vector3<f64>, orientation: UnitQuaternion<f64>) {
+    pub(crate) fn reset_at(&mut self, start: Vector3<f64>, orientation: UnitQuaternion<f64>) {
         self.intake.head = self.intake.tail;
         self.pieces.head = self.pieces.tail;
         self.piece = self.pieces.tail;
@@ -438,7 +438,7 @@ impl PathEngine {
     /// limits allow, staying on the path (a time-optimal stop, so it never runs past where the plan
     /// would have stopped), and stays there with [`Motion::Held`]; with `false` it continues. A dwell
     /// in progress runs to its end first.
-    pub fn set_hold(&mut self, hold: bool) {
+    pub(crate) fn set_hold(&mut self, hold: bool) {
         if hold != self.held {
             self.held = hold;
             self.replan = true;
@@ -446,12 +446,12 @@ impl PathEngine {
     }
 
     /// Whether the engine is holding (see [`set_hold`](Self::set_hold)).
-    pub fn is_held(&self) -> bool {
+    pub(crate) fn is_held(&self) -> bool {
         self.held
     }
 
     /// The tool's current path state: speed (m/s) and acceleration (m/s²) along the path.
-    pub fn path_motion(&self) -> (f64, f64) {
+    pub(crate) fn path_motion(&self) -> (f64, f64) {
         (self.state.v, self.state.a)
     }
 
@@ -619,7 +619,7 @@ impl PathEngine {
     /// Whether anything that has arrived is still to be executed: a piece the tool has not run to
     /// its end, or a dwell with time left. False when the engine is at rest at the end of what
     /// arrived (idle, starved or finished); a hold ([`set_hold`](Self::set_hold)) does not change it.
-    pub fn has_work(&self) -> bool {
+    pub(crate) fn has_work(&self) -> bool {
         if self.intake.len() > 0 {
             return true;
         }

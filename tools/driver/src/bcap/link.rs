@@ -21,12 +21,12 @@ use crate::paced::{DriverLink, Handshake, LinkError, readable, sleep_until};
 use crate::session::Session;
 
 /// Controller_Connect's provider for RC8 / RC8A / COBOTTA (RC9: `CaoProv.DENSO.VRC9`).
-pub const PROVIDER: &str = "CaoProv.DENSO.VRC";
+pub(crate) const PROVIDER: &str = "CaoProv.DENSO.VRC";
 /// The exchange formats strand sets: the command is a bare joint array, the reply a bare joint
 /// array (`slvSendFormat` 0x0000, `slvRecvFormat` 0x0002).
-pub const SEND_FORMAT: i32 = 0x0000;
+pub(crate) const SEND_FORMAT: i32 = 0x0000;
 /// See [`SEND_FORMAT`].
-pub const RECV_FORMAT: i32 = 0x0002;
+pub(crate) const RECV_FORMAT: i32 = 0x0002;
 
 /// The connection and what the setup got.
 pub struct BcapLink {

@@ -26,7 +26,7 @@ use crate::protocol::{Channel, Clock, Frame, PacketError, RobotPacket, RobotProt
 use strand_ipc::MAX_JOINTS;
 
 /// Values in a J-type `slvMove` (unused joints 0).
-pub const SLAVE_JOINTS: usize = 8;
+pub(crate) const SLAVE_JOINTS: usize = 8;
 
 /// The client's side of slave mode.
 pub struct Bcap {
@@ -69,14 +69,14 @@ impl Bcap {
     }
 
     /// Encodes a `slvMove` to `axes` (rad, m) into `out` with the next serial.
-    pub fn encode_move(&mut self, axes: &[f64], out: &mut Vec<u8>) {
+    pub(crate) fn encode_move(&mut self, axes: &[f64], out: &mut Vec<u8>) {
         let w = self.to_wire(axes);
         self.encode_wire(&w, out);
     }
 
     /// Encodes a `slvMove` to the wire's values (degrees, mm) into `out` with the next serial:
     /// the first one holds the arm where `CurJnt` said it is, to the bit.
-    pub fn encode_wire(&mut self, wire_values: &[f64; SLAVE_JOINTS], out: &mut Vec<u8>) {
+    pub(crate) fn encode_wire(&mut self, wire_values: &[f64; SLAVE_JOINTS], out: &mut Vec<u8>) {
         // Below the setup calls' serials (50001…50999), so that no reply passes for the other's.
         self.serial = if self.serial >= 50_000 { 1 } else { self.serial + 1 };
         wire::encode_slv_move(out, self.serial, self.robot, wire_values);

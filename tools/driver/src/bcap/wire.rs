@@ -21,53 +21,53 @@ pub mod vt {
     /// No value.
     pub const EMPTY: u16 = 0;
     /// i16.
-    pub const I2: u16 = 2;
+    pub(crate) const I2: u16 = 2;
     /// i32.
-    pub const I4: u16 = 3;
+    pub(crate) const I4: u16 = 3;
     /// f32.
-    pub const R4: u16 = 4;
+    pub(crate) const R4: u16 = 4;
     /// f64.
-    pub const R8: u16 = 5;
+    pub(crate) const R8: u16 = 5;
     /// A string (u32 byte length + UTF-16LE).
-    pub const BSTR: u16 = 8;
+    pub(crate) const BSTR: u16 = 8;
     /// An SCODE (i32).
-    pub const ERROR: u16 = 10;
+    pub(crate) const ERROR: u16 = 10;
     /// A 2-byte boolean (true = 0xFFFF).
-    pub const BOOL: u16 = 11;
+    pub(crate) const BOOL: u16 = 11;
     /// Nested values.
-    pub const VARIANT: u16 = 12;
+    pub(crate) const VARIANT: u16 = 12;
     /// u8.
-    pub const UI1: u16 = 17;
+    pub(crate) const UI1: u16 = 17;
     /// u16.
-    pub const UI2: u16 = 18;
+    pub(crate) const UI2: u16 = 18;
     /// u32.
-    pub const UI4: u16 = 19;
+    pub(crate) const UI4: u16 = 19;
     /// i64.
-    pub const I8: u16 = 20;
+    pub(crate) const I8: u16 = 20;
     /// u64.
-    pub const UI8: u16 = 21;
+    pub(crate) const UI8: u16 = 21;
     /// OR-ed into a type for an array of it.
-    pub const ARRAY: u16 = 0x2000;
+    pub(crate) const ARRAY: u16 = 0x2000;
 }
 
 /// Function ids strand calls (§3.1).
 pub mod func {
     /// Service_Start(option).
-    pub const SERVICE_START: i32 = 1;
+    pub(crate) const SERVICE_START: i32 = 1;
     /// Service_Stop().
-    pub const SERVICE_STOP: i32 = 2;
+    pub(crate) const SERVICE_STOP: i32 = 2;
     /// Controller_Connect(name, provider, machine, option) → handle.
-    pub const CONTROLLER_CONNECT: i32 = 3;
+    pub(crate) const CONTROLLER_CONNECT: i32 = 3;
     /// Controller_Disconnect(handle).
-    pub const CONTROLLER_DISCONNECT: i32 = 4;
+    pub(crate) const CONTROLLER_DISCONNECT: i32 = 4;
     /// Controller_GetRobot(handle, name, option) → handle.
-    pub const CONTROLLER_GET_ROBOT: i32 = 7;
+    pub(crate) const CONTROLLER_GET_ROBOT: i32 = 7;
     /// Controller_Execute(handle, command, param) → value.
-    pub const CONTROLLER_EXECUTE: i32 = 17;
+    pub(crate) const CONTROLLER_EXECUTE: i32 = 17;
     /// Robot_Execute(handle, command, param) → value.
-    pub const ROBOT_EXECUTE: i32 = 64;
+    pub(crate) const ROBOT_EXECUTE: i32 = 64;
     /// Robot_Release(handle).
-    pub const ROBOT_RELEASE: i32 = 84;
+    pub(crate) const ROBOT_RELEASE: i32 = 84;
 }
 
 /// HRESULTs the driver acts on (§5).
@@ -75,11 +75,11 @@ pub mod hr {
     /// Success.
     pub const S_OK: u32 = 0;
     /// An interim "still running" packet during a long call: not the reply.
-    pub const S_EXECUTING: u32 = 0x0000_0900;
+    pub(crate) const S_EXECUTING: u32 = 0x0000_0900;
     /// slvMove accepted, the buffer is now full (success).
     pub const S_BUF_FULL: u32 = 0x0F20_0501;
     /// slvMove refused, the buffer was full: not an error, send again next cycle.
-    pub const E_BUF_FULL: u32 = 0x8320_1483;
+    pub(crate) const E_BUF_FULL: u32 = 0x8320_1483;
 }
 
 /// A b-CAP value.
@@ -111,7 +111,7 @@ pub enum Variant {
 
 impl Variant {
     /// The value as a handle or an integer (VT_I4, VT_UI4, VT_I2).
-    pub fn as_i32(&self) -> Option<i32> {
+    pub(crate) fn as_i32(&self) -> Option<i32> {
         match self {
             Variant::I4(v) => Some(*v),
             Variant::UI4(v) => Some(*v as i32),
@@ -178,7 +178,7 @@ fn encode_bstr(s: &str, out: &mut Vec<u8>) {
 /// A packet that is not b-CAP, or not a reply strand can read.
 #[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
 #[error("{0}")]
-pub struct WireError(pub String);
+pub(crate) struct WireError(pub String);
 
 fn bad<T>(why: impl Into<String>) -> Result<T, WireError> {
     Err(WireError(why.into()))
@@ -275,7 +275,7 @@ fn decode_variant(r: &mut Reader<'_>, depth: u32) -> Result<Variant, WireError> 
 
 /// A reply, its header read (the value left in place).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct ReplyHeader {
+pub(crate) struct ReplyHeader {
     /// The serial of the request it answers.
     pub serial: u16,
     /// The HRESULT (as the wire's u32).
@@ -285,7 +285,7 @@ pub struct ReplyHeader {
 }
 
 /// Checks a whole packet's frame and reads its header; the arguments start at byte 15.
-pub fn read_header(packet: &[u8]) -> Result<ReplyHeader, WireError> {
+pub(crate) fn read_header(packet: &[u8]) -> Result<ReplyHeader, WireError> {
     if packet.len() < MIN_PACKET {
         return bad(format!("{} bytes: shorter than any b-CAP packet (16)", packet.len()));
     }
@@ -306,7 +306,7 @@ pub fn read_header(packet: &[u8]) -> Result<ReplyHeader, WireError> {
 }
 
 /// The return value of a reply (None if it has none), its header checked by [`read_header`].
-pub fn read_value(packet: &[u8]) -> Result<Option<Variant>, WireError> {
+pub(crate) fn read_value(packet: &[u8]) -> Result<Option<Variant>, WireError> {
     let h = read_header(packet)?;
     if h.argc == 0 {
         return Ok(None);
@@ -324,7 +324,7 @@ pub fn read_value(packet: &[u8]) -> Result<Option<Variant>, WireError> {
 /// Reads the joints (degrees, or mm) of a `slvMove` reply's value into `out` without allocating:
 /// a bare VT_ARRAY|VT_R8 (receive format 0x0002), or VT_ARRAY|VT_VARIANT whose first R8 array is
 /// the joints (0x0012: a time stamp first). Returns how many values it held.
-pub fn read_joints(packet: &[u8], out: &mut [f64; 8]) -> Result<usize, WireError> {
+pub(crate) fn read_joints(packet: &[u8], out: &mut [f64; 8]) -> Result<usize, WireError> {
     let h = read_header(packet)?;
     if h.argc != 1 {
         return bad("a slvMove reply without the robot's position");
@@ -394,7 +394,7 @@ fn argument(out: &mut Vec<u8>, write: impl FnOnce(&mut Vec<u8>)) {
 }
 
 /// Encodes a call into `out` (cleared first).
-pub fn encode_call(out: &mut Vec<u8>, serial: u16, func: i32, args: &[Variant]) {
+pub(crate) fn encode_call(out: &mut Vec<u8>, serial: u16, func: i32, args: &[Variant]) {
     start(out, serial, func, args.len() as u16);
     for a in args {
         argument(out, |o| a.encode(o));
@@ -407,7 +407,7 @@ const SLV_MOVE: &str = "slvMove";
 
 /// Encodes `Robot_Execute(robot, "slvMove", joints)` into `out` (cleared first) without allocating
 /// once `out` has grown: joints in degrees (mm for a linear axis), eight values, unused ones 0.
-pub fn encode_slv_move(out: &mut Vec<u8>, serial: u16, robot: i32, joints: &[f64; 8]) {
+pub(crate) fn encode_slv_move(out: &mut Vec<u8>, serial: u16, robot: i32, joints: &[f64; 8]) {
     start(out, serial, func::ROBOT_EXECUTE, 3);
     argument(out, |o| {
         o.extend_from_slice(&vt::I4.to_le_bytes());
@@ -509,7 +509,7 @@ pub fn describe(hresult: u32) -> String {
 
 /// Whether a slave-mode reply lets the stream go on: success, or the buffer was full (the command
 /// is sent again next cycle). Every other code means the controller stopped the arm.
-pub fn keeps_streaming(hresult: u32) -> bool {
+pub(crate) fn keeps_streaming(hresult: u32) -> bool {
     hresult & 0x8000_0000 == 0 || hresult == hr::E_BUF_FULL
 }
 

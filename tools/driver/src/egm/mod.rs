@@ -28,7 +28,7 @@ use proto::egm_rapid_ctrl_exec_state::RapidCtrlExecStateType;
 use proto::{EgmHeader, EgmJoints, EgmPlanned, EgmRobot, EgmSensor};
 
 /// Robot axes EGM streams in `joints` (the rest, up to 6 more, in `externalJoints`).
-pub const ROBOT_AXES: usize = 6;
+pub(crate) const ROBOT_AXES: usize = 6;
 
 /// A `seqno` this far below the last one starts a new EGM session (RAPID restarted EGM), not a
 /// late packet.

@@ -67,7 +67,7 @@ impl FakeProtocol for FakeEgm {
 }
 
 /// An `EgmRobot` as a controller sends it: for the fake controller and the tests.
-pub fn robot_message(seqno: u32, tm: u32, joints_deg: &[f64], following: bool) -> EgmRobot {
+pub(crate) fn robot_message(seqno: u32, tm: u32, joints_deg: &[f64], following: bool) -> EgmRobot {
     use crate::egm::proto::{EgmFeedBack, EgmHeader, EgmJoints, EgmMciState, EgmMotorState, EgmRapidCtrlExecState};
     let (robot, external) = joints_deg.split_at(joints_deg.len().min(crate::egm::ROBOT_AXES));
     EgmRobot {

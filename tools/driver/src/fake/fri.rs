@@ -30,17 +30,17 @@ use std::sync::{Arc, Mutex};
 use super::FakeProtocol;
 
 /// `messageIdentifier` of a monitoring message (robot → client).
-pub const MONITOR_ID: u32 = 2_380_098;
+pub(crate) const MONITOR_ID: u32 = 2_380_098;
 /// `messageIdentifier` of a command message (client → robot).
-pub const COMMAND_ID: u32 = 212_993;
+pub(crate) const COMMAND_ID: u32 = 212_993;
 /// The LBR iiwa's joints: every JointValues carries exactly this many.
-pub const JOINTS: usize = 7;
+pub(crate) const JOINTS: usize = 7;
 /// How far (rad) an answer in COMMANDING_WAIT may be from the ipo position.
-pub const IPO_TOLERANCE: f64 = 1e-6;
+pub(crate) const IPO_TOLERANCE: f64 = 1e-6;
 /// The cycles over which the connection quality is rated (fewer at the start).
-pub const QUALITY_WINDOW: u32 = 100;
+pub(crate) const QUALITY_WINDOW: u32 = 100;
 /// The LBR iiwa 7 R800's axis speeds (deg/s, data sheet; A1..A7).
-pub const IIWA7_SPEED_DEG: [f64; JOINTS] = [98.0, 98.0, 100.0, 130.0, 140.0, 180.0, 180.0];
+pub(crate) const IIWA7_SPEED_DEG: [f64; JOINTS] = [98.0, 98.0, 100.0, 130.0, 140.0, 180.0, 180.0];
 
 /// `FRISessionState`, with its wire values.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, PartialOrd, Ord)]
@@ -82,7 +82,7 @@ pub enum Quality {
 
 impl Quality {
     /// The fake's policy: the quality of a link that answered `share` (0..1) of the cycles in time.
-    pub fn from_share(share: f64) -> Quality {
+    pub(crate) fn from_share(share: f64) -> Quality {
         let levels = [(0.99, Quality::Excellent), (0.95, Quality::Good), (0.80, Quality::Fair)];
         levels.into_iter().find(|(at, _)| share >= *at).map_or(Quality::Poor, |(_, q)| q)
     }
@@ -154,17 +154,20 @@ impl FriWatch {
     pub fn last_abort(&self) -> String {
         self.0.last_abort.lock().map_or_else(|e| e.into_inner().clone(), |s| s.clone())
     }
-    /// Overlays started (entries into COMMANDING_WAIT).
-    pub fn overlays(&self) -> u64 {
+    /// Overlays started (entries into COMMANDING_WAIT); read by the fake's own tests.
+    #[cfg(test)]
+    pub(crate) fn overlays(&self) -> u64 {
         self.0.overlays.load(Ordering::Relaxed)
+    }
+    /// Answers in COMMANDING_WAIT that did not hold the ipo position (each restarts the wait); read
+    /// by the fake's own tests.
+    #[cfg(test)]
+    pub(crate) fn wrong_ipo(&self) -> u64 {
+        self.0.wrong_ipo.load(Ordering::Relaxed)
     }
     /// Messages sent in COMMANDING_ACTIVE.
     pub fn active_cycles(&self) -> u64 {
         self.0.active_cycles.load(Ordering::Relaxed)
-    }
-    /// Answers in COMMANDING_WAIT that did not hold the ipo position (each restarts the wait).
-    pub fn wrong_ipo(&self) -> u64 {
-        self.0.wrong_ipo.load(Ordering::Relaxed)
     }
     /// The app closes its `FRISession`: IDLE from the next message on.
     pub fn close(&self) {
@@ -387,7 +390,7 @@ pub fn monitoring_message(m: &Monitoring) -> Vec<u8> {
 }
 
 /// Encodes `m` into `out` (cleared first): fields in tag order, required ones always.
-pub fn encode_monitoring(m: &Monitoring, out: &mut Vec<u8>) {
+pub(crate) fn encode_monitoring(m: &Monitoring, out: &mut Vec<u8>) {
     const ZERO: [f64; JOINTS] = [0.0; JOINTS];
     out.clear();
     nested(out, 1, |h| {
@@ -531,7 +534,7 @@ pub struct Command {
 
 /// Reads a command message; `None` if malformed, the header incomplete or a `jointPosition` that
 /// is not exactly 7 values. Unknown fields are skipped; repeated sub-messages merge.
-pub fn decode_command(bytes: &[u8]) -> Option<Command> {
+pub(crate) fn decode_command(bytes: &[u8]) -> Option<Command> {
     let mut header = [None::<u32>; 3];
     let mut joints: Option<Vec<f64>> = None;
     for_fields(bytes, |field, v| match (field, v) {

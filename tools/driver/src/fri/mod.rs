@@ -26,7 +26,7 @@ use proto::{
 use strand_ipc::MAX_JOINTS;
 
 /// Joints of an LBR: every `JointValues` carries exactly this many.
-pub const JOINTS: usize = 7;
+pub(crate) const JOINTS: usize = 7;
 
 /// What the robot said last, for the answer and for the log.
 #[derive(Clone, Copy, Debug, PartialEq)]

@@ -25,10 +25,10 @@ use crate::protocol::{Channel, Clock, Frame, PacketError, RobotPacket, RobotProt
 use strand_ipc::MAX_JOINTS;
 
 /// The Meca500's joints.
-pub const JOINTS: usize = 6;
+pub(crate) const JOINTS: usize = 6;
 
 /// Where a message in a tick's packet came from (its first byte in the packet).
-pub const FROM_CONTROL: u8 = b'C';
+pub(crate) const FROM_CONTROL: u8 = b'C';
 /// See [`FROM_CONTROL`].
 pub const FROM_MONITOR: u8 = b'M';
 
@@ -42,7 +42,7 @@ pub struct Message<'a> {
 }
 
 /// Parses `[CCCC][payload]` (None if it is not one).
-pub fn parse_message(text: &str) -> Option<Message<'_>> {
+pub(crate) fn parse_message(text: &str) -> Option<Message<'_>> {
     let text = text.trim_matches(|c: char| c == '\r' || c == '\n' || c == ' ');
     let rest = text.strip_prefix('[')?;
     let close = rest.find(']')?;
@@ -63,7 +63,7 @@ pub fn parse_message(text: &str) -> Option<Message<'_>> {
 
 /// Reads comma-separated numbers into `out`; how many there were (None: one is not a number, or
 /// there are more than `out` holds).
-pub fn parse_numbers(payload: &str, out: &mut [f64]) -> Option<usize> {
+pub(crate) fn parse_numbers(payload: &str, out: &mut [f64]) -> Option<usize> {
     let mut n = 0;
     for field in payload.split(',') {
         let field = field.trim();
@@ -163,7 +163,7 @@ impl Meca {
     }
 
     /// The gain on the position error (1/s; `[driver] velocity_gain`).
-    pub fn set_gain(&mut self, gain: f64) {
+    pub(crate) fn set_gain(&mut self, gain: f64) {
         self.gain = gain;
     }
 

@@ -26,16 +26,16 @@ use crate::protocol::{Channel, Clock, Frame, PacketError, RobotPacket, RobotProt
 use strand_ipc::MAX_JOINTS;
 
 /// A UR's joints.
-pub const JOINTS: usize = 6;
+pub(crate) const JOINTS: usize = 6;
 /// The joints' fixed-point factor on the reverse interface (µrad).
-pub const MULT_JOINTSTATE: f64 = 1_000_000.0;
+pub(crate) const MULT_JOINTSTATE: f64 = 1_000_000.0;
 /// The robot's read timeout announced in each message by default (ms; `[driver] read_timeout`):
 /// 10 cycles at 500 Hz. Longer silences stop the program and the arm.
-pub const READ_TIMEOUT_MS: i32 = 20;
+pub(crate) const READ_TIMEOUT_MS: i32 = 20;
 /// Control modes of the reverse interface.
 pub mod mode {
     /// Servo to the joint positions (`servoj`).
-    pub const SERVOJ: i32 = 1;
+    pub(crate) const SERVOJ: i32 = 1;
     /// End the program.
     pub const STOPPED: i32 = -2;
 }
@@ -95,7 +95,7 @@ impl Ur {
     }
 
     /// The output recipe's id.
-    pub fn set_recipe(&mut self, id: u8) {
+    pub(crate) fn set_recipe(&mut self, id: u8) {
         self.recipe = id;
     }
 

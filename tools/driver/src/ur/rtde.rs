@@ -7,17 +7,17 @@
 /// Package types (ASCII letters).
 pub mod kind {
     /// Request protocol version (`V`).
-    pub const PROTOCOL_VERSION: u8 = b'V';
+    pub(crate) const PROTOCOL_VERSION: u8 = b'V';
     /// Controller version (`v`).
-    pub const URCONTROL_VERSION: u8 = b'v';
+    pub(crate) const URCONTROL_VERSION: u8 = b'v';
     /// Text message (`M`).
-    pub const TEXT_MESSAGE: u8 = b'M';
+    pub(crate) const TEXT_MESSAGE: u8 = b'M';
     /// Data package (`U`).
     pub const DATA: u8 = b'U';
     /// Output recipe setup (`O`).
-    pub const SETUP_OUTPUTS: u8 = b'O';
+    pub(crate) const SETUP_OUTPUTS: u8 = b'O';
     /// Input recipe setup (`I`).
-    pub const SETUP_INPUTS: u8 = b'I';
+    pub(crate) const SETUP_INPUTS: u8 = b'I';
     /// Start the stream (`S`).
     pub const START: u8 = b'S';
     /// Pause the stream (`P`).
@@ -28,12 +28,12 @@ pub mod kind {
 pub const OUTPUTS: [&str; 8] =
     ["timestamp", "actual_q", "actual_qd", "robot_mode", "safety_mode", "runtime_state", "speed_scaling", "target_speed_fraction"];
 /// Their types as the controller must name them.
-pub const OUTPUT_TYPES: [&str; 8] = ["DOUBLE", "VECTOR6D", "VECTOR6D", "INT32", "INT32", "UINT32", "DOUBLE", "DOUBLE"];
+pub(crate) const OUTPUT_TYPES: [&str; 8] = ["DOUBLE", "VECTOR6D", "VECTOR6D", "INT32", "INT32", "UINT32", "DOUBLE", "DOUBLE"];
 /// The inputs strand writes (the standard analog output for the extruder).
 pub const INPUTS: [&str; 4] =
     ["standard_analog_output_mask", "standard_analog_output_type", "standard_analog_output_0", "standard_analog_output_1"];
 /// Their types.
-pub const INPUT_TYPES: [&str; 4] = ["UINT8", "UINT8", "DOUBLE", "DOUBLE"];
+pub(crate) const INPUT_TYPES: [&str; 4] = ["UINT8", "UINT8", "DOUBLE", "DOUBLE"];
 
 /// A package that is not RTDE, or not what the recipe says; a recipe the controller refused.
 #[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
@@ -51,14 +51,14 @@ pub fn encode(out: &mut Vec<u8>, kind: u8, payload: &[u8]) {
 }
 
 /// The output recipe setup at `frequency` (Hz).
-pub fn setup_outputs(out: &mut Vec<u8>, frequency: f64) {
+pub(crate) fn setup_outputs(out: &mut Vec<u8>, frequency: f64) {
     let mut p = frequency.to_be_bytes().to_vec();
     p.extend_from_slice(OUTPUTS.join(",").as_bytes());
     encode(out, kind::SETUP_OUTPUTS, &p);
 }
 
 /// The input recipe setup.
-pub fn setup_inputs(out: &mut Vec<u8>) {
+pub(crate) fn setup_inputs(out: &mut Vec<u8>) {
     encode(out, kind::SETUP_INPUTS, INPUTS.join(",").as_bytes());
 }
 
@@ -123,7 +123,7 @@ pub fn recipe(payload: &[u8], names: &[&str], want: &[&str]) -> Result<u8, RtdeE
 
 /// What the robot says each cycle (the output recipe [`OUTPUTS`]).
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
-pub struct RobotData {
+pub(crate) struct RobotData {
     /// Controller time (s since its start).
     pub timestamp: f64,
     /// Joint positions (rad).
@@ -143,10 +143,10 @@ pub struct RobotData {
 }
 
 /// Bytes of a data package of the output recipe: type, id, 8 + 48 + 48 + 4 + 4 + 4 + 8 + 8.
-pub const DATA_LEN: usize = 3 + 1 + 132;
+pub(crate) const DATA_LEN: usize = 3 + 1 + 132;
 
 /// Reads a data package of output recipe `id`.
-pub fn read_data(package: &[u8], id: u8) -> Result<RobotData, RtdeError> {
+pub(crate) fn read_data(package: &[u8], id: u8) -> Result<RobotData, RtdeError> {
     let (k, p) = split(package);
     if k != kind::DATA {
         return Err(RtdeError(format!("package type {:?}, not a data package", k as char)));
@@ -173,7 +173,7 @@ pub fn read_data(package: &[u8], id: u8) -> Result<RobotData, RtdeError> {
 }
 
 /// `robot_mode`'s name.
-pub fn robot_mode_name(m: i32) -> String {
+pub(crate) fn robot_mode_name(m: i32) -> String {
     let n = ["DISCONNECTED", "CONFIRM_SAFETY", "BOOTING", "POWER_OFF", "POWER_ON", "IDLE", "BACKDRIVE", "RUNNING", "UPDATING_FIRMWARE"];
     match m {
         -1 => "NO_CONTROLLER".into(),
@@ -183,7 +183,7 @@ pub fn robot_mode_name(m: i32) -> String {
 }
 
 /// `safety_mode`'s name.
-pub fn safety_mode_name(m: i32) -> String {
+pub(crate) fn safety_mode_name(m: i32) -> String {
     let n = [
         "NORMAL",
         "REDUCED",
@@ -214,7 +214,7 @@ pub fn safety_mode_name(m: i32) -> String {
 }
 
 /// `runtime_state`'s name.
-pub fn runtime_state_name(s: u32) -> String {
+pub(crate) fn runtime_state_name(s: u32) -> String {
     let n = ["STOPPING", "STOPPED", "PLAYING", "PAUSING", "PAUSED", "RESUMING"];
     n.get(s as usize).map_or_else(|| format!("runtime state {s}"), |n| n.to_string())
 }

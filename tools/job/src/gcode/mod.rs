@@ -140,16 +140,16 @@ const MM: f64 = 1e-3;
 /// Metres per inch.
 const INCH: f64 = 0.0254;
 /// Displacements shorter than this (m) count as none: a zero-length move, an arc's end on its start.
-pub const ZERO_LENGTH: f64 = 1e-12;
+pub(crate) const ZERO_LENGTH: f64 = 1e-12;
 /// Longest accepted line (bytes, without the line end).
-pub const MAX_LINE_BYTES: usize = 64 * 1024;
+pub(crate) const MAX_LINE_BYTES: usize = 64 * 1024;
 /// Most kinds the warning and note lists keep apart; further kinds are counted under `"other"`.
 pub const MAX_REPORT_KINDS: usize = 64;
 /// Kind under which reports beyond [`MAX_REPORT_KINDS`] kinds are counted.
 pub const OTHER_KIND: &str = "other";
 /// Largest accepted magnitude of a position, offset, arc centre or extruder position (m): far
 /// beyond any machine, and far enough below overflow that no later sum or square can overflow.
-pub const MAX_COORDINATE: f64 = 1e6;
+pub(crate) const MAX_COORDINATE: f64 = 1e6;
 
 /// How to read a program.
 #[derive(Clone, Debug, PartialEq)]

@@ -194,7 +194,7 @@ pub struct Plan {
 }
 
 /// Most strips a plan may have (a job far wider than the strips is a mistake, not a plan).
-pub const MAX_STRIPS: usize = 10_000;
+pub(crate) const MAX_STRIPS: usize = 10_000;
 
 /// Splits `job` per `spec`: nominal strips, Eqs. 2-4, the staggered boundaries, cutting, chaining.
 /// Errors name the flag.

@@ -6,8 +6,8 @@ use std::collections::HashMap;
 use std::io::BufRead;
 
 use nalgebra::Vector3;
-use strand::core::{Geometry, Segment, SegmentKind, arc_geometry};
 use strand_cli::error::{Result, ToolError};
+use strand_core::{Geometry, Segment, SegmentKind, arc_geometry};
 use strand_job::gcode::{GcodeOptions, Parser};
 
 /// One extruding straight line (m, G-code frame).

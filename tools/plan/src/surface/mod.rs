@@ -69,7 +69,7 @@ pub use step::{Placement, StepSurface, list_faces};
 
 /// One algorithm's result, as `--json` prints it.
 #[derive(Clone, Debug, PartialEq, Serialize)]
-pub struct AlgorithmReport {
+pub(crate) struct AlgorithmReport {
     /// Samples on the path (1).
     pub points: usize,
     /// Path length (m).
@@ -86,7 +86,7 @@ pub struct AlgorithmReport {
 
 impl AlgorithmReport {
     /// The report for `path` with its `contacts`.
-    pub fn new(path: &PlannedPath, contacts: &[Contact]) -> AlgorithmReport {
+    pub(crate) fn new(path: &PlannedPath, contacts: &[Contact]) -> AlgorithmReport {
         AlgorithmReport {
             points: path.order.len(),
             path_length_m: path.length,

@@ -67,7 +67,7 @@ impl Weighting {
     /// The weighting for `axis` on `cloud`: a weight of the cloud's bounding-box diagonal (so any sample on
     /// the current row beats any sample off it) unless `weight` is given, and half the mean calibrated
     /// step as the tolerance.
-    pub fn for_cloud(cloud: &PointCloud, axis: Axis, weight: Option<f64>) -> Weighting {
+    pub(crate) fn for_cloud(cloud: &PointCloud, axis: Axis, weight: Option<f64>) -> Weighting {
         let tolerance = 0.5 * if axis == Axis::U { cloud.step_u } else { cloud.step_v };
         Weighting { axis, weight: weight.unwrap_or_else(|| bounding_diagonal(cloud)), tolerance }
     }

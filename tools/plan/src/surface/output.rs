@@ -4,7 +4,7 @@
 
 use std::path::Path;
 
-use strand::core::{Segment, SegmentFlags, SegmentKind};
+use strand_core::{Segment, SegmentFlags, SegmentKind};
 
 use serde::Serialize;
 
@@ -47,7 +47,7 @@ impl Default for Deposition {
 impl Deposition {
     /// Filament per metre of path (m/m): Slic3r's bead cross-section A = h(w − h) + π(h/2)² (a rectangle
     /// with round ends) over the filament's area π(d/2)².
-    pub fn filament_per_metre(&self) -> f64 {
+    pub(crate) fn filament_per_metre(&self) -> f64 {
         crate::filament_per_metre(self.line_width, self.layer_height, self.filament_diameter)
     }
 

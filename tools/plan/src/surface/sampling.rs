@@ -48,7 +48,7 @@ impl PointCloud {
     }
 
     /// True if the step from `a` to `b` crosses a periodic seam (its (u, v) chord is not the short way).
-    pub fn crosses_seam(&self, a: usize, b: usize) -> bool {
+    pub(crate) fn crosses_seam(&self, a: usize, b: usize) -> bool {
         let (du, dv) = self.step(a, b);
         let (sa, sb) = (&self.samples[a], &self.samples[b]);
         du != sb.u - sa.u || dv != sb.v - sa.v

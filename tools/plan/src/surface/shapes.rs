@@ -17,12 +17,12 @@ pub struct Domain {
 
 impl Domain {
     /// u_max − u_min (u unit).
-    pub fn span_u(&self) -> f64 {
+    pub(crate) fn span_u(&self) -> f64 {
         self.u.1 - self.u.0
     }
 
     /// v_max − v_min (v unit).
-    pub fn span_v(&self) -> f64 {
+    pub(crate) fn span_v(&self) -> f64 {
         self.v.1 - self.v.0
     }
 
@@ -241,7 +241,7 @@ pub struct Blade {
 
 impl Blade {
     /// The trimmed chord length at span r (m).
-    pub fn outline(&self, r: f64) -> f64 {
+    pub(crate) fn outline(&self, r: f64) -> f64 {
         let sigma = ((r - self.hub_radius) / (self.tip_radius - self.hub_radius)).clamp(0.0, 1.0);
         self.chord * (0.6 + 0.4 * (PI * sigma).sin()) * (1.0 - sigma.powi(6)).max(0.0).sqrt()
     }

@@ -15,7 +15,7 @@ use super::Executing;
 use crate::truth::Truth;
 
 /// The most delay looked for (ticks).
-pub const MAX_DELAY_TICKS: u64 = 200;
+pub(crate) const MAX_DELAY_TICKS: u64 = 200;
 
 /// The shift (ticks) that best lays the nozzle's actual path (`truth`) onto the ticks' path targets,
 /// in mean distance over the ticks on the path; 0 if nothing ran.
@@ -60,7 +60,7 @@ pub struct HotEnd {
 /// through a first-order lag; melt pushed in is stored in the hot end's compliance and flows out
 /// in proportion (`flow = stored / melt_lag`); a retraction leaves a void the prime refills.
 /// Returns the flow (m³/s) for each commanded filament rate (m/s).
-pub fn hot_end_response(commanded: &[f64], filament_area: f64, dt: f64, melt_lag: f64, motor_lag: f64) -> Vec<f64> {
+pub(crate) fn hot_end_response(commanded: &[f64], filament_area: f64, dt: f64, melt_lag: f64, motor_lag: f64) -> Vec<f64> {
     let gain = |tau: f64| if tau > 0.0 { 1.0 - (-dt / tau).exp() } else { 1.0 };
     let (gm, g) = (gain(motor_lag), gain(melt_lag));
     let (mut motor, mut pressure) = (0.0, 0.0);

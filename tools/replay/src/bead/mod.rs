@@ -25,15 +25,15 @@ use crate::truth::Truth;
 use strand_cli::error::{Result, ToolError};
 
 /// Length of a bin of actual nozzle travel (m).
-pub const BIN_LENGTH: f64 = 1e-3;
+pub(crate) const BIN_LENGTH: f64 = 1e-3;
 /// Below this nozzle speed the nozzle stands (m/s): what it lays then is a blob.
-pub const STANDING_SPEED: f64 = 1e-3;
+pub(crate) const STANDING_SPEED: f64 = 1e-3;
 /// Melt flow on a travel that counts it as a string by length (m³/s): 1.5 % of a typical 0.4 mm
 /// nozzle's 3 mm³/s.
-pub const STRING_FLOW: f64 = 0.05e-9;
+pub(crate) const STRING_FLOW: f64 = 0.05e-9;
 /// A bin's error beyond this share is a visible flaw (Klipper's and slicers' tuning towers judge by
 /// eye at about this level).
-pub const FLAW: f64 = 0.10;
+pub(crate) const FLAW: f64 = 0.10;
 
 /// Which feature each source line prints, from the program's `;TYPE:` tags (Cura, PrusaSlicer,
 /// Slic3r, Orca, Bambu) or Simplify3D's `; feature` comments.
@@ -54,7 +54,7 @@ impl Features {
     }
 
     /// The tags of G-code text.
-    pub fn of_text(text: &str) -> Features {
+    pub(crate) fn of_text(text: &str) -> Features {
         let mut f = Features { names: Vec::new(), by_line: vec![u16::MAX] };
         let mut current = u16::MAX;
         for line in text.lines() {
@@ -196,7 +196,7 @@ impl Bead {
 
 impl Executing {
     /// What the tick at `time_ns` (ns) that gave `out` was doing.
-    pub fn of(time_ns: u64, out: &strand::core::TickOutput) -> Executing {
+    pub fn of(time_ns: u64, out: &strand_core::TickOutput) -> Executing {
         let s = &out.status;
         Executing {
             time_ns,
@@ -217,7 +217,7 @@ pub fn asked_sections(segments: &[strand_ipc::Segment], filament_area: f64) -> H
         let kind = strand_ipc::SegmentKind::from_u32(seg.kind);
         let section = match (start, kind) {
             (Some(from), Some(k)) if k != strand_ipc::SegmentKind::Dwell && seg.filament > 0.0 => {
-                let length = strand::core::Segment::try_from(seg).map_or(0.0, |c| strand_job::gcode::segment_length(&from, &c));
+                let length = strand_core::Segment::try_from(seg).map_or(0.0, |c| strand_job::gcode::segment_length(&from, &c));
                 if length > 1e-9 { seg.filament * filament_area / length } else { 0.0 }
             }
             _ => 0.0,

@@ -26,7 +26,7 @@ use std::process::Command;
 use std::time::{Duration, Instant};
 
 use strand::config::{Config, locate};
-use strand::core::BaseMode;
+use strand_core::BaseMode;
 use strand_ipc::ServiceNames;
 use strand_ipc::ports::{ClientPorts, ClientRoles};
 

@@ -140,7 +140,7 @@ pub fn report(log: &Path, truth: &[Truth], flyer: bool, features: Option<&Featur
     let mut path_ticks = PathTicks::default();
     let mut started: Option<u64> = None;
     let mut ended: Option<u64> = None;
-    let mut measured: Option<strand::core::kin::JointVector> = None;
+    let mut measured: Option<strand_core::kin::JointVector> = None;
     let dof = model.dof();
     for tick in file.ticks() {
         let tick = tick?;
@@ -156,7 +156,7 @@ pub fn report(log: &Path, truth: &[Truth], flyer: bool, features: Option<&Featur
         if let Some(js) = &i.joint_state
             && js.dof as usize == dof
         {
-            let mut q = strand::core::kin::JointVector::zeros();
+            let mut q = strand_core::kin::JointVector::zeros();
             q.as_mut_slice()[..dof].copy_from_slice(&js.position[..dof]);
             measured = Some(q);
         }
@@ -175,7 +175,7 @@ pub fn report(log: &Path, truth: &[Truth], flyer: bool, features: Option<&Featur
         }
         for e in o.events() {
             match *e {
-                strand::core::Event::Fault { code, seq, line, value } => {
+                strand_core::Event::Fault { code, seq, line, value } => {
                     let figure = if code == strand_ipc::FaultCode::TcpErrorLimit {
                         format!(" (TCP error {:.3} mm)", value * 1e3)
                     } else {
@@ -186,7 +186,7 @@ pub fn report(log: &Path, truth: &[Truth], flyer: bool, features: Option<&Featur
                         if seq > 0 { format!("{code:?} at segment {seq}, line {line}{figure}") } else { format!("{code:?}{figure}") },
                     ))
                 }
-                strand::core::Event::JobEnded { outcome, .. } => {
+                strand_core::Event::JobEnded { outcome, .. } => {
                     r.job_outcome = format!("{outcome:?}");
                     ended = Some(i.time_ns);
                 }

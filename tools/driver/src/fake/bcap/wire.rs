@@ -16,23 +16,23 @@ pub const MAX_JOINTS: usize = 8;
 /// Function IDs (§3.1).
 pub mod func {
     /// Service_Start.
-    pub const SERVICE_START: u32 = 1;
+    pub(crate) const SERVICE_START: u32 = 1;
     /// Service_Stop.
-    pub const SERVICE_STOP: u32 = 2;
+    pub(crate) const SERVICE_STOP: u32 = 2;
     /// Controller_Connect.
-    pub const CONTROLLER_CONNECT: u32 = 3;
+    pub(crate) const CONTROLLER_CONNECT: u32 = 3;
     /// Controller_Disconnect.
-    pub const CONTROLLER_DISCONNECT: u32 = 4;
+    pub(crate) const CONTROLLER_DISCONNECT: u32 = 4;
     /// Controller_GetRobot.
-    pub const CONTROLLER_GET_ROBOT: u32 = 7;
+    pub(crate) const CONTROLLER_GET_ROBOT: u32 = 7;
     /// Controller_GetRobotNames.
-    pub const CONTROLLER_GET_ROBOT_NAMES: u32 = 13;
+    pub(crate) const CONTROLLER_GET_ROBOT_NAMES: u32 = 13;
     /// Controller_Execute.
-    pub const CONTROLLER_EXECUTE: u32 = 17;
+    pub(crate) const CONTROLLER_EXECUTE: u32 = 17;
     /// Robot_Execute.
-    pub const ROBOT_EXECUTE: u32 = 64;
+    pub(crate) const ROBOT_EXECUTE: u32 = 64;
     /// Robot_Release.
-    pub const ROBOT_RELEASE: u32 = 84;
+    pub(crate) const ROBOT_RELEASE: u32 = 84;
 }
 
 /// HRESULTs (§5), as the u32 in the packet.
@@ -40,45 +40,45 @@ pub mod hr {
     /// Success.
     pub const S_OK: u32 = 0;
     /// Interim "still running" packet.
-    pub const S_EXECUTING: u32 = 0x0000_0900;
+    pub(crate) const S_EXECUTING: u32 = 0x0000_0900;
     /// slvMove accepted, the buffer is now full.
     pub const S_BUF_FULL: u32 = 0x0F20_0501;
     /// InvokeTimeout passed.
-    pub const E_TIMEOUT: u32 = 0x8000_0900;
+    pub(crate) const E_TIMEOUT: u32 = 0x8000_0900;
     /// Unknown Execute command.
-    pub const E_INVALID_CMD_NAME: u32 = 0x8000_0904;
+    pub(crate) const E_INVALID_CMD_NAME: u32 = 0x8000_0904;
     /// Too many clients.
-    pub const E_MAX_CONNECT: u32 = 0x8000_090B;
+    pub(crate) const E_MAX_CONNECT: u32 = 0x8000_090B;
     /// ORiN object (here: provider) not found.
-    pub const E_CAO_OBJECT_NOT_FOUND: u32 = 0x8000_0204;
+    pub(crate) const E_CAO_OBJECT_NOT_FOUND: u32 = 0x8000_0204;
     /// Function not implemented.
-    pub const E_NOTIMPL: u32 = 0x8000_4001;
+    pub(crate) const E_NOTIMPL: u32 = 0x8000_4001;
     /// Malformed packet.
-    pub const E_INVALIDPACKET: u32 = 0x8001_0000;
+    pub(crate) const E_INVALIDPACKET: u32 = 0x8001_0000;
     /// Wrong VARIANT type.
-    pub const DISP_E_TYPEMISMATCH: u32 = 0x8002_0005;
+    pub(crate) const DISP_E_TYPEMISMATCH: u32 = 0x8002_0005;
     /// No authority (arm not taken).
-    pub const E_ACCESSDENIED: u32 = 0x8007_0005;
+    pub(crate) const E_ACCESSDENIED: u32 = 0x8007_0005;
     /// Invalid handle.
-    pub const E_HANDLE: u32 = 0x8007_0006;
+    pub(crate) const E_HANDLE: u32 = 0x8007_0006;
     /// Invalid argument.
-    pub const E_INVALIDARG: u32 = 0x8007_0057;
+    pub(crate) const E_INVALIDARG: u32 = 0x8007_0057;
     /// slvMove rejected, buffer full (not latched).
-    pub const E_BUF_FULL: u32 = 0x8320_1483;
+    pub(crate) const E_BUF_FULL: u32 = 0x8320_1483;
     /// Command buffer empty (client too late).
-    pub const E_BUF_EMPTY: u32 = 0x8420_1482;
+    pub(crate) const E_BUF_EMPTY: u32 = 0x8420_1482;
     /// slvMove while slave mode is off.
-    pub const E_SLAVE_OFF: u32 = 0x8350_0121;
+    pub(crate) const E_SLAVE_OFF: u32 = 0x8350_0121;
     /// Command not allowed in slave mode.
-    pub const E_IN_SLAVE_MODE: u32 = 0x8350_1032;
+    pub(crate) const E_IN_SLAVE_MODE: u32 = 0x8350_1032;
     /// Motor is off.
-    pub const E_MOTOR_OFF: u32 = 0x8150_1003;
+    pub(crate) const E_MOTOR_OFF: u32 = 0x8150_1003;
     /// An error is pending (ClearError first).
-    pub const E_ERROR_PENDING: u32 = 0x8150_1025;
+    pub(crate) const E_ERROR_PENDING: u32 = 0x8150_1025;
     /// Command speed too large: + joint (1..8).
-    pub const E_SPEED: u32 = 0x8420_4050;
+    pub(crate) const E_SPEED: u32 = 0x8420_4050;
     /// Command acceleration too large: + joint (1..8).
-    pub const E_ACCEL: u32 = 0x8420_4040;
+    pub(crate) const E_ACCEL: u32 = 0x8420_4040;
 }
 
 /// VARTYPEs (§2).
@@ -86,39 +86,39 @@ pub mod vt {
     /// VT_EMPTY.
     pub const EMPTY: u16 = 0;
     /// VT_NULL.
-    pub const NULL: u16 = 1;
+    pub(crate) const NULL: u16 = 1;
     /// VT_I2.
-    pub const I2: u16 = 2;
+    pub(crate) const I2: u16 = 2;
     /// VT_I4.
-    pub const I4: u16 = 3;
+    pub(crate) const I4: u16 = 3;
     /// VT_R4.
-    pub const R4: u16 = 4;
+    pub(crate) const R4: u16 = 4;
     /// VT_R8.
-    pub const R8: u16 = 5;
+    pub(crate) const R8: u16 = 5;
     /// VT_CY.
-    pub const CY: u16 = 6;
+    pub(crate) const CY: u16 = 6;
     /// VT_DATE.
-    pub const DATE: u16 = 7;
+    pub(crate) const DATE: u16 = 7;
     /// VT_BSTR.
-    pub const BSTR: u16 = 8;
+    pub(crate) const BSTR: u16 = 8;
     /// VT_ERROR.
-    pub const ERROR: u16 = 10;
+    pub(crate) const ERROR: u16 = 10;
     /// VT_BOOL.
-    pub const BOOL: u16 = 11;
+    pub(crate) const BOOL: u16 = 11;
     /// VT_VARIANT.
-    pub const VARIANT: u16 = 12;
+    pub(crate) const VARIANT: u16 = 12;
     /// VT_UI1.
-    pub const UI1: u16 = 17;
+    pub(crate) const UI1: u16 = 17;
     /// VT_UI2.
-    pub const UI2: u16 = 18;
+    pub(crate) const UI2: u16 = 18;
     /// VT_UI4.
-    pub const UI4: u16 = 19;
+    pub(crate) const UI4: u16 = 19;
     /// VT_I8.
-    pub const I8: u16 = 20;
+    pub(crate) const I8: u16 = 20;
     /// VT_UI8.
-    pub const UI8: u16 = 21;
+    pub(crate) const UI8: u16 = 21;
     /// The array flag.
-    pub const ARRAY: u16 = 0x2000;
+    pub(crate) const ARRAY: u16 = 0x2000;
 }
 
 /// A b-CAP VARIANT.
@@ -162,7 +162,7 @@ pub enum Variant {
 
 impl Variant {
     /// An R8 array.
-    pub fn r8s(values: &[f64]) -> Variant {
+    pub(crate) fn r8s(values: &[f64]) -> Variant {
         Variant::Array(vt::R8, values.iter().map(|v| Variant::R8(*v)).collect())
     }
 

@@ -11,8 +11,8 @@ use std::process::ExitCode;
 
 use clap::{Parser, Subcommand, ValueEnum};
 use strand::config::locate;
-use strand::core::PlanningMode;
 use strand_cli::error::ToolError;
+use strand_core::PlanningMode;
 use strand_plan::{base, finish, strips, surface, tilt, time, truss};
 
 mod args;
