@@ -245,8 +245,18 @@ impl Cell {
         let log = std::fs::read_to_string(self.dir.join("driver.log")).unwrap_or_default();
         let stats =
             std::fs::read_to_string(self.dir.join("driver.json")).ok().and_then(|t| serde_json::from_str(&t).ok()).unwrap_or_default();
-        // Give the controller a moment to see the connection close.
-        std::thread::sleep(Duration::from_millis(200));
+        // The controller sees the driver's connection close (b-CAP, the Meca500) or its program end
+        // with the reverse socket (UR) before it is stopped and asked what it saw.
+        let gone = || match &self.fake {
+            Some(Fake::Bcap(f)) => !f.watch().connected(),
+            Some(Fake::Meca(f)) => !f.watch().connected(),
+            Some(Fake::Ur(f)) => !f.watch().program_running(),
+            None => true,
+        };
+        let until = Instant::now() + Duration::from_secs(5);
+        while !gone() && Instant::now() < until {
+            std::thread::sleep(Duration::from_millis(5));
+        }
         let seen = match self.fake.take().unwrap() {
             Fake::Bcap(f) => Seen::Bcap(f.stop()),
             Fake::Meca(f) => Seen::Meca(f.stop()),
