@@ -123,20 +123,9 @@ fn remove_stale_inputs() {
     }
 }
 
-/// A real log: the service in free-run, echoing its commands, for 300 ticks.
+/// A real log (`strand_testkit::service_log`): 300 ticks of the service.
 fn make_log(dir: &Path) -> Vec<u8> {
-    let log = dir.join("run.mcap");
-    let out = Command::new(bin("strand"))
-        .args(["run", "--clock", "free-run", "--echo", "--ticks", "300", "--prefix"])
-        .arg(format!("strand/badinput-{}", std::process::id()))
-        .arg("--log")
-        .arg(&log)
-        .current_dir(root())
-        .env("RUST_LOG", "warn")
-        .output()
-        .unwrap();
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
-    std::fs::read(&log).unwrap()
+    std::fs::read(strand_testkit::service_log(dir, "badinput")).unwrap()
 }
 
 /// The middle of the log's first Chunk record (MCAP: magic, then records of opcode, u64 length, body).

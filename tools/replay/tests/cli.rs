@@ -7,7 +7,7 @@
 
 use std::process::Command;
 
-use strand_testkit::{bin, root, temp_dir};
+use strand_testkit::{service_log, temp_dir};
 
 fn replay(args: &[&str]) -> std::process::Output {
     Command::new(env!("CARGO_BIN_EXE_strand-replay")).args(args).env("RUST_BACKTRACE", "0").output().unwrap()
@@ -16,17 +16,7 @@ fn replay(args: &[&str]) -> std::process::Output {
 #[test]
 fn a_service_log_is_verified_summarised_and_exported_and_a_missing_one_is_named() {
     let dir = temp_dir("replay", "cli");
-    let log = dir.join("run.mcap");
-    let out = Command::new(bin("strand"))
-        .args(["run", "--clock", "free-run", "--echo", "--ticks", "300", "--prefix"])
-        .arg(format!("strand/replay-cli-{}", std::process::id()))
-        .arg("--log")
-        .arg(&log)
-        .current_dir(root())
-        .env("RUST_LOG", "warn")
-        .output()
-        .unwrap();
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let log = service_log(&dir, "replay-cli");
     let path = log.to_str().unwrap();
 
     let verify = replay(&["verify", path]);

@@ -77,3 +77,21 @@ pub fn proptest_seed(test: &str) -> u64 {
     eprintln!("{test}: PROPTEST_RNG_SEED={seed} (set it to replay this run)");
     seed
 }
+
+/// A real log: the service (`strand run`) in free-run, echoing its commands, for 300 ticks, written
+/// to `<dir>/run.mcap` (its prefix made unique by `name` and the process). Panics with the
+/// service's stderr if it fails.
+pub fn service_log(dir: &Path, name: &str) -> PathBuf {
+    let log = dir.join("run.mcap");
+    let out = std::process::Command::new(bin("strand"))
+        .args(["run", "--clock", "free-run", "--echo", "--ticks", "300", "--prefix"])
+        .arg(format!("strand/{name}-{}", std::process::id()))
+        .arg("--log")
+        .arg(&log)
+        .current_dir(root())
+        .env("RUST_LOG", "warn")
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    log
+}
