@@ -21,7 +21,7 @@ use std::time::{Duration, Instant};
 
 mod common;
 
-use common::{cell_job, cells_run_here, wait_for};
+use common::{DRIVER_RT, SERVICE_RT_SETTING, cell_job, cells_run_here, wait_for};
 use strand::config::Config;
 use strand_driver::fake::FakeReport;
 use strand_driver::fake::bcap::{BcapOptions, BcapReport, BcapWatch, FakeBcap};
@@ -103,7 +103,7 @@ impl Cell {
         let rate = format!("controller.rate_hz={rate_hz}");
         let service = Reaped(
             Command::new(bin("strand"))
-                .args(["run", "--clock", "robot", "--no-log", "--prefix", &prefix, "--set", &rate, "--config"])
+                .args(["run", "--clock", "robot", "--no-log", "--prefix", &prefix, "--set", &rate, "--set", SERVICE_RT_SETTING, "--config"])
                 .arg(&config)
                 .env("RUST_LOG", "warn")
                 .stdout(Stdio::null())
@@ -172,7 +172,7 @@ impl Cell {
         }
         let driver = Reaped(
             driver
-                .args(["--prefix", &prefix, "--set", &rate, "--robot", &robot_addr.to_string(), "--config"])
+                .args(["--prefix", &prefix, "--rt", DRIVER_RT, "--set", &rate, "--robot", &robot_addr.to_string(), "--config"])
                 .arg(&config)
                 .args(&extra)
                 .arg("--stats")

@@ -25,7 +25,7 @@ use std::time::{Duration, Instant};
 
 mod common;
 
-use common::{cell_job, cells_run_here, wait_for};
+use common::{DRIVER_RT, SERVICE_RT_SETTING, cell_job, cells_run_here, wait_for};
 use strand_testkit::{Reaped, bin, root};
 
 use strand::config::Config;
@@ -78,7 +78,7 @@ impl Cell {
         let settings: Vec<String> = cell_settings(protocol).iter().flat_map(|s| ["--set".to_string(), s.clone()]).collect();
         let service = Reaped(
             Command::new(bin("strand"))
-                .args(["run", "--clock", "robot", "--no-log", "--prefix", &prefix, "--config"])
+                .args(["run", "--clock", "robot", "--no-log", "--prefix", &prefix, "--set", SERVICE_RT_SETTING, "--config"])
                 .arg(&config)
                 .args(&settings)
                 .env("RUST_LOG", "warn")
@@ -101,7 +101,7 @@ impl Cell {
         driver.args(&settings);
         let driver = Reaped(
             driver
-                .args(["--prefix", &prefix, "--bind", &format!("127.0.0.1:{port}"), "--config"])
+                .args(["--prefix", &prefix, "--rt", DRIVER_RT, "--bind", &format!("127.0.0.1:{port}"), "--config"])
                 .arg(&config)
                 .arg("--stats")
                 .arg(dir.join("driver.json"))

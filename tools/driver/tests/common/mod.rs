@@ -54,3 +54,17 @@ pub(crate) fn cells_run_here(test: &str) -> bool {
     }
     here
 }
+
+/// SCHED_FIFO priority of the driver in a test cell (`--rt`), as the README's cells run it: the
+/// fake robot above it (90, its own clock), the driver next, the service below
+/// ([`SERVICE_RT_SETTING`]). Without it every process of the cell is SCHED_OTHER, and a 20 µs
+/// sleep of the driver's wait for the command could end a whole scheduler slice later (measured
+/// with two spinning loads on this 2-core machine: receive → reply p99 2.97 ms, 5 robot cycles
+/// lost in one RSI job); a CI run then saw three late answers in a row while the feeder started
+/// up, and the driver faulted, twice. A machine that refuses the priority runs the cell all the
+/// same and the driver warns.
+pub(crate) const DRIVER_RT: &str = "80";
+
+/// The service's `--set` for its cycle thread's priority in a test cell, below the driver's
+/// ([`DRIVER_RT`]).
+pub(crate) const SERVICE_RT_SETTING: &str = "realtime.fifo_priority=70";
