@@ -298,6 +298,18 @@ impl<R> ConfigFile<R> {
     }
 }
 
+/// `[base] plan`, read from `plan_file` when the config gives a file and no inline rows (a path
+/// relative to the config file's folder, as `robot`; an effective config in a log has the rows).
+fn read_base_plan(config: &Path, base: &BaseConfig) -> Result<Vec<[f64; 4]>, ConfigError> {
+    if !base.plan.is_empty() || base.plan_file.is_empty() {
+        return Ok(base.plan.clone());
+    }
+    let file = config.parent().unwrap_or(Path::new(".")).join(&base.plan_file);
+    let plan = strand_job::load::BaseTrajectory::load_keyed(&file, "s", base.mount_rpy[2])
+        .map_err(|e| ConfigError::new(config, format!("[base] plan_file: {e}")))?;
+    Ok(plan.samples().to_vec())
+}
+
 impl Config {
     /// The `[bed]` transform (checked at load, so an error here names the file and the section).
     pub fn bed_transform(&self) -> Result<BedTransform, ConfigError> {
@@ -324,6 +336,8 @@ impl Config {
                 .try_into()
                 .map_err(|e: toml::de::Error| ConfigError::new(path, format!("with --set: {}", e.to_string().trim_end())))?
         };
+        let mut raw = raw;
+        raw.base.plan = read_base_plan(path, &raw.base)?;
         raw.validate(path)?;
         let robot_path = path.parent().unwrap_or(Path::new(".")).join(&raw.robot);
         if !robot_path.is_file() {

@@ -187,7 +187,12 @@ fn controller_steps_allocate_nothing_with_a_live_viewer() {
 fn counted_cell_ticks(file: Option<&std::path::Path>, view: Option<strand_view::LiveView>) -> usize {
     use common::cell::{Cell, IIWA_START, config, square_job};
     use strand_ipc::{BasePose, Command, RunState};
-    let cfg = config(|c| c.base.mode = strand_core::BaseMode::Tracked);
+    // A tracked base with a plan by progress: its setpoint and `BaseCommand` are counted too.
+    let cfg = config(|c| {
+        c.base.mode = strand_core::BaseMode::Tracked;
+        let [x, y, _] = c.base.mount_xyz;
+        c.base.plan = vec![[0.0, x, y, 0.0], [0.2, x + 0.01, y, 0.0]];
+    });
     let mut cell = Cell::new(&cfg, &IIWA_START);
     let job = square_job(1, [0.45, -0.02, 0.2], 0.03, 3, 0.04);
     let second = square_job(100, [0.45, -0.02, 0.2], 0.02, 1, 0.04);

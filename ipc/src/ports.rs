@@ -51,7 +51,7 @@
 use core::fmt::Debug;
 use core::time::Duration;
 
-use crate::{BasePose, Control, ExtruderCommand, JobProgress, JointCommand, JointState, SegmentBatch, ServiceNames, Status};
+use crate::{BaseCommand, BasePose, Control, ExtruderCommand, JobProgress, JointCommand, JointState, SegmentBatch, ServiceNames, Status};
 use iceoryx2::port::listener::{Listener, ListenerWaitError};
 use iceoryx2::port::notifier::Notifier;
 use iceoryx2::port::publisher::Publisher;
@@ -346,6 +346,7 @@ pub struct ServicePorts {
     base_pose: Inbox<BasePose>,
     joint_command: Outbox<JointCommand>,
     extruder_command: Outbox<ExtruderCommand>,
+    base_command: Outbox<BaseCommand>,
     status: Outbox<Status>,
     // Last: every port above is dropped before the node.
     _node: Node<Ipc>,
@@ -364,6 +365,7 @@ impl ServicePorts {
             base_pose: Channel::open(&node, names.base_pose(), MEASUREMENT_QOS)?.subscriber()?,
             joint_command: Channel::open(&node, names.joint_command(), OUTPUT_QOS)?.publisher()?,
             extruder_command: Channel::open(&node, names.extruder_command(), OUTPUT_QOS)?.publisher()?,
+            base_command: Channel::open(&node, names.base_command(), OUTPUT_QOS)?.publisher()?,
             status: Channel::open(&node, names.status(), OUTPUT_QOS)?.publisher()?,
             _node: node,
         })
@@ -399,6 +401,12 @@ impl ServicePorts {
     /// Tick-path safe.
     pub fn publish_extruder_command(&self, cmd: &ExtruderCommand) -> Result<usize, PortError> {
         self.extruder_command.send(cmd)
+    }
+
+    /// Publishes a moving base's setpoint and notifies; returns the number of subscribers reached.
+    /// Tick-path safe.
+    pub fn publish_base_command(&self, cmd: &BaseCommand) -> Result<usize, PortError> {
+        self.base_command.send(cmd)
     }
 
     /// Publishes the status and notifies; returns the number of subscribers reached. Tick-path
@@ -465,6 +473,9 @@ pub struct ClientRoles {
     pub control: bool,
     /// Subscribes to the feeder's [`JobProgress`] (a console). A feeder publishes it.
     pub progress: bool,
+    /// Subscribes to the [`BaseCommand`]: a moving base's controller (the simulator's free flyer,
+    /// a mobile platform's bridge).
+    pub base: bool,
 }
 
 /// The other side of the contract: a feeder, robot driver (or simulator), tracker or monitor, or
@@ -479,6 +490,7 @@ pub struct ClientPorts {
     base_pose: Option<Outbox<BasePose>>,
     joint_command: Option<Inbox<JointCommand>>,
     extruder_command: Option<Inbox<ExtruderCommand>>,
+    base_command: Option<Inbox<BaseCommand>>,
     status: Option<Inbox<Status>>,
     job_progress_out: Option<Outbox<JobProgress>>,
     job_progress_in: Option<Inbox<JobProgress>>,
@@ -506,6 +518,7 @@ impl ClientPorts {
                 None
             },
             extruder_command: if monitor { Some(Channel::open(&node, names.extruder_command(), OUTPUT_QOS)?.subscriber()?) } else { None },
+            base_command: if roles.base { Some(Channel::open(&node, names.base_command(), OUTPUT_QOS)?.subscriber()?) } else { None },
             status: if monitor { Some(Channel::open(&node, names.status(), OUTPUT_QOS)?.subscriber_with_listener()?) } else { None },
             job_progress_out: if feeder { Some(Channel::open(&node, names.job_progress(), JOB_PROGRESS_QOS)?.publisher()?) } else { None },
             job_progress_in: if roles.progress {
@@ -577,6 +590,12 @@ impl ClientPorts {
             Some(inbox) => inbox.receive(),
             None => Err(self.missing(self.names.extruder_command(), "monitor")),
         }
+    }
+
+    /// Drains the base command queue and returns the newest (base); `None` if nothing was queued
+    /// (or the base role is not open, or receiving failed): the base keeps its last setpoint.
+    pub fn latest_base_command(&self) -> Option<BaseCommand> {
+        self.base_command.as_ref().and_then(Inbox::latest)
     }
 
     /// Drains the status queue and returns the newest (monitor); `None` if nothing was queued (or

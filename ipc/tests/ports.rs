@@ -29,7 +29,8 @@ fn names(test: &str) -> ServiceNames {
     ServiceNames::new(&format!("strand/test-{}-{}", std::process::id(), test))
 }
 
-const ALL_ROLES: ClientRoles = ClientRoles { feeder: true, driver: true, tracker: true, monitor: true, control: true, progress: true };
+const ALL_ROLES: ClientRoles =
+    ClientRoles { feeder: true, driver: true, tracker: true, monitor: true, control: true, progress: true, base: true };
 
 /// The bytes of a wire message (the contract types have no implicit padding).
 fn bytes<T: Copy>(v: &T) -> &[u8] {

@@ -201,6 +201,10 @@ pub struct CheckReport {
     pub min_joint_margin: Option<JointMargin>,
     /// The largest Cartesian following error on the path (m).
     pub max_tcp_error_m: f64,
+    /// With a `[base] plan`: the base setpoint's largest lag behind its plan at the print's
+    /// progress (m), what the base's own speed and acceleration limits cost.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub max_base_lag_m: Option<f64>,
     /// Joint frames below the bed plane already at the start posture (a pedestal lower than the
     /// bed): not checked against the bed.
     pub unchecked_frames: Vec<String>,
@@ -420,11 +424,20 @@ pub fn check_job(
     let mount_position = mount.translation.vector;
     let mount_orientation = UnitQuaternion::from_rotation_matrix(&mount.rotation);
     let tracked = cfg.base.mode == BaseMode::Tracked;
+    // A base with a plan by progress is where the service commands it (a base that follows its
+    // setpoint exactly, as the joints follow theirs); a trajectory by time is followed by the clock.
+    let planned = !cfg.base.plan.is_empty();
     let base_note = match (tracked, trajectory) {
         (false, _) => "fixed mount ([base] mode = \"fixed\")".to_string(),
-        (true, Some((_, name))) => format!("tracked, following the planned trajectory {name}"),
+        (true, Some((_, name))) => format!("tracked, following the planned trajectory {name} by the clock"),
+        (true, None) if planned => format!(
+            "tracked, following its setpoint from the [base] plan by the print's progress ({} rows{})",
+            cfg.base.plan.len(),
+            if cfg.base.plan_file.is_empty() { String::new() } else { format!(", {}", cfg.base.plan_file) }
+        ),
         (true, None) => "tracked, ASSUMED STILL at the mount (no --base-trajectory given)".to_string(),
     };
+    let mut base_setpoint: Option<ipc::BaseCommand> = None;
     // Tracking samples every 10 ms, as a tracker would send them.
     let pose_every = ((0.01 / dt).round() as u64).max(1);
 
@@ -477,6 +490,7 @@ pub fn check_job(
         bbox_base: Bounds::empty(),
         min_joint_margin: None,
         max_tcp_error_m: 0.0,
+        max_base_lag_m: None,
         unchecked_frames: Vec::new(),
         ticks: 0,
     };
@@ -517,9 +531,13 @@ pub fn check_job(
         state_seq += 1;
         input.joint_state = Some(ipc::JointState { seq: state_seq, stamp_ns: now, dof: n as u32, position: q_robot, ..Default::default() });
         if tracked && tick.is_multiple_of(pose_every) {
-            let (p, q) = match trajectory {
-                Some((traj, _)) => traj.pose_at(tick as f64 * dt, &mount_position, &mount_orientation, cfg.base.mount_rpy[2]),
-                None => (mount_position, mount_orientation),
+            let (p, q) = match (trajectory, &base_setpoint) {
+                (Some((traj, _)), _) => traj.pose_at(tick as f64 * dt, &mount_position, &mount_orientation, cfg.base.mount_rpy[2]),
+                (None, Some(b)) => {
+                    let [w, x, y, z] = b.orientation;
+                    (Vector3::from(b.position), UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(w, x, y, z)))
+                }
+                (None, None) => (mount_position, mount_orientation),
             };
             pose_seq += 1;
             input.push_base_pose(&ipc::BasePose { seq: pose_seq, stamp_ns: now, position: p.into(), orientation: [q.w, q.i, q.j, q.k] });
@@ -540,6 +558,11 @@ pub fn check_job(
         let out = ctl.step(&input);
         if out.joint_command.valid == 1 {
             q_robot = out.joint_command.position;
+        }
+        if out.base_command.valid == 1 {
+            base_setpoint = Some(out.base_command);
+            let lag = report.max_base_lag_m.get_or_insert(0.0);
+            *lag = lag.max(out.base_command.lag);
         }
         last_status = Some(out.status);
         let status = out.status;
@@ -754,6 +777,9 @@ impl CheckReport {
             let _ = writeln!(s, "  joints     smallest margin {:.4} (rad or m): joint {} ({}){at}", m.margin, m.joint + 1, m.name);
         }
         let _ = writeln!(s, "  TCP error  max {:.4} mm on the path", self.max_tcp_error_m * 1e3);
+        if let Some(lag) = self.max_base_lag_m {
+            let _ = writeln!(s, "  base       setpoint at most {:.2} mm behind its plan", lag * 1e3);
+        }
         if !self.unchecked_frames.is_empty() {
             let _ = writeln!(s, "  bed        not checked (below the bed at the start posture): {}", self.unchecked_frames.join(", "));
         }

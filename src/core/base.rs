@@ -80,6 +80,23 @@ pub struct BaseConfig {
     /// arm follows stay continuous (a 0.2 mrad yaw step is a 0.1 mm jump half a metre out, which no
     /// joint could follow in one tick). 0 applies it at once.
     pub smoothing: f64,
+    /// The base's planned path by the print's progress (base_setpoint.rs): rows `[s, x, y, yaw]`
+    /// — s the path length since the job's first point (m, strictly increasing, from 0), then the
+    /// base origin's x and y (m, W) and yaw (rad, about W's z) there. The service publishes a
+    /// `BaseCommand` read from it every tick. Empty: no plan, no base command. Made by
+    /// `strand-plan base --plan`; usually given as `plan_file`.
+    pub plan: Vec<[f64; 4]>,
+    /// A CSV file with the plan (header `s,base_x,base_y[,base_theta]`; m, m, m, rad), read into
+    /// `plan` when the config is loaded (a relative path from the config file's folder). Empty: none.
+    pub plan_file: String,
+    /// The base setpoint's speed limit (m/s).
+    pub max_speed: f64,
+    /// The base setpoint's acceleration limit (m/s²); 000's free flyer: 30 mm/s² of thrust.
+    pub max_acceleration: f64,
+    /// The base setpoint's yaw rate limit (rad/s).
+    pub max_yaw_rate: f64,
+    /// The base setpoint's yaw acceleration limit (rad/s²).
+    pub max_yaw_acceleration: f64,
 }
 
 impl Default for BaseConfig {
@@ -97,6 +114,12 @@ impl Default for BaseConfig {
             measurement_delay: 0.0,
             max_prediction: 0.25,
             smoothing: 0.02,
+            plan: Vec::new(),
+            plan_file: String::new(),
+            max_speed: 0.1,
+            max_acceleration: 0.02,
+            max_yaw_rate: 0.2,
+            max_yaw_acceleration: 0.05,
         }
     }
 }
@@ -132,6 +155,48 @@ impl BaseConfig {
         }
         if !(self.max_prediction.is_finite() && self.max_prediction > 0.0 && self.max_prediction <= 1.0) {
             return Err(InvalidSetting::new("base", format!("[base] max_prediction = {}: must lie in (0, 1] s", self.max_prediction)));
+        }
+        for (key, v, unit) in [
+            ("max_speed", self.max_speed, "m/s"),
+            ("max_acceleration", self.max_acceleration, "m/s²"),
+            ("max_yaw_rate", self.max_yaw_rate, "rad/s"),
+            ("max_yaw_acceleration", self.max_yaw_acceleration, "rad/s²"),
+        ] {
+            if !(v.is_finite() && v > 0.0 && v <= 100.0) {
+                return Err(InvalidSetting::new("base", format!("[base] {key} = {v}: must lie in (0, 100] {unit}")));
+            }
+        }
+        self.validate_plan()?;
+        Ok(())
+    }
+
+    /// The plan's rows: finite, s from 0 and strictly increasing, the yaw turning less than π
+    /// from one row to the next (unwrapped). The message names the row (1-based).
+    fn validate_plan(&self) -> Result<(), InvalidSetting> {
+        let from = if self.plan_file.is_empty() { String::new() } else { format!(" (from {})", self.plan_file) };
+        if !self.plan.is_empty() && self.mode != BaseMode::Tracked {
+            return Err(InvalidSetting::new(
+                "base",
+                format!("[base] plan{from}: a base that moves is tracked: set mode = \"tracked\" (the arm corrects for its measured pose)"),
+            ));
+        }
+        let bad = |k: usize, why: &str| Err(InvalidSetting::new("base", format!("[base] plan{from}: row {}: {why}", k + 1)));
+        for (k, row) in self.plan.iter().enumerate() {
+            if row.iter().any(|v| !v.is_finite()) {
+                return bad(k, "values must be finite");
+            }
+            if k == 0 && row[0] != 0.0 {
+                return bad(k, &format!("s = {} m: the plan starts at the job's first point, s = 0", row[0]));
+            }
+            if k > 0 {
+                let before = self.plan[k - 1];
+                if row[0] <= before[0] {
+                    return bad(k, &format!("s = {} m after {} m: s must increase", row[0], before[0]));
+                }
+                if (row[3] - before[3]).abs() >= std::f64::consts::PI {
+                    return bad(k, &format!("yaw {} rad after {} rad: unwrap the yaw (less than π a row)", row[3], before[3]));
+                }
+            }
         }
         Ok(())
     }

@@ -18,6 +18,7 @@
 //! - The base estimator and the extruder model, for the simulator and the tools that predict them.
 
 mod base;
+mod base_setpoint;
 mod controller;
 mod extrude;
 mod following;

@@ -343,6 +343,9 @@ impl Runner {
                 }
             }
             self.ports.publish_extruder_command(&out.extruder)?;
+            if out.base_command.valid == 1 {
+                self.ports.publish_base_command(&out.base_command)?;
+            }
             self.ports.publish_status_quietly(&out.status)?;
             let published = monotonic_ns();
             // The status event: its waiters are woken at once by a change they wait for, else at the

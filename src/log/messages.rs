@@ -42,6 +42,11 @@ cdr_message!(
     [seq, stamp_ns, tick, motor_speed, filament_rate, filament_position, volumetric_rate, flags]
 );
 cdr_message!(
+    ipc::BaseCommand,
+    "strand_msgs/msg/BaseCommand",
+    [seq, stamp_ns, tick, position, orientation, velocity, angular_velocity, progress, lag, valid]
+);
+cdr_message!(
     ipc::Status,
     "strand_msgs/msg/Status",
     [
@@ -334,6 +339,7 @@ impl CdrType for TickOutput {
         flatten_seq(self.events(), &format!("{path}.events"), out);
         out.push((format!("{path}.events_dropped"), Scalar::U(self.events_dropped as u64)));
         self.diagnostics.flatten(&format!("{path}.diagnostics"), out);
+        self.base_command.flatten(&format!("{path}.base_command"), out);
     }
 }
 
@@ -350,7 +356,55 @@ pub struct Tick {
     /// What it cost.
     pub timing: TickTiming,
 }
-cdr_message!(Tick, "strand_msgs/msg/Tick", [input, output, timing]);
+
+const TICK_DEFINITION: &str = "\
+strand_msgs/TickInput input
+strand_msgs/TickOutput output
+strand_msgs/TickTiming timing
+strand_msgs/BaseCommand base_command
+";
+
+/// The base command (`TickOutput::base_command`) is written after the timing, last: a log from
+/// before it ends there, and reads back with an invalid (absent) base command, which is what its
+/// controller had. Replays compare it with the rest of the output ([`encode_output`]).
+impl CdrType for Tick {
+    fn ros_type() -> String {
+        "strand_msgs/Tick".to_string()
+    }
+    fn dependencies(out: &mut Vec<(String, String)>) {
+        TickInput::dependencies(out);
+        TickOutput::dependencies(out);
+        TickTiming::dependencies(out);
+        ipc::BaseCommand::dependencies(out);
+        add_dependency(out, Self::ros_type(), || TICK_DEFINITION.to_string());
+    }
+    fn write(&self, w: &mut CdrWriter) {
+        self.input.write(w);
+        self.output.write(w);
+        self.timing.write(w);
+        self.output.base_command.write(w);
+    }
+    fn read(r: &mut CdrReader) -> Result<Self, CdrError> {
+        let mut v = Tick { input: TickInput::read(r)?, output: TickOutput::read(r)?, timing: TickTiming::read(r)? };
+        // More than the alignment padding a writer may add: the base command follows.
+        if r.remaining() > 3 {
+            v.output.base_command = ipc::BaseCommand::read(r)?;
+        }
+        Ok(v)
+    }
+    fn flatten(&self, path: &str, out: &mut Vec<(String, Scalar)>) {
+        self.input.flatten(&format!("{path}.input"), out);
+        self.output.flatten(&format!("{path}.output"), out);
+        self.timing.flatten(&format!("{path}.timing"), out);
+    }
+}
+
+/// A tick's whole output in CDR, base command included (what a replay compares).
+pub fn encode_output(w: &mut CdrWriter, output: &TickOutput) {
+    w.begin();
+    output.write(w);
+    output.base_command.write(w);
+}
 
 /// Schema names and texts of the standard ROS 2 types, as in ROS 2 Humble (comments and default
 /// values left out).

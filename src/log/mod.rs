@@ -35,6 +35,9 @@ pub mod topics {
     pub(crate) const BASE_MEASURED: &str = "/base/measured";
     /// The base pose the controller used.
     pub const BASE_ESTIMATED: &str = "/base/estimated";
+    /// A moving base's setpoint from its plan (`geometry_msgs/msg/PoseStamped`; only with a
+    /// `[base] plan`; the whole `BaseCommand` is in the tick).
+    pub const BASE_COMMAND: &str = "/base/command";
     /// Extruder commands (`strand_msgs/msg/ExtruderCommand`).
     pub const EXTRUDER: &str = "/extruder";
     /// Status (`strand_msgs/msg/Status`).

@@ -3,7 +3,8 @@
 //! byte for byte in its CDR form; at the first difference it names the tick and the field with both
 //! values.
 
-use super::cdr::{CdrType, CdrWriter, Scalar, encode};
+use super::cdr::{CdrType, CdrWriter, Scalar};
+use super::messages::encode_output;
 use super::reader::{LogFile, ReadError};
 use crate::config::Config;
 use strand_core::Controller;
@@ -84,8 +85,8 @@ pub fn verify_with(files: &[LogFile], change: impl FnOnce(&mut Config)) -> Resul
                 return Err(ReplayError::Gap { file: file.path.display().to_string(), expected, found: tick.input.tick, hint });
             }
             let out = controller.step(&tick.input);
-            encode(&mut replayed_bytes, &out);
-            encode(&mut logged_bytes, &tick.output);
+            encode_output(&mut replayed_bytes, &out);
+            encode_output(&mut logged_bytes, &tick.output);
             if replayed_bytes.bytes() != logged_bytes.bytes() {
                 let (mut a, mut b) = (Vec::new(), Vec::new());
                 tick.output.flatten("output", &mut a);

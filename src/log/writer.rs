@@ -306,10 +306,11 @@ enum Channel {
     Extruder,
     Status,
     Segments,
+    BaseCommand,
     Scene(SceneTopic),
 }
 
-const TICK_CHANNELS: usize = 10;
+const TICK_CHANNELS: usize = 11;
 const CHANNELS: usize = TICK_CHANNELS + SceneTopic::ALL.len();
 
 impl Channel {
@@ -325,6 +326,7 @@ impl Channel {
             Channel::Extruder => 7,
             Channel::Status => 8,
             Channel::Segments => 9,
+            Channel::BaseCommand => 10,
             Channel::Scene(t) => TICK_CHANNELS + t.index(),
         }
     }
@@ -345,6 +347,7 @@ fn channel_list() -> Vec<(&'static str, String, String)> {
         (topics::EXTRUDER, "strand_msgs/msg/ExtruderCommand".to_string(), schema_text::<strand_ipc::ExtruderCommand>()),
         (topics::STATUS, "strand_msgs/msg/Status".to_string(), schema_text::<strand_ipc::Status>()),
         (topics::SEGMENTS, "strand_msgs/msg/Segment".to_string(), schema_text::<strand_ipc::Segment>()),
+        (topics::BASE_COMMAND, ros::POSE_STAMPED.to_string(), ros::pose_stamped_schema()),
     ];
     for t in SceneTopic::ALL {
         let (name, text) = t.schema();
@@ -493,10 +496,6 @@ impl WriterThread {
             let sid = w.add_schema(&name, "ros2msg", text.as_bytes()).map_err(io)?;
             *id = w.add_channel(sid, topic, "cdr", &BTreeMap::new()).map_err(io)?;
         }
-        // The URDF once per file, as the first message, for a viewer's 3D panel.
-        let description = Channel::Scene(SceneTopic::RobotDescription).index();
-        let header = MessageHeader { channel_id: channels[description], sequence: 0, log_time: now, publish_time: now };
-        w.write_to_known_channel(&header, self.scene.robot_description()).map_err(io)?;
         // Make the header, metadata and attachments durable at once: a crash in the first
         // chunk still leaves a file that names its config.
         w.flush().map_err(io)?;
@@ -620,8 +619,16 @@ impl WriterThread {
         let log_time = (t.input.time_ns as i128 + self.clock_offset_ns).max(0) as u64;
         let stamp = |ns: u64| (ns as i128 + self.clock_offset_ns).max(0) as u64;
         let dof = self.joint_names.len();
-        if let Some(f) = self.file.as_mut() {
-            f.first_time_ns.get_or_insert(t.input.time_ns);
+        if let Some(f) = self.file.as_mut()
+            && f.first_time_ns.is_none()
+        {
+            f.first_time_ns = Some(t.input.time_ns);
+            // The URDF once per file, as its first message (for a viewer's 3D panel), at the first
+            // tick's time: on the robot clock a tick's time is the robot's, which may be behind
+            // the wall clock the file was opened by, and a log's times must not go back.
+            let description = Channel::Scene(SceneTopic::RobotDescription).index();
+            let header = MessageHeader { channel_id: f.channels[description], sequence: 0, log_time, publish_time: log_time };
+            f.mcap.write_to_known_channel(&header, self.scene.robot_description()).map_err(|e| LogError::io(&f.path, e))?;
         }
         let (file, live, cdr) = (&mut self.file, &mut self.live, &mut self.cdr);
         // Every message goes to the file and is offered to the live view (which decimates).
@@ -676,6 +683,11 @@ impl WriterThread {
         }
         ros::pose_stamped(cdr, log_time, "world", d.base.position.into(), quat(&d.base.orientation));
         put(Channel::BaseEstimated, log_time, cdr.bytes())?;
+        if o.base_command.valid == 1 {
+            let b = &o.base_command;
+            ros::pose_stamped(cdr, log_time, "world", b.position, b.orientation);
+            put(Channel::BaseCommand, log_time, cdr.bytes())?;
+        }
         encode(cdr, &o.extruder);
         put(Channel::Extruder, log_time, cdr.bytes())?;
         encode(cdr, &o.status);

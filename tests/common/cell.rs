@@ -35,8 +35,12 @@ pub(crate) struct Cell {
     pub controls: Vec<ipc::Control>,
     pub poses: Vec<ipc::BasePose>,
     pub feeder_lost: bool,
+    /// A tracked base that is exactly where the service's `BaseCommand` put it, reported by its
+    /// tracker every tick (a base that follows its setpoint, as the robot follows its commands).
+    pub base_follows_command: bool,
     pub last: Option<TickOutput>,
     state_seq: u64,
+    pose_seq: u64,
     control_seq: u64,
 }
 
@@ -57,8 +61,10 @@ impl Cell {
             controls: Vec::new(),
             poses: Vec::new(),
             feeder_lost: false,
+            base_follows_command: false,
             last: None,
             state_seq: 0,
+            pose_seq: 0,
             control_seq: 0,
         }
     }
@@ -110,6 +116,16 @@ impl Cell {
         observe(&input, &out);
         if out.joint_command.valid == 1 {
             self.q_robot = out.joint_command.position;
+        }
+        if self.base_follows_command && out.base_command.valid == 1 {
+            self.pose_seq += 1;
+            let b = &out.base_command;
+            self.poses.push(ipc::BasePose {
+                seq: self.pose_seq,
+                stamp_ns: self.now_ns(),
+                position: b.position,
+                orientation: b.orientation,
+            });
         }
         self.tick += 1;
         self.last = Some(out);

@@ -68,6 +68,7 @@ BASE_ESTIMATED = "/base/estimated"
 EXTRUDER = "/extruder"
 STATUS = "/status"
 SEGMENTS = "/segments"
+BASE_COMMAND = "/base/command"
 
 JOINT_STATE_TYPE = "sensor_msgs/msg/JointState"
 POSE_STAMPED_TYPE = "geometry_msgs/msg/PoseStamped"
@@ -82,6 +83,7 @@ TOPIC_TYPES = {
     EXTRUDER: "strand_msgs/msg/ExtruderCommand",
     STATUS: "strand_msgs/msg/Status",
     SEGMENTS: "strand_msgs/msg/Segment",
+    BASE_COMMAND: POSE_STAMPED_TYPE,
 }
 
 # Topics that must hold messages in every log, and in a log of a job.

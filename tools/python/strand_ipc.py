@@ -42,6 +42,7 @@ __all__ = [
     "BasePose",
     "JointCommand",
     "ExtruderCommand",
+    "BaseCommand",
     "Status",
     "JobProgress",
     "ServiceNames",
@@ -381,6 +382,28 @@ class ExtruderCommand(_Message):
         return "strand.v3.ExtruderCommand"
 
 
+class BaseCommand(_Message):
+    """The moving base's setpoint, by the print's progress (``[base] plan``). 152 bytes."""
+
+    _fields_ = [
+        ("seq", _u64),
+        ("stamp_ns", _u64),
+        ("tick", _u64),
+        ("position", _f64 * 3),
+        ("orientation", _f64 * 4),
+        ("velocity", _f64 * 3),
+        ("angular_velocity", _f64 * 3),
+        ("progress", _f64),
+        ("lag", _f64),
+        ("valid", _u32),
+        ("_reserved", _u32),
+    ]
+
+    @staticmethod
+    def type_name() -> str:
+        return "strand.v3.BaseCommand"
+
+
 class Status(_Message):
     """The controller's state, published every tick. 192 bytes.
 
@@ -477,6 +500,7 @@ class ServiceNames:
     base_pose: str
     joint_command: str
     extruder_command: str
+    base_command: str
     status: str
     job_progress: str
 
@@ -492,6 +516,7 @@ def service_names(prefix: str = DEFAULT_PREFIX) -> ServiceNames:
         base_pose=f"{p}/base_pose",
         joint_command=f"{p}/joint_command",
         extruder_command=f"{p}/extruder_command",
+        base_command=f"{p}/base_command",
         status=f"{p}/status",
         job_progress=f"{p}/job_progress",
     )
@@ -499,7 +524,7 @@ def service_names(prefix: str = DEFAULT_PREFIX) -> ServiceNames:
 
 # --- layout self-check -----------------------------------------------------------------------------
 
-MESSAGE_TYPES = (Segment, SegmentBatch, Control, JointState, BasePose, JointCommand, ExtruderCommand, Status, JobProgress)
+MESSAGE_TYPES = (Segment, SegmentBatch, Control, JointState, BasePose, JointCommand, ExtruderCommand, BaseCommand, Status, JobProgress)
 
 #: Sizes from the Rust test ``sizes_are_stable`` (wire/src/lib.rs).
 EXPECTED_SIZES = {
@@ -510,6 +535,7 @@ EXPECTED_SIZES = {
     BasePose: 72,
     JointCommand: 48 + 3 * 64,
     ExtruderCommand: 64,
+    BaseCommand: 152,
     Status: 192,
     JobProgress: 112,
 }
@@ -521,6 +547,7 @@ assert ctypes.sizeof(JointState) == 344
 assert ctypes.sizeof(BasePose) == 72
 assert ctypes.sizeof(JointCommand) == 240
 assert ctypes.sizeof(ExtruderCommand) == 64
+assert ctypes.sizeof(BaseCommand) == 152
 assert ctypes.sizeof(Status) == 192
 for _t in MESSAGE_TYPES:
     assert ctypes.sizeof(_t) == EXPECTED_SIZES[_t], _t

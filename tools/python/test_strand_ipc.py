@@ -136,7 +136,7 @@ def test_service_names():
     assert n.segments == "strand/test/segments"
     assert n.status == "strand/test/status"
     src = _source()
-    for method in ("segments", "control", "joint_state", "base_pose", "joint_command", "extruder_command", "status"):
+    for method in ("segments", "control", "joint_state", "base_pose", "joint_command", "extruder_command", "base_command", "status"):
         assert f'format!("{{}}/{method}", self.prefix)' in src, method
         assert getattr(n, method) == f"strand/test/{method}"
 

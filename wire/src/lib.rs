@@ -390,6 +390,40 @@ pub struct ExtruderCommand {
     pub _reserved: u32,
 }
 
+/// The moving base's setpoint for its own controller (000's free flyer, a mobile platform): the
+/// base's planned pose taken at the print's progress, not at a time, so that a pause stops the base
+/// with the nozzle and a feed override slows both (the `[base] plan` of the service config), and
+/// moved there within the base's velocity and acceleration limits. Published every tick while the
+/// service has a plan; `valid` is 0 without one. 152 bytes.
+#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
+#[type_name("strand.v3.BaseCommand")]
+#[repr(C)]
+pub struct BaseCommand {
+    /// Sequence number (one per tick).
+    pub seq: u64,
+    /// Nominal time of the tick (ns, monotonic).
+    pub stamp_ns: u64,
+    /// Tick index.
+    pub tick: u64,
+    /// Where the base origin should be (m, W).
+    pub position: [f64; 3],
+    /// Its orientation R_WB (unit quaternion w, x, y, z): the mount's roll and pitch, the plan's yaw.
+    pub orientation: [f64; 4],
+    /// The setpoint's velocity (m/s, W).
+    pub velocity: [f64; 3],
+    /// The setpoint's angular velocity (rad/s, W; about z).
+    pub angular_velocity: [f64; 3],
+    /// The print's progress the plan was read at: path length since the job's first point (m).
+    pub progress: f64,
+    /// How far the setpoint is behind the plan's pose at that progress (m, horizontal): the
+    /// base's limits at work (a fast stretch, a stop, the move to the plan's start).
+    pub lag: f64,
+    /// 1 when the service has a plan and the setpoint is meant; 0 otherwise (hold where you are).
+    pub valid: u32,
+    /// Always 0.
+    pub _reserved: u32,
+}
+
 wire_enum! {
     /// The controller's run state (`Status::run_state`, `JointCommand` has it too).
     #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -619,6 +653,10 @@ impl ServiceNames {
     pub fn extruder_command(&self) -> String {
         format!("{}/extruder_command", self.prefix)
     }
+    /// [`BaseCommand`] to a moving base's controller.
+    pub fn base_command(&self) -> String {
+        format!("{}/base_command", self.prefix)
+    }
     /// [`Status`] of the controller.
     pub fn status(&self) -> String {
         format!("{}/status", self.prefix)
@@ -650,6 +688,7 @@ mod tests {
         assert_eq!(size_of::<BasePose>(), 72);
         assert_eq!(size_of::<JointCommand>(), 48 + 3 * 64);
         assert_eq!(size_of::<ExtruderCommand>(), 64);
+        assert_eq!(size_of::<BaseCommand>(), 152);
         assert_eq!(size_of::<Status>(), 192);
         assert_eq!(size_of::<JobProgress>(), 112);
         for a in [align_of::<Segment>(), align_of::<Status>(), align_of::<JointCommand>()] {

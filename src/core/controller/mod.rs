@@ -29,6 +29,7 @@ use strand_wire as ipc;
 use strand_wire::{Command, FaultCode, JobOutcome, RejectReason, RunState, joint_state_flags};
 
 use super::base::{BaseEstimator, BaseState};
+use super::base_setpoint::BaseSetpoint;
 use super::extrude::Extruder;
 use super::following::FollowingWatch;
 use super::kin::{Clik, ClikStep, JointVector, MAX_JOINTS, PathVelocity, RobotModel, TcpTarget};
@@ -106,6 +107,13 @@ pub struct Controller {
     progress_ns: Option<u64>,
     /// The Cartesian following-error watchdog.
     following: FollowingWatch,
+    /// The moving base's setpoint from `[base] plan` (None without a plan).
+    base_setpoint: Option<BaseSetpoint>,
+    /// The print's progress the base's plan is read at: the path position of this job past its
+    /// leading travel (m).
+    base_progress: f64,
+    /// The length of this job's leading travel (m; 0 without one): where its progress starts.
+    base_lead_in: f64,
 }
 
 impl Controller {
@@ -127,6 +135,9 @@ impl Controller {
             extruder,
             clik,
             base: BaseEstimator::new(&settings.base),
+            base_setpoint: BaseSetpoint::new(&settings.base, dt),
+            base_progress: 0.0,
+            base_lead_in: 0.0,
             approach,
             first_point: None,
             state: RunState::Idle,
@@ -230,6 +241,7 @@ impl Controller {
         let q_des = self.motion(&base, &mut out);
         self.final_stage(&q_des, &mut out);
         self.after_motion(input.time_ns, &mut out);
+        self.step_base_setpoint();
 
         let (p_cmd_b, q_cmd_b) = {
             let f = self.model.forward_kinematics(&self.command.q);
@@ -488,6 +500,14 @@ impl Controller {
             };
             self.engine.reset_at(first.0, first.1);
             self.first_point = Some(first);
+            // The base's plan counts progress from the end of the leading travel (what the
+            // approach replaced); a new job reads it from its start again.
+            self.base_lead_in = if segment.kind == SegmentKind::Line && !segment.extrudes() && segment.filament == 0.0 {
+                (segment.end - first.0).norm()
+            } else {
+                0.0
+            };
+            self.base_progress = 0.0;
             // A job may open with a standstill (a slicer's first retraction, `G10`, a `G4`): it
             // stands wherever the tool is, whatever point the program had in mind.
             if segment.kind == SegmentKind::Dwell {
@@ -515,6 +535,9 @@ impl Controller {
             let (p, q) = self.tool_world(now_ns);
             self.engine.reset_at(p, q);
             self.first_point = Some((p, q));
+            // A new job reads the base's plan from its start again.
+            self.base_progress = 0.0;
+            self.base_lead_in = 0.0;
         }
         self.job_open = true;
         self.outcome = JobOutcome::InProgress;
@@ -599,8 +622,14 @@ impl Controller {
             RunState::Running if self.settling => {
                 let (p, q) = self.first_point.unwrap_or_else(|| self.tool_world(0));
                 let step = self.clik.step(&self.model, &self.command.q, &base.world_to_base(&TcpTarget::at_rest(p, q)), self.dt);
+                // On a planned base, the path also waits for the base's setpoint to be at the plan's
+                // start (a second job brings the base back there first).
+                let progress = self.base_progress;
+                let base_there =
+                    self.base_setpoint.as_ref().is_none_or(|b| b.distance_to(progress) <= self.cfg.approach_position_tolerance);
                 if step.position_error <= self.cfg.approach_position_tolerance
                     && step.orientation_error <= self.cfg.approach_orientation_tolerance
+                    && base_there
                 {
                     self.settling = false;
                 }
@@ -639,6 +668,24 @@ impl Controller {
                 step.q
             }
         }
+    }
+
+    /// The base's setpoint for this tick, read from its plan at the path's progress
+    /// (base_setpoint.rs): it moves only while the path does, at the path's speed.
+    fn step_base_setpoint(&mut self) {
+        let Some(setpoint) = self.base_setpoint.as_mut() else {
+            return;
+        };
+        let on_path = matches!(self.state, RunState::Running | RunState::Pausing | RunState::Paused | RunState::Stopping)
+            && !self.settling
+            && !self.stop_by_brake;
+        let mut rate = 0.0;
+        if on_path && let Some(sample) = self.last_sample {
+            self.base_progress = (sample.s - self.base_lead_in).max(0.0);
+            rate = if sample.s > self.base_lead_in { sample.speed } else { 0.0 };
+        }
+        let brake = matches!(self.state, RunState::EmergencyStopping | RunState::Fault);
+        setpoint.step(self.base_progress, rate, brake);
     }
 
     /// Joint brake ([`JointCommandStage::brake`]).
@@ -851,6 +898,9 @@ impl Controller {
             path_speed: sample.map_or(0.0, |s| s.speed),
             tcp_error: self.last_clik.map_or(0.0, |c| c.position_error),
         };
+        if let Some(b) = &self.base_setpoint {
+            out.base_command = b.command(seq, input.time_ns, input.tick);
+        }
     }
 }
 

@@ -354,6 +354,8 @@ pub struct TickOutput {
     pub joint_command: ipc::JointCommand,
     /// For the extruder driver.
     pub extruder: ipc::ExtruderCommand,
+    /// For a moving base's controller (`valid` 0 without a `[base] plan`).
+    pub base_command: ipc::BaseCommand,
     /// For feeders and HMIs.
     pub status: ipc::Status,
     /// Events of this tick (`event_count` used).
@@ -371,6 +373,7 @@ impl Default for TickOutput {
         TickOutput {
             joint_command: ipc::JointCommand::default(),
             extruder: ipc::ExtruderCommand::default(),
+            base_command: ipc::BaseCommand::default(),
             status: ipc::Status::default(),
             events: [Event::Clamped { joint: 0 }; MAX_EVENTS],
             event_count: 0,

@@ -128,14 +128,25 @@ impl BaseTrajectory {
     /// Reads a CSV with a header naming `t`, `base_x`, `base_y` and optionally `base_theta`;
     /// `theta` (rad) is used where the file has no angle. Errors name the file and the line.
     pub fn load(path: &Path, theta: f64) -> Result<Self, JobError> {
+        Self::load_keyed(path, "t", theta)
+    }
+
+    /// The samples: (key, x m, y m, θ rad) — the key is t (s) or, for a plan by progress, s (m).
+    pub fn samples(&self) -> &[[f64; 4]] {
+        &self.samples
+    }
+
+    /// As [`load`](Self::load), keyed by the column `key` instead of `t`: `s` for a base plan by
+    /// the print's progress (`strand-plan base --plan`, the service's `[base] plan_file`).
+    pub fn load_keyed(path: &Path, key: &str, theta: f64) -> Result<Self, JobError> {
         let file = path.display().to_string();
         let whole = |e: &dyn std::fmt::Display| JobError::File { file: file.clone(), message: e.to_string() };
         let at = |line: usize, message: String| JobError::Line { file: file.clone(), line, message };
         let mut rd = csv::Reader::from_path(path).map_err(|e| whole(&e))?;
         let header = rd.headers().map_err(|e| whole(&e))?.clone();
         let col = |name: &str| header.iter().position(|h| h.trim() == name);
-        let (Some(ct), Some(cx), Some(cy)) = (col("t"), col("base_x"), col("base_y")) else {
-            return Err(at(1, "the header must name t, base_x and base_y (and optionally base_theta)".into()));
+        let (Some(ct), Some(cx), Some(cy)) = (col(key), col("base_x"), col("base_y")) else {
+            return Err(at(1, format!("the header must name {key}, base_x and base_y (and optionally base_theta)")));
         };
         let cth = col("base_theta");
         let mut samples: Vec<[f64; 4]> = Vec::new();
@@ -147,7 +158,7 @@ impl BaseTrajectory {
                 if v.is_finite() { Ok(v) } else { Err(at(line, format!("{name} is not finite"))) }
             };
             let s = [
-                num(ct, "t")?,
+                num(ct, key)?,
                 num(cx, "base_x")?,
                 num(cy, "base_y")?,
                 match cth {
@@ -156,7 +167,7 @@ impl BaseTrajectory {
                 },
             ];
             if samples.last().is_some_and(|p| s[0] <= p[0]) {
-                return Err(at(line, format!("t = {} does not increase", s[0])));
+                return Err(at(line, format!("{key} = {} does not increase", s[0])));
             }
             samples.push(s);
         }

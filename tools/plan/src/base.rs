@@ -58,6 +58,9 @@ pub struct TcpSeries {
     pub x: Vec<f64>,
     /// TCP y (m).
     pub y: Vec<f64>,
+    /// The print's progress at each sample (m): path length since the job's first point — the
+    /// end of its leading travel, where the controller's path starts — negative before it.
+    pub s: Vec<f64>,
 }
 
 impl TcpSeries {
@@ -90,6 +93,18 @@ pub(crate) fn sample_job(job: &Path, timing: Timing, dt: f64, config: &Config) -
         return Err(ToolError::Plan(format!("{name}: no motion in the program")));
     }
     let mut series = TcpSeries { dt, ..TcpSeries::default() };
+    // The controller's path starts at the end of a leading travel (its approach goes there); this
+    // engine starts at the bed's origin. Progress counts from the same point in both.
+    let lead_in = match parser.peek() {
+        Some(Ok(g))
+            if g.segment.kind == SegmentKind::Line
+                && !g.segment.flags.contains(strand_core::SegmentFlags::EXTRUDE)
+                && g.segment.filament == 0.0 =>
+        {
+            g.segment.end.norm()
+        }
+        _ => 0.0,
+    };
     match timing {
         Timing::Controller => {
             let rate = config.controller.rate_hz;
@@ -102,6 +117,7 @@ pub(crate) fn sample_job(job: &Path, timing: Timing, dt: f64, config: &Config) -
                 while t + 0.5 / rate >= next as f64 * dt {
                     series.x.push(s.position.x);
                     series.y.push(s.position.y);
+                    series.s.push(s.s - lead_in);
                     next += 1;
                 }
                 tick += 1;
@@ -113,6 +129,9 @@ pub(crate) fn sample_job(job: &Path, timing: Timing, dt: f64, config: &Config) -
                 segments.push(g?.segment);
             }
             constant_speed(&segments, dt, &mut series);
+            for s in &mut series.s {
+                *s -= lead_in;
+            }
         }
     }
     if series.len() <= super::filter::PAD {
@@ -130,9 +149,11 @@ fn constant_speed(segments: &[Segment], dt: f64, out: &mut TcpSeries) {
     let mut start = Vector3::zeros();
     let mut t0 = 0.0;
     let mut next = 0usize;
-    let push = |p: &Vector3<f64>, out: &mut TcpSeries| {
+    let mut travelled = 0.0;
+    let push = |p: &Vector3<f64>, s: f64, out: &mut TcpSeries| {
         out.x.push(p.x);
         out.y.push(p.y);
+        out.s.push(s);
     };
     for s in segments {
         let (geometry, length, duration) = match s.kind {
@@ -153,20 +174,22 @@ fn constant_speed(segments: &[Segment], dt: f64, out: &mut TcpSeries) {
         };
         while (next as f64) * dt < t0 + duration {
             let u = (next as f64 * dt - t0).max(0.0);
+            let along = if geometry.is_some() { (u * s.feed).min(length) } else { 0.0 };
             let p = match &geometry {
-                Some(g) => g.point((u * s.feed).min(length), length).position,
+                Some(g) => g.point(along, length).position,
                 None => start,
             };
-            push(&p, out);
+            push(&p, travelled + along, out);
             next += 1;
         }
         t0 += duration;
+        travelled += length;
         if s.kind != SegmentKind::Dwell {
             start = s.end;
         }
     }
     // The last point, held for the sample that closes the job.
-    push(&start, out);
+    push(&start, travelled, out);
 }
 
 /// Where the base sits relative to the print, and how far the arm may reach.
@@ -309,13 +332,14 @@ pub fn sweep(tcp: &TcpSeries, reach: &Reach, mass_kg: f64, from: f64, to: f64, s
         .collect()
 }
 
-/// Writes t, tcp_x, tcp_y, base_x, base_y (s, m; base before the nominal-reach offset).
+/// Writes t, tcp_x, tcp_y, base_x, base_y, s (s, m; base before the nominal-reach offset; s the
+/// print's progress, as in `--plan`).
 pub(crate) fn write_csv(path: &Path, tcp: &TcpSeries, plan: &BasePlan) -> Result<()> {
     let err = |e: &dyn std::fmt::Display| ToolError::Write { path: path.to_path_buf(), why: e.to_string() };
     let mut w = csv::Writer::from_path(path).map_err(|e| err(&e))?;
-    w.write_record(["t", "tcp_x", "tcp_y", "base_x", "base_y"]).map_err(|e| err(&e))?;
+    w.write_record(["t", "tcp_x", "tcp_y", "base_x", "base_y", "s"]).map_err(|e| err(&e))?;
     for k in 0..tcp.len() {
-        let row = [tcp.t(k), tcp.x[k], tcp.y[k], plan.base_x[k], plan.base_y[k]];
+        let row = [tcp.t(k), tcp.x[k], tcp.y[k], plan.base_x[k], plan.base_y[k], tcp.s.get(k).copied().unwrap_or(f64::NAN)];
         w.write_record(row.iter().map(|v| format!("{v:?}"))).map_err(|e| err(&e))?;
     }
     w.flush().map_err(|e| err(&e))
@@ -341,6 +365,68 @@ pub(crate) fn write_trajectory(path: &Path, tcp: &TcpSeries, plan: &BasePlan, mo
         w.write_record(row.iter().map(|v| format!("{v:?}"))).map_err(|e| err(&e))?;
     }
     w.flush().map_err(|e| err(&e))
+}
+
+/// Writes the base's plan by the print's progress for the service's `[base] plan_file`: s, base_x,
+/// base_y (m of path from the job's first point; m, W). The base is at the config's mount when the
+/// path starts and moves as the filtered TCP does from there: base(s) = mount + filtered(t(s)) −
+/// filtered(t(0)), t(s) the first planned time the path reaches s. Where the planned path stands
+/// (a dwell, the approach before it starts) no row is written: the plan holds the base while the
+/// nozzle does.
+pub(crate) fn write_plan(path: &Path, tcp: &TcpSeries, plan: &BasePlan, mount: [f64; 2]) -> Result<()> {
+    let err = |e: &dyn std::fmt::Display| ToolError::Write { path: path.to_path_buf(), why: e.to_string() };
+    let Some(k0) = tcp.s.iter().position(|s| *s >= 0.0) else {
+        return Err(ToolError::Plan("the job's path never starts: no plan to write".to_string()));
+    };
+    let (x0, y0) = (plan.base_x[k0], plan.base_y[k0]);
+    let mut rows: Vec<[f64; 3]> = Vec::new();
+    for k in k0..tcp.len() {
+        // The first row at exactly 0: the plan starts at the job's first point.
+        let s = if k == k0 { 0.0 } else { tcp.s[k] };
+        if rows.last().is_some_and(|r| s <= r[0]) {
+            continue;
+        }
+        rows.push([s, mount[0] + plan.base_x[k] - x0, mount[1] + plan.base_y[k] - y0]);
+    }
+    let rows = thin(&rows, PLAN_TOLERANCE_M);
+    let mut w = csv::Writer::from_path(path).map_err(|e| err(&e))?;
+    w.write_record(["s", "base_x", "base_y"]).map_err(|e| err(&e))?;
+    for row in rows {
+        w.write_record(row.iter().map(|v| format!("{v:?}"))).map_err(|e| err(&e))?;
+    }
+    w.flush().map_err(|e| err(&e))
+}
+
+/// How far the thinned plan may pass from the filtered one (m): far below the base's own error
+/// (millimetres), and it makes the plan of the 100 cm truss tens of times shorter (it travels in
+/// the service's config and in every log's).
+const PLAN_TOLERANCE_M: f64 = 10e-6;
+
+/// The rows a piecewise-linear reading in s needs to stay within `tolerance` of every row
+/// (greedy: each kept row reaches as far as the rows between stay within it).
+fn thin(rows: &[[f64; 3]], tolerance: f64) -> Vec<[f64; 3]> {
+    if rows.len() <= 2 {
+        return rows.to_vec();
+    }
+    let mut kept = vec![rows[0]];
+    let mut a = 0;
+    let mut b = 2;
+    while b < rows.len() {
+        let (ra, rb) = (rows[a], rows[b]);
+        let within = rows[a + 1..b].iter().all(|r| {
+            let u = (r[0] - ra[0]) / (rb[0] - ra[0]);
+            (ra[1] + u * (rb[1] - ra[1]) - r[1]).hypot(ra[2] + u * (rb[2] - ra[2]) - r[2]) <= tolerance
+        });
+        if within {
+            b += 1;
+        } else {
+            a = b - 1;
+            kept.push(rows[a]);
+            b = a + 2;
+        }
+    }
+    kept.push(rows[rows.len() - 1]);
+    kept
 }
 
 /// 000 Fig. 4 as a PNG: a_max, r_max and W_FF against f_c, the chosen f_c marked.
@@ -450,12 +536,14 @@ pub struct BaseOptions {
     pub config: Option<PathBuf>,
     /// Print one JSON object.
     pub json: bool,
-    /// Write t, tcp_x, tcp_y, base_x, base_y (s, m) at the chosen cut-off.
+    /// Write t, tcp_x, tcp_y, base_x, base_y, s (s, m; s the print's progress) at the chosen cut-off.
     pub csv: Option<PathBuf>,
     /// Write the base trajectory for strand-sim (t, base_x, base_y in W, from the --config's mount).
     pub trajectory: Option<PathBuf>,
     /// With --trajectory: hold the mount this long before following the job (s; the approach).
     pub start_delay: f64,
+    /// Write the base's plan by progress for the service's `[base] plan_file` (s, base_x, base_y).
+    pub plan: Option<PathBuf>,
     /// Also tabulate a_max, r_max and W_FF over cut-offs from --fc-step to --fc-start (000 Fig. 4).
     pub sweep: bool,
     /// PNG: with --sweep 000's Fig. 4, otherwise the paths of Fig. 5 at the chosen cut-off.
@@ -502,6 +590,10 @@ pub fn run(args: &BaseOptions) -> Result<()> {
         }
         let m = config.base.mount_xyz;
         write_trajectory(p, &tcp, &found.plan, [m[0], m[1]], args.start_delay)?;
+    }
+    if let Some(p) = &args.plan {
+        let m = config.base.mount_xyz;
+        write_plan(p, &tcp, &found.plan, [m[0], m[1]])?;
     }
     if let Some(p) = &args.png {
         match &rows {
@@ -566,6 +658,30 @@ mod tests {
     }
 
     /// x(t): out and back along 1 m at 3.33 mm/s, y fixed: a caricature of a 1D truss.
+    #[test]
+    fn a_thinned_plan_keeps_within_its_tolerance_with_far_fewer_rows() {
+        // A slow sine of the base along 2 m of path, a row every millimetre.
+        let rows: Vec<[f64; 3]> = (0..2000)
+            .map(|k| {
+                let s = k as f64 * 1e-3;
+                [s, 0.05 * (s * 3.0).sin(), 0.02 * s]
+            })
+            .collect();
+        let kept = thin(&rows, 10e-6);
+        assert!(kept.len() < rows.len() / 10, "{} of {} rows", kept.len(), rows.len());
+        assert_eq!((kept[0], kept[kept.len() - 1]), (rows[0], rows[1999]));
+        for r in &rows {
+            let j = kept.iter().position(|k| k[0] >= r[0]).unwrap();
+            if j == 0 {
+                continue;
+            }
+            let (a, b) = (kept[j - 1], kept[j]);
+            let u = (r[0] - a[0]) / (b[0] - a[0]);
+            let e = (a[1] + u * (b[1] - a[1]) - r[1]).hypot(a[2] + u * (b[2] - a[2]) - r[2]);
+            assert!(e <= 10e-6 + 1e-12, "{e} at s = {}", r[0]);
+        }
+    }
+
     fn shuttle(dt: f64) -> TcpSeries {
         let v = 3.33e-3;
         let half = 1.0 / v;
@@ -574,7 +690,7 @@ mod tests {
             let t = k as f64 * dt;
             if t < half { v * t } else { 1.0 - v * (t - half) }
         });
-        TcpSeries { dt, x: x.collect(), y: vec![0.02; n] }
+        TcpSeries { dt, x: x.collect(), y: vec![0.02; n], s: Vec::new() }
     }
 
     #[test]
@@ -629,7 +745,7 @@ mod tests {
         let dt = 0.05;
         let a = 1e-3;
         let n = 2000;
-        let tcp = TcpSeries { dt, x: (0..n).map(|k| 0.5 * a * (k as f64 * dt).powi(2)).collect(), y: vec![0.0; n] };
+        let tcp = TcpSeries { dt, x: (0..n).map(|k| 0.5 * a * (k as f64 * dt).powi(2)).collect(), y: vec![0.0; n], s: Vec::new() };
         // A cut-off far above the signal's content leaves the parabola as it is.
         let p = plan_at(&tcp, 4.0, &reach(100.0), 10.0).unwrap();
         let dist = *tcp.x.last().unwrap();

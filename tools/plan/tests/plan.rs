@@ -55,7 +55,7 @@ fn base_writes_the_csv_and_the_sweep() {
     assert!(r[0] > r[19] + 0.03, "r_max: {} mm at 1 mHz, {} mm at 20 mHz", r[0] * 1e3, r[19] * 1e3);
     let text = std::fs::read_to_string(&csv).unwrap();
     let mut lines = text.lines();
-    assert_eq!(lines.next(), Some("t,tcp_x,tcp_y,base_x,base_y"));
+    assert_eq!(lines.next(), Some("t,tcp_x,tcp_y,base_x,base_y,s"));
     let rows: Vec<Vec<f64>> = lines.map(|l| l.split(',').map(|x| x.parse().unwrap()).collect()).collect();
     assert_eq!(rows.len(), v["samples"].as_u64().unwrap() as usize);
     assert!(rows.windows(2).all(|w| (w[1][0] - w[0][0] - 0.06).abs() < 1e-9), "60 ms samples");

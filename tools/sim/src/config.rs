@@ -128,9 +128,11 @@ pub struct FlyerConfig {
     pub pid_period: f64,
     /// Time constant of the derivative's low-pass filter (s).
     pub derivative_filter: f64,
-    /// Planned trajectory of the robot base: a CSV with a header and the columns `t` (s from the
-    /// start), `base_x`, `base_y` (m, W) and optionally `base_theta` (rad), linearly interpolated
-    /// (relative to this file). Empty: hold the mount pose.
+    /// A planned trajectory of the robot base followed by the *clock*: a CSV with a header and the
+    /// columns `t` (s from the start), `base_x`, `base_y` (m, W) and optionally `base_theta` (rad),
+    /// linearly interpolated (relative to this file) — 000's open-loop way, which a pause or a feed
+    /// override breaks (kept to show it). Empty: the flyer follows the service's `BaseCommand`,
+    /// read from its `[base] plan` at the print's progress, and holds the mount pose without one.
     pub trajectory: PathBuf,
     /// Residual acceleration everywhere on the table (m/s², W): its slope.
     pub residual: [f64; 2],

@@ -36,6 +36,10 @@ impl Pid {
 pub(crate) struct Flyer {
     cfg: FlyerConfig,
     trajectory: BaseTrajectory,
+    /// Follow the service's setpoint (`BaseCommand`), not `trajectory`'s clock: no trajectory file.
+    follows_setpoint: bool,
+    /// The latest setpoint (x, y, θ), once one came; before, the trajectory's start (the mount).
+    setpoint: Option<[f64; 3]>,
     /// Body wrench (Fx, Fy, τ) of unit thruster forces, one column per thruster.
     layout: SMatrix<f64, 3, 8>,
     /// Thruster forces from the body wrench: the least-norm allocation (layout's pseudo-inverse).
@@ -62,8 +66,9 @@ pub(crate) struct Flyer {
 
 impl Flyer {
     /// A flyer at rest whose robot base stands at `base_pose` (x, y, θ) and height `z`, following
-    /// `trajectory` (robot-base poses).
-    pub(crate) fn new(cfg: &FlyerConfig, trajectory: BaseTrajectory, z: f64) -> Self {
+    /// `trajectory` (robot-base poses) by the clock, or, with `follows_setpoint`, the setpoints
+    /// given to [`Flyer::set_goal`] (holding the trajectory's start until the first).
+    pub(crate) fn new(cfg: &FlyerConfig, trajectory: BaseTrajectory, follows_setpoint: bool, z: f64) -> Self {
         let start = trajectory.at(0.0);
         // Eight thrusters: at each corner (±a, ±a) one pushing along x, one along y.
         let a = cfg.thruster_arm;
@@ -80,6 +85,8 @@ impl Flyer {
         let mut flyer = Flyer {
             cfg: cfg.clone(),
             trajectory,
+            follows_setpoint,
+            setpoint: None,
             layout: b,
             allocation,
             com: Vector2::zeros(),
@@ -113,9 +120,25 @@ impl Flyer {
         ([p.x, p.y, self.z], self.theta)
     }
 
-    /// The planned robot-base pose at `t` seconds.
+    /// The planned robot-base pose at `t` seconds: the setpoint, or the trajectory's pose then.
     pub(crate) fn planned(&self, t: f64) -> [f64; 3] {
-        self.trajectory.at(t)
+        match self.setpoint {
+            Some(goal) if self.follows_setpoint => goal,
+            _ => self.trajectory.at(if self.follows_setpoint { 0.0 } else { t }),
+        }
+    }
+
+    /// Whether it follows the service's setpoints rather than a trajectory by the clock.
+    pub(crate) fn follows_setpoint(&self) -> bool {
+        self.follows_setpoint
+    }
+
+    /// A setpoint (x, y, θ: m, m, rad, W) from the service; ignored when following a trajectory
+    /// by the clock.
+    pub(crate) fn set_goal(&mut self, goal: [f64; 3]) {
+        if self.follows_setpoint && goal.iter().all(|v| v.is_finite()) {
+            self.setpoint = Some(goal);
+        }
     }
 
     /// The table's residual acceleration at `p` (m/s², W).
@@ -146,7 +169,7 @@ impl Flyer {
             let period = cfg.pid_period;
             self.next_pid_s = t + period;
             if let Some(m) = measured {
-                let goal = self.trajectory.at(t);
+                let goal = self.planned(t);
                 let filter = cfg.derivative_filter;
                 let fx = self.pids[0].update(goal[0] - m[0], period, filter);
                 let fy = self.pids[1].update(goal[1] - m[1], period, filter);
@@ -202,7 +225,7 @@ mod tests {
 
     #[test]
     fn the_allocation_reproduces_the_wrench() {
-        let f = Flyer::new(&FlyerConfig::default(), BaseTrajectory::stationary([0.0, 0.0, 0.0]), 0.25);
+        let f = Flyer::new(&FlyerConfig::default(), BaseTrajectory::stationary([0.0, 0.0, 0.0]), false, 0.25);
         let w = Vector3::new(1.5, -0.7, 0.3);
         assert!((f.layout * (f.allocation * w) - w).norm() < 1e-12);
         // Full thrust along x: 4 thrusters × 2 N over 266.7 kg ≈ 30 mm/s² (000).
@@ -214,7 +237,7 @@ mod tests {
     #[test]
     fn the_pid_loops_hold_the_base_against_a_slope() {
         let cfg = FlyerConfig { residual: [2e-3, -1e-3], tension: 0.0, tension_variation: 0.0, ..Default::default() };
-        let mut f = Flyer::new(&cfg, BaseTrajectory::stationary([1.0, 0.5, 0.2]), 0.25);
+        let mut f = Flyer::new(&cfg, BaseTrajectory::stationary([1.0, 0.5, 0.2]), false, 0.25);
         let mut g = Gaussian::new(3);
         let (tcp, acc) = still();
         let dt = 0.001;
@@ -237,7 +260,8 @@ mod tests {
     fn thrust_saturates_at_thirty_millimetres_per_second_squared() {
         let cfg = FlyerConfig { tension: 0.0, tension_variation: 0.0, ..Default::default() };
         // A goal 10 m away: the PID asks for far more than the thrusters give.
-        let mut f = Flyer::new(&cfg, BaseTrajectory::from_samples(vec![[0.0, 0.0, 0.0, 0.0], [1e-3, 10.0, 0.0, 0.0]]).unwrap(), 0.25);
+        let mut f =
+            Flyer::new(&cfg, BaseTrajectory::from_samples(vec![[0.0, 0.0, 0.0, 0.0], [1e-3, 10.0, 0.0, 0.0]]).unwrap(), false, 0.25);
         let mut g = Gaussian::new(1);
         let (tcp, acc) = still();
         for k in 0..2000 {

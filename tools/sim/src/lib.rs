@@ -102,12 +102,10 @@ impl Sim {
         let flyer = match (&sim.flyer, tracked) {
             (Some(f), true) => {
                 let start_pose = [mount_position.x, mount_position.y, mount_yaw];
-                let trajectory = if f.trajectory.as_os_str().is_empty() {
-                    BaseTrajectory::stationary(start_pose)
-                } else {
-                    BaseTrajectory::load(&f.trajectory, mount_yaw)?
-                };
-                Some(Flyer::new(f, trajectory, mount_position.z))
+                let by_clock = !f.trajectory.as_os_str().is_empty();
+                let trajectory =
+                    if by_clock { BaseTrajectory::load(&f.trajectory, mount_yaw)? } else { BaseTrajectory::stationary(start_pose) };
+                Some(Flyer::new(f, trajectory, !by_clock, mount_position.z))
             }
             _ => None,
         };
@@ -241,6 +239,23 @@ impl Sim {
     pub fn command_extruder(&mut self, cmd: &ipc::ExtruderCommand) {
         if cmd.filament_rate.is_finite() && cmd.volumetric_rate.is_finite() {
             self.extruder_command = (cmd.filament_rate, cmd.volumetric_rate);
+        }
+    }
+
+    /// Whether the plant takes the service's base setpoint (a flyer with no trajectory by the clock).
+    pub fn takes_base_commands(&self) -> bool {
+        self.flyer.as_ref().is_some_and(|f| f.follows_setpoint())
+    }
+
+    /// A base setpoint arrived (`[base] plan`): the flyer's PID loops head for it (invalid and
+    /// non-finite ones are ignored, as a base controller would).
+    pub fn command_base(&mut self, cmd: &ipc::BaseCommand) {
+        let [w, x, y, z] = cmd.orientation;
+        let yaw = (2.0 * (w * z + x * y)).atan2(1.0 - 2.0 * (y * y + z * z));
+        if let Some(f) = self.flyer.as_mut()
+            && cmd.valid == 1
+        {
+            f.set_goal([cmd.position[0], cmd.position[1], yaw]);
         }
     }
 

@@ -47,10 +47,12 @@ pub fn run(opts: &SimOptions, cfg: &Config, sim_cfg: &SimConfig, stop: &AtomicBo
     let start_ns = monotonic_ns();
     let mut sim = Sim::new(cfg, sim_cfg, &start, start_ns)?;
     let prefix = opts.prefix.clone().unwrap_or_else(|| cfg.service.prefix.clone());
+    // A flyer without a trajectory by the clock is the base controller the service's
+    // `BaseCommand` is for.
     let ports = ClientPorts::open(
         &ServiceNames::new(&prefix),
         "strand-sim",
-        ClientRoles { driver: true, tracker: true, monitor: true, ..Default::default() },
+        ClientRoles { driver: true, tracker: true, monitor: true, base: sim.takes_base_commands(), ..Default::default() },
     )?;
     let truth_path = opts.truth.clone().unwrap_or_default();
     let mut truth_out = match &opts.truth {
@@ -128,6 +130,9 @@ pub fn run(opts: &SimOptions, cfg: &Config, sim_cfg: &SimConfig, stop: &AtomicBo
             while let Ok(Some(e)) = ports.receive_extruder_command() {
                 sim.command_extruder(&e);
             }
+        }
+        if let Some(b) = ports.latest_base_command() {
+            sim.command_base(&b);
         }
         let _ = ports.receive_status();
         let truth = sim.step();

@@ -105,6 +105,103 @@ fn the_free_flyer_prints_a_truss_while_its_base_drifts() {
     assert!((10.5..14.0).contains(&t), "job time {t} s");
 }
 
+/// The 200 mm truss at 20 mm/s (72 s of robot time) on the free flyer, its base planned by
+/// `strand-plan base --plan` (000's Algorithm 1 with a 250 mm reach limit) and commanded by the
+/// service at the print's progress. The operator pauses it for 30 s where the arm reaches furthest
+/// and resumes it at half the feed. A base on its planned *time* ran on during both and left the
+/// arm's reach (the 100 cm truss faulted on one override); by progress the base stops and slows
+/// with the nozzle, and the print finishes on its path.
+#[test]
+fn a_moving_base_print_survives_a_pause_and_a_feed_override_where_the_arm_reaches_furthest() {
+    // 150 s of robot time and its replay: 13 s optimised, 220 s unoptimised. CI runs it in its
+    // release stage; a debug build runs it with STRAND_DEBUG_CELLS=1.
+    if cfg!(debug_assertions) && std::env::var_os("STRAND_DEBUG_CELLS").is_none_or(|v| v != "1") {
+        eprintln!("skipped in a debug build (cargo test --release -p strand-sim --test sim a_moving_base, or STRAND_DEBUG_CELLS=1)");
+        return;
+    }
+    let dir = temp_dir("sim", "moving-base-operator");
+    let job = dir.join("truss.gcode");
+    let run = |args: &[&str]| {
+        let out = Command::new(bin("strand-plan")).args(args).current_dir(root()).output().unwrap();
+        assert!(out.status.success(), "strand-plan {args:?}: {}", String::from_utf8_lossy(&out.stderr));
+        out
+    };
+    run(&["truss", "--length", "0.2", "--width", "0.04", "--speed", "0.02", "-o", job.to_str().unwrap()]);
+    let (plan, series) = (dir.join("plan.csv"), dir.join("series.csv"));
+    let (r_nom, direction_deg) = (0.2326, -115.46f64);
+    run(&[
+        "base",
+        job.to_str().unwrap(),
+        "--config",
+        "config/free-flyer.toml",
+        "--r-nom",
+        &r_nom.to_string(),
+        "--direction-deg",
+        &direction_deg.to_string(),
+        "--reach-limit",
+        "0.25",
+        "--fc-start",
+        "0.5",
+        "--fc-step",
+        "0.005",
+        "--plan",
+        plan.to_str().unwrap(),
+        "--csv",
+        series.to_str().unwrap(),
+    ]);
+    // Where the plan has the arm reach furthest: its time into the path at the planned timing.
+    let text = std::fs::read_to_string(&series).unwrap();
+    let rows: Vec<Vec<f64>> = text.lines().skip(1).map(|l| l.split(',').map(|x| x.parse().unwrap()).collect()).collect();
+    let offset = [-r_nom * direction_deg.to_radians().cos(), -r_nom * direction_deg.to_radians().sin()];
+    let reach = |r: &Vec<f64>| (r[1] - r[3] - offset[0]).hypot(r[2] - r[4] - offset[1]);
+    let start = rows.iter().find(|r| r[5] >= 0.0).unwrap()[0];
+    let worst = rows.iter().filter(|r| r[5] >= 0.0).max_by(|a, b| reach(a).total_cmp(&reach(b))).unwrap();
+    let at = (worst[0] - start).max(1.0);
+    let base_moves = rows.iter().map(|r| (r[3] - rows[0][3]).hypot(r[4] - rows[0][4])).fold(0.0, f64::max);
+    assert!(base_moves > 0.05, "the plan moves the base {:.1} mm: too little to test", base_moves * 1e3);
+    let plan_set = format!("base.plan_file={}", plan.display());
+    let (pause, resume, slow) = (format!("{at:.1}:pause"), format!("{:.1}:resume", at + 30.0), format!("{:.1}:feed 50", at + 30.0));
+    let r = demo(
+        &dir,
+        &[
+            "--config",
+            "config/free-flyer.toml",
+            "--gcode",
+            job.to_str().unwrap(),
+            "--set",
+            &plan_set,
+            "--operator",
+            &pause,
+            "--operator",
+            &resume,
+            "--operator",
+            &slow,
+            "--timeout",
+            "900",
+        ],
+    );
+    eprintln!("{r:#}");
+    assert_eq!(r["job_outcome"], "Finished", "{r}");
+    assert_eq!(r["identical"], true, "{r}");
+    assert_eq!(r["operator"].as_array().unwrap().len(), 3, "{r}");
+    assert!(r["faults"].as_array().unwrap().is_empty(), "{r}");
+    // The pause and the half feed cost their time: 72 s at the full feed.
+    let t = json_f64(&r, &["job_time_s"]);
+    assert!(t > 72.0 + 30.0 + 10.0, "job time {t} s");
+    // The setpoint kept to its plan within millimetres (3.9 mm measured: the path's stops and
+    // starts ask more of the base than its 20 mm/s² give; the flyer itself strays up to 31 mm
+    // from the setpoint, its PID being 000's).
+    assert!(json_f64(&r, &["base_lag_m", "max"]) < 6e-3, "{r}");
+    // The arm stayed near the plan's 250 mm reach limit (251.1 mm measured; on the planned time
+    // the same print without an operator reached 261 mm, and with one it faulted).
+    assert!(json_f64(&r, &["reach_m", "max"]) < 0.255, "{r}");
+    // ... and the nozzle on its path: 0.20 mm mean, 1.36 mm worst measured (by the clock, without
+    // the pause: 0.40 / 1.32 mm). The base moves at up to 14 mm/s, and the estimate (α 0.04)
+    // trails it.
+    assert!(json_f64(&r, &["tcp_error_m", "mean"]) < 0.3e-3, "{r}");
+    assert!(json_f64(&r, &["tcp_error_m", "max"]) < 1.7e-3, "{r}");
+}
+
 fn spawn(mut c: Command) -> Reaped {
     Reaped(c.current_dir(root()).env("RUST_LOG", "warn").stdout(Stdio::null()).stderr(Stdio::null()).spawn().unwrap())
 }

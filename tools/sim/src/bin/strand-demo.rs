@@ -19,7 +19,7 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 use clap::Parser;
-use strand_sim::demo::{DemoOptions, run};
+use strand_sim::demo::{DemoOptions, OperatorAction, run};
 
 #[derive(Parser)]
 #[command(name = "strand-demo", version, about = "Service + simulated robot + feeder on a bundled job, with a summary and a replay check")]
@@ -67,6 +67,11 @@ struct Cli {
     /// tools/foxglove/strand.json.
     #[arg(long)]
     view: bool,
+    /// An operator's action at a robot time into the job (repeatable): `T:pause`, `T:resume`,
+    /// `T:stop`, `T:feed PERCENT`, `T:flow PERCENT` (T: seconds since the job's path started),
+    /// e.g. `--operator "250:feed 50"`.
+    #[arg(long, value_name = "T:ACTION")]
+    operator: Vec<OperatorAction>,
 }
 
 fn main() -> ExitCode {
@@ -84,6 +89,7 @@ fn main() -> ExitCode {
         json: cli.json,
         timeout: cli.timeout,
         view: cli.view,
+        operator: cli.operator,
     };
     match run(&opts) {
         Ok(true) => ExitCode::SUCCESS,

@@ -18,6 +18,7 @@
 //! sim's truth: [`Report`]) and `table` (the summary printed).
 
 mod children;
+mod operator;
 mod summary;
 mod table;
 
@@ -27,14 +28,16 @@ use std::time::{Duration, Instant};
 
 use strand::config::{Config, locate};
 use strand_core::BaseMode;
-use strand_ipc::ServiceNames;
 use strand_ipc::ports::{ClientPorts, ClientRoles};
+use strand_ipc::{RunState, ServiceNames};
 
 use strand_replay::truth::read_truth;
 pub use summary::{Report, Spread, report};
 
 use crate::config::SimConfig;
 use children::{Proc, program, report_child, sibling, tail};
+use operator::Operator;
+pub use operator::OperatorAction;
 use strand_cli::error::{Result, ToolError};
 use strand_cli::jobs;
 use table::print_table;
@@ -67,6 +70,8 @@ pub struct DemoOptions {
     /// Serve the live view (`[view]`, ws://127.0.0.1:8765 by default) and run the plant at the
     /// robot's real rate, so a viewer sees the print at its real speed.
     pub view: bool,
+    /// The operator's actions (pause, resume, overrides) at robot times into the job.
+    pub operator: Vec<OperatorAction>,
 }
 
 /// Runs the demo: the cell on `opts`' job until it ends, then the summary. Ok(true) when the job
@@ -180,7 +185,10 @@ pub fn run(opts: &DemoOptions) -> Result<bool> {
     }
     let mut sim = Proc::spawn("sim", sim, &out)?;
     // Start the job once the sim clocks the service (and tracking has arrived): 200 ticks.
-    let ports = ClientPorts::open(&ServiceNames::new(&prefix), "strand-demo", ClientRoles { monitor: true, ..Default::default() })?;
+    let roles = ClientRoles { monitor: true, control: !opts.operator.is_empty(), ..Default::default() };
+    let ports = ClientPorts::open(&ServiceNames::new(&prefix), "strand-demo", roles)?;
+    let mut operator = Operator::new(opts.operator.clone());
+    let mut operator_sent: Vec<String> = Vec::new();
     let begin = deadline.min(Instant::now() + Duration::from_secs(60));
     if let Err(e) = wait_for_ticks(&ports, &prefix, 200, begin, &mut [&mut service, &mut sim], &out) {
         return fail(e, &mut [&mut service, &mut sim], &[&log, &truth]);
@@ -197,7 +205,21 @@ pub fn run(opts: &DemoOptions) -> Result<bool> {
     // Watch all three until the feeder ends: a child that fails stops the demo at once.
     let mut job_began = false;
     let watched = loop {
-        job_began |= ports.latest_status().is_some_and(|s| s.segments_accepted > 0);
+        let status = ports.latest_status();
+        job_began |= status.is_some_and(|s| s.segments_accepted > 0);
+        if let Some(s) = status {
+            // The job's clock starts when its path does (after the approach).
+            for (action, control) in operator.due(s.stamp_ns, s.run_state == RunState::Running as u32 && s.executing_seq > 0) {
+                // A service that is gone is noticed below, by its exit.
+                if let Err(e) = ports.send_control(&control) {
+                    eprintln!("strand-demo: operator at {action}: {e}");
+                }
+                if !opts.json {
+                    println!("strand-demo: operator at {action}");
+                }
+                operator_sent.push(action.to_string());
+            }
+        }
         if let Some(c) = feeder.exited() {
             // 0 finished, 4 faulted, 6 stopped: the job ended, and the summary says how.
             break if matches!(c, 0 | 4 | 6) { Ok(()) } else { Err(("feed", c)) };
@@ -261,6 +283,7 @@ pub fn run(opts: &DemoOptions) -> Result<bool> {
     json["sim"] = round_trip.clone().unwrap_or(serde_json::Value::Null);
     json["ok"] = ok.into();
     json["predicted_s"] = predicted.into();
+    json["operator"] = operator_sent.into();
     let summary = out.join("summary.json");
     std::fs::write(&summary, format!("{json:#}\n")).map_err(ToolError::file(&summary))?;
     if opts.json {

@@ -94,8 +94,15 @@ pub struct Report {
     pub flow_mean_m3s: f64,
     /// Melt deposited over the net melt commanded (retractions subtracted), whole job.
     pub volume_ratio: f64,
-    /// Robot base against its plan (m), if the base moves.
+    /// Robot base against its plan (m), if the base moves: against the setpoint the service
+    /// commanded (`[base] plan`), or the trajectory's pose by the clock.
     pub base_error_m: Option<Spread>,
+    /// The base setpoint's lag behind its plan at the print's progress (m; `BaseCommand::lag`),
+    /// if the service has a `[base] plan`: what the base's limits cost.
+    pub base_lag_m: Option<Spread>,
+    /// The arm's reach on the path (m): horizontal distance from the robot base to the nozzle
+    /// (truth), if the base moves.
+    pub reach_m: Option<Spread>,
     /// Controller step (s).
     pub step_s: Spread,
     /// Wake-up to last publish (s).
@@ -135,7 +142,7 @@ pub fn report(log: &Path, truth: &[Truth], flyer: bool, features: Option<&Featur
         tcp_error_limit_m: cfg.controller.tcp_error_limit,
         ..Default::default()
     };
-    let (mut errors, mut estimated) = (Vec::new(), Vec::new());
+    let (mut errors, mut estimated, mut lags, mut reach) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
     let (mut step, mut tick_cost, mut lateness) = (Histogram::new(), Histogram::new(), Histogram::new());
     let mut path_ticks = PathTicks::default();
     let mut started: Option<u64> = None;
@@ -165,9 +172,15 @@ pub fn report(log: &Path, truth: &[Truth], flyer: bool, features: Option<&Featur
             let target = o.diagnostics.tcp_target_world;
             match by_time.get(&(i.time_ns + dt_ns)) {
                 Some(t) => {
-                    errors.push(((t.tcp[0] - target.x).powi(2) + (t.tcp[1] - target.y).powi(2) + (t.tcp[2] - target.z).powi(2)).sqrt())
+                    errors.push(((t.tcp[0] - target.x).powi(2) + (t.tcp[1] - target.y).powi(2) + (t.tcp[2] - target.z).powi(2)).sqrt());
+                    if flyer {
+                        reach.push((t.tcp[0] - t.base[0]).hypot(t.tcp[1] - t.base[1]));
+                    }
                 }
                 None => r.unmatched += 1,
+            }
+            if o.base_command.valid == 1 {
+                lags.push(o.base_command.lag);
             }
             if let Some(q) = measured {
                 estimated.push((tcp_world(&model, &q, &o.diagnostics.base) - target).norm());
@@ -220,7 +233,11 @@ pub fn report(log: &Path, truth: &[Truth], flyer: bool, features: Option<&Featur
     let commanded: f64 = truth.iter().map(|t| t.flow_commanded * dt).sum();
     let deposited: f64 = truth.iter().map(|t| t.flow_actual * dt).sum();
     r.volume_ratio = if commanded > 0.0 { deposited / commanded } else { 0.0 };
+    if !lags.is_empty() {
+        r.base_lag_m = Some(Spread::of(lags));
+    }
     if flyer {
+        r.reach_m = Some(Spread::of(reach));
         r.base_error_m = Some(Spread::of(
             truth.iter().map(|t| ((t.base[0] - t.base_planned[0]).powi(2) + (t.base[1] - t.base_planned[1]).powi(2)).sqrt()).collect(),
         ));

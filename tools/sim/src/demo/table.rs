@@ -49,6 +49,12 @@ pub(crate) fn print_table(r: &Report, wall: f64, log: &Path, log_bytes: u64, sim
     if let Some(b) = &r.base_error_m {
         rows.push(("base vs its plan".into(), mm(b)));
     }
+    if let Some(b) = &r.base_lag_m {
+        rows.push(("base setpoint lag".into(), mm(b)));
+    }
+    if let Some(b) = &r.reach_m {
+        rows.push(("arm's reach (base → nozzle)".into(), mm(b)));
+    }
     rows.push((
         "flow error".into(),
         format!(

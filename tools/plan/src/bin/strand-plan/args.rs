@@ -183,7 +183,7 @@ pub struct BaseArgs {
     /// Print one JSON object.
     #[arg(long)]
     pub json: bool,
-    /// Write t, tcp_x, tcp_y, base_x, base_y (s, m) at the chosen cut-off.
+    /// Write t, tcp_x, tcp_y, base_x, base_y, s (s, m; s the print's progress) at the chosen cut-off.
     #[arg(long)]
     pub csv: Option<PathBuf>,
     /// Write the base trajectory for strand-sim (t, base_x, base_y in W, from the --config's mount).
@@ -192,6 +192,11 @@ pub struct BaseArgs {
     /// With --trajectory: hold the mount this long before following the job (s; the approach).
     #[arg(long, default_value_t = 0.0)]
     pub start_delay: f64,
+    /// Write the base's plan by the print's progress for the service's `[base] plan_file` (s,
+    /// base_x, base_y: m of path from the job's first point, m in W from the --config's mount): the
+    /// base then follows the nozzle through pauses and overrides, not the clock.
+    #[arg(long)]
+    pub plan: Option<PathBuf>,
     /// Also tabulate a_max, r_max and W_FF over cut-offs from --fc-step to --fc-start (000 Fig. 4).
     #[arg(long)]
     pub sweep: bool,
@@ -488,6 +493,7 @@ impl From<BaseArgs> for base::BaseOptions {
             csv: a.csv,
             trajectory: a.trajectory,
             start_delay: a.start_delay,
+            plan: a.plan,
             sweep: a.sweep,
             png: a.png,
         }
