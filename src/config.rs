@@ -30,8 +30,10 @@ use strand_core::ControllerSettings;
 use strand_core::ExtruderConfig;
 use strand_core::PathConfig;
 use strand_core::kin::{ClikConfig, Frame, ModelError, RobotModel, geom};
+use strand_core::{Carries, Controller, Positioner};
 use strand_job::bed::BedConfig;
 use strand_job::bed::BedTransform;
+use strand_job::gcode::GcodeOptions;
 use view::ViewConfig;
 
 /// A configuration problem, naming the file and what in it is wrong.
@@ -130,6 +132,36 @@ pub struct DynamicLimits {
     pub jerk: Vec<f64>,
 }
 
+/// `[positioner]` in a robot file: the cell's external axes that carry the part (a turntable, a
+/// tilt-and-turn table), as a chain of the same URDF from the arm's root link (the base frame B)
+/// to the plate the part is fixed to. Or `[track]`: the axes that carry the robot (a linear
+/// track), as a chain from the rail to the arm's root link. Its joints follow the arm's in every
+/// joint array; the URDF gives their position and speed limits, this section the rest, and how
+/// G-code names them (rotary words only: a track's axes come from segment files, else stay still).
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct PositionerConfig {
+    /// The chain's root link: `[positioner]` default the arm's `root_link` (the plate's pose is in
+    /// B); `[track]` the rail (required).
+    #[serde(default)]
+    pub root_link: String,
+    /// The chain's tip link: `[positioner]` the plate the part is fixed to (required); `[track]`
+    /// default the arm's `root_link`.
+    #[serde(default)]
+    pub tip_link: String,
+    /// Acceleration (rad/s² or m/s²) and jerk (rad/s³ or m/s³) limits, one per axis in chain order.
+    pub limits: DynamicLimits,
+    /// The G-code word of each axis in chain order (`"A"`, `"B"` or `"C"`); empty: G-code cannot move them.
+    #[serde(default)]
+    pub gcode_words: Vec<String>,
+    /// Each axis = sign × word (degrees, turned into rad) + offset: the signs (+1 or −1; default +1).
+    #[serde(default)]
+    pub gcode_signs: Vec<f64>,
+    /// … and the offsets (rad; default 0).
+    #[serde(default)]
+    pub gcode_offsets: Vec<f64>,
+}
+
 /// A robot file.
 #[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
 #[serde(deny_unknown_fields)]
@@ -145,6 +177,12 @@ pub struct RobotConfig {
     pub tool: ToolConfig,
     /// Acceleration and jerk limits.
     pub limits: DynamicLimits,
+    /// The cell's positioner under the part, if it has one.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub positioner: Option<PositionerConfig>,
+    /// The cell's track under the robot, if it has one (a cell has one chain of external axes).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub track: Option<PositionerConfig>,
     /// Where the robot file was read from (set by [`RobotConfig::load`]).
     #[serde(skip)]
     pub file: PathBuf,
@@ -173,12 +211,76 @@ impl RobotConfig {
                 return Err(ConfigError::new(path, format!("{key}: values must be finite")));
             }
         }
+        if self.positioner.is_some() && self.track.is_some() {
+            return Err(ConfigError::new(path, "[positioner] and [track]: a cell has one chain of external axes".to_string()));
+        }
+        if let Some((section, p)) = self.external_axes() {
+            GcodeOptions::default()
+                .with_rotary(&p.gcode_words, &p.gcode_signs, &p.gcode_offsets)
+                .map_err(|e| ConfigError::new(path, format!("[{section}] {}: {}", e.key, e.message)))?;
+            if section == "positioner" && p.tip_link.is_empty() {
+                return Err(ConfigError::new(path, "[positioner] tip_link: name the plate the part is fixed to".to_string()));
+            }
+            if section == "track" && p.root_link.is_empty() {
+                return Err(ConfigError::new(path, "[track] root_link: name the rail the robot rides on".to_string()));
+            }
+        }
         Ok(())
     }
 
     /// The URDF path, resolved against the robot file's folder.
     pub fn urdf_path(&self) -> PathBuf {
         self.file.parent().unwrap_or(Path::new(".")).join(&self.urdf)
+    }
+
+    /// The section of the external axes (`"positioner"` or `"track"`) and its settings, if any.
+    pub fn external_axes(&self) -> Option<(&'static str, &PositionerConfig)> {
+        self.positioner.as_ref().map(|p| ("positioner", p)).or(self.track.as_ref().map(|t| ("track", t)))
+    }
+
+    /// Builds the external axes' chain from the same URDF (None without a `[positioner]` or `[track]`).
+    pub fn build_positioner(&self) -> Result<Option<Positioner>, ConfigError> {
+        let Some((section, p)) = self.external_axes() else {
+            return Ok(None);
+        };
+        let urdf = self.urdf_path();
+        let carries = if section == "track" { Carries::Robot } else { Carries::Work };
+        let (root, tip) = match carries {
+            Carries::Work => (if p.root_link.is_empty() { &self.root_link } else { &p.root_link }, &p.tip_link),
+            Carries::Robot => (&p.root_link, if p.tip_link.is_empty() { &self.root_link } else { &p.tip_link }),
+        };
+        let in_file = |message: String| ConfigError::new(&self.file, format!("[{section}] {message}"));
+        let model = RobotModel::from_urdf_str(&self.urdf_text, &urdf.display().to_string(), root, tip)
+            .map_err(|e| in_file(format!("urdf: {e}")))?
+            .with_dynamic_limits(&p.limits.acceleration, &p.limits.jerk, ("limits.acceleration", "limits.jerk"))
+            .map_err(|e| in_file(e.to_string()))?;
+        if p.gcode_words.len() > model.dof() {
+            return Err(in_file(format!(
+                "gcode_words: {} words for {} axes (\"{}\" → \"{}\")",
+                p.gcode_words.len(),
+                model.dof(),
+                root,
+                tip
+            )));
+        }
+        if let Some(k) = (0..p.gcode_words.len()).find(|&k| !model.joints()[k].kind.rotates()) {
+            return Err(in_file(format!(
+                "gcode_words: axis {} (\"{}\") is linear, and A, B and C are rotary words (degrees)",
+                k + 1,
+                model.joints()[k].name
+            )));
+        }
+        Positioner::new(model, carries).map(Some).map_err(|e| in_file(e.to_string()))
+    }
+
+    /// The controller for this robot (and its positioner) with `settings`.
+    pub fn build_controller(&self, settings: &ControllerSettings) -> Result<Controller, ConfigError> {
+        let model = self.build_model()?;
+        let controller = Controller::new(settings, model).map_err(|e| ConfigError::new(&self.file, e.to_string()))?;
+        match self.build_positioner()? {
+            Some(p) => controller.with_positioner(p).map_err(|e| ConfigError::new(&self.file, format!("[positioner] {e}"))),
+            None => Ok(controller),
+        }
     }
 
     /// Builds the chain from the URDF read at load, with the tool and all limits.
@@ -311,6 +413,17 @@ fn read_base_plan(config: &Path, base: &BaseConfig) -> Result<Vec<[f64; 4]>, Con
 }
 
 impl Config {
+    /// How this cell reads G-code: the robot file's `[positioner]` rotary words (checked at load),
+    /// else the defaults.
+    pub fn gcode_options(&self) -> GcodeOptions {
+        match self.robot.external_axes() {
+            Some((_, p)) => GcodeOptions::default()
+                .with_rotary(&p.gcode_words, &p.gcode_signs, &p.gcode_offsets)
+                .unwrap_or_else(|_| GcodeOptions::default()),
+            None => GcodeOptions::default(),
+        }
+    }
+
     /// The `[bed]` transform (checked at load, so an error here names the file and the section).
     pub fn bed_transform(&self) -> Result<BedTransform, ConfigError> {
         BedTransform::new(&self.bed).map_err(|e| ConfigError::new(&self.file, e.message))

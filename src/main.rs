@@ -11,7 +11,6 @@ use strand::config::{Config, locate};
 use strand::io::clock::ClockMode;
 use strand::io::runner::{JointFeedback, NullSink, Runner, StopWhen};
 use strand::log::writer::{LogContext, Logger};
-use strand_core::Controller;
 
 #[derive(Parser)]
 #[command(name = "strand", version, about = "Real-time streaming motion controller for robot-arm additive manufacturing")]
@@ -256,8 +255,12 @@ fn ctl(prefix: &str, timeout: f64, verb: strand::ctl::CtlVerb) -> ExitCode {
 }
 
 fn check_config(config: Option<&Path>) -> ExitCode {
-    match locate::service_config(config).and_then(|c| Config::load(&c)).and_then(|c| c.robot.build_model().map(|m| (c, m))) {
-        Ok((cfg, model)) => {
+    let loaded = locate::service_config(config)
+        .and_then(|c| Config::load(&c))
+        .and_then(|c| c.robot.build_model().map(|m| (c, m)))
+        .and_then(|(c, m)| c.robot.build_positioner().map(|p| (c, m, p)));
+    match loaded {
+        Ok((cfg, model, positioner)) => {
             println!("{}: ok", cfg.file.display());
             println!(
                 "robot {} from {}: {} → {}, {} joints",
@@ -267,6 +270,18 @@ fn check_config(config: Option<&Path>) -> ExitCode {
                 model.tip_link(),
                 model.dof()
             );
+            if let (Some(p), Some((section, settings))) = (&positioner, cfg.robot.external_axes()) {
+                let axes: Vec<String> = p.model().joints().iter().map(|j| format!("{} ({:?})", j.name, j.kind)).collect();
+                println!(
+                    "{section}: {} → {}, carries the {}, {} axes after the arm's: {}; G-code words {:?}",
+                    p.model().root_link(),
+                    p.model().tip_link(),
+                    if p.carries() == strand_core::Carries::Work { "part" } else { "robot" },
+                    p.dof(),
+                    axes.join(", "),
+                    settings.gcode_words
+                );
+            }
             println!("clik: task {:?}, gains {:?} 1/s, damping below σ = {}", cfg.clik.task, cfg.clik.gains, cfg.clik.sigma_threshold);
             println!(
                 "service: prefix {}, clock {:?}, {} Hz, base {:?}",
@@ -294,7 +309,7 @@ fn check_job(file: &Path, config: Option<&Path>, set: &[String], json: bool, png
     let (all, warnings) = match cfg
         .bed_transform()
         .map_err(|e| e.to_string())
-        .and_then(|bed| strand_job::load_segments(file, &bed).map_err(|e| e.to_string()))
+        .and_then(|bed| strand_job::load_segments_with(file, &bed, cfg.gcode_options()).map_err(|e| e.to_string()))
     {
         Ok(j) => j,
         Err(e) => return bad(e),
@@ -411,7 +426,7 @@ fn run(cfg: &Config, log_path: Option<&Path>, when: StopWhen) -> ExitCode {
     } else {
         None
     };
-    let controller = match Controller::new(&cfg.controller_settings(), model) {
+    let controller = match cfg.robot.build_controller(&cfg.controller_settings()) {
         Ok(c) => c,
         Err(e) => {
             eprintln!("strand: {}: {e}", cfg.file.display());

@@ -181,6 +181,72 @@ fn controller_steps_allocate_nothing_with_a_live_viewer() {
     assert!(received.load(Ordering::Relaxed) > 1000, "the viewer received {} messages", received.load(Ordering::Relaxed));
 }
 
+/// `Controller::step` allocates nothing in a cell with a rotary table (`cells/kr6-turntable`):
+/// segments that turn the table (a quarter circle around its axis, each point paired with its
+/// angle), a move of the table alone (a dwell), the approach moving arm and table together, the
+/// path with the work carried, pause, resume, feed override, stop and an emergency stop.
+#[test]
+fn controller_steps_with_a_turning_table_allocate_nothing() {
+    use common::cell::{Cell, DOWN};
+    use strand_ipc::{Command, Segment, SegmentKind, segment_flags};
+    let cfg = strand::config::Config::load(&strand_testkit::root().join("config/cells/kr6-turntable.toml")).unwrap();
+    let mut cell = Cell::new(&cfg, &cfg.service.initial_joints);
+    let point = |a: f64| [0.5 - 0.03 * a.cos(), -0.03 * a.sin(), 0.2503];
+    let segment = |seq: u64, end: [f64; 3], table: f64, filament: f64| Segment {
+        seq,
+        kind: SegmentKind::Line as u32,
+        flags: segment_flags::AXES | if filament > 0.0 { segment_flags::EXTRUDE } else { segment_flags::TRAVEL },
+        end,
+        orientation: DOWN,
+        feed: 0.02,
+        filament,
+        axes: [table, 0.0],
+        ..Default::default()
+    };
+    let mut job = vec![segment(1, [0.47, 0.0, 0.2553], 0.3, 0.0), segment(2, point(0.0), 0.3, 0.0)];
+    for k in 1..=18 {
+        let a = (k as f64 * 5.0).to_radians();
+        job.push(segment(job.len() as u64 + 1, point(a), 0.3 - a, 1e-4));
+    }
+    // The table alone, a quarter turn back, the nozzle on its point of the part.
+    job.push(segment(job.len() as u64 + 1, point(std::f64::consts::FRAC_PI_2), 0.3, 0.0));
+    job.last_mut().unwrap().flags |= segment_flags::LAST;
+    let mut total = 0usize;
+    let mut states = std::collections::BTreeSet::new();
+    for k in 0..20_000u64 {
+        match k {
+            0 => cell.send(&job),
+            10 => cell.control(Command::Start, 0.0),
+            1500 => cell.control(Command::Pause, 0.0),
+            1800 => cell.control(Command::Resume, 0.0),
+            1900 => cell.control(Command::FeedOverride, 0.5),
+            9000 => {
+                let mut again = job.clone();
+                for (i, s) in again.iter_mut().enumerate() {
+                    s.seq = 100 + i as u64;
+                }
+                cell.send(&again);
+                cell.control(Command::Start, 0.0);
+            }
+            11_000 => cell.control(Command::Stop, 0.0),
+            14_000 => cell.control(Command::EmergencyStop, 0.0),
+            _ => {}
+        }
+        let input = cell.input();
+        let before = allocations();
+        let out = cell.ctl.step(&input);
+        total += allocations() - before;
+        cell.q_robot = out.joint_command.position;
+        cell.tick += 1;
+        states.insert(cell.state() as u32);
+    }
+    assert_eq!(total, 0, "allocations inside Controller::step with a turning table");
+    for s in [strand_ipc::RunState::Approaching, strand_ipc::RunState::Running, strand_ipc::RunState::Paused, strand_ipc::RunState::Fault] {
+        assert!(states.contains(&(s as u32)), "never in {s:?}: {states:?}");
+    }
+    assert!(cell.last.is_none_or(|o| o.joint_command.dof == 7));
+}
+
 /// `Controller::step` allocates nothing over a whole job on a tracked base: intake, approach (IK and
 /// the joint-space trajectory), running with base correction, pause, resume, feed override, stop, a
 /// second job, emergency stop, fault and clear.

@@ -114,3 +114,47 @@ fn a_second_job_waits_on_its_first_point_for_the_base_to_return() {
     run_until(&mut cell, 60_000, |c, _| c.state() == RunState::Idle);
     assert_eq!(cell.last.unwrap().status.job_outcome, JobOutcome::Finished as u32);
 }
+
+#[test]
+fn a_job_resumed_after_a_fault_goes_on_along_the_base_plan_from_where_it_resumes() {
+    let (mut cell, mount) = planned_cell();
+    let job = square_job(1, ORIGIN, 0.04, 1, 0.03);
+    cell.send(&job);
+    cell.control(Command::Start, 0.0);
+    // Halfway round, an emergency stop: the base brakes with the arm, then the fault is cleared.
+    run_until(&mut cell, 60_000, |_, b| b.progress >= 0.07);
+    cell.control(Command::EmergencyStop, 0.0);
+    run_until(&mut cell, 20_000, |c, b| c.state() == RunState::Fault && b.velocity[0] == 0.0);
+    cell.control(Command::ClearFault, 0.0);
+    run_until(&mut cell, 10, |c, _| c.state() == RunState::Idle);
+    // Resumed at segment 4 (the third side) as strand-feed --resume-from 4 sends it: a travel
+    // (numbered 3) to where segment 4 starts, then 4 and 5, and the path before segment 4 past the
+    // leading travel (two sides, 0.08 m) as the progress offset.
+    let mut resumed = vec![common::cell::line(3, job[2].end, 0.1, 0.0)];
+    resumed.extend_from_slice(&job[3..]);
+    cell.send(&resumed);
+    cell.control(Command::ProgressOffset, 0.08);
+    cell.control(Command::Start, 0.0);
+    // The path starts only once the base's setpoint is where the plan has it at 0.08 m, not back
+    // at its start.
+    let started = run_until(&mut cell, 60_000, |c, _| c.last.unwrap().status.path_speed > 0.0);
+    let tolerance = config(|_| {}).controller.approach_position_tolerance;
+    let planned = mount[0] + BASE_PER_PATH * 0.08;
+    assert!((started.progress - 0.08).abs() < 1e-9, "resumed at {} m of the plan", started.progress);
+    assert!((started.position[0] - planned).abs() <= tolerance + 1e-9, "base at {} for {planned}", started.position[0]);
+    run_until(&mut cell, 60_000, |c, _| c.state() == RunState::Idle);
+    assert_eq!(cell.last.unwrap().status.job_outcome, JobOutcome::Finished as u32);
+    let end = run_until(&mut cell, 10_000, |_, b| b.lag < 1e-6 && b.velocity[0] == 0.0);
+    assert!(end.progress > 0.159 && end.progress <= 0.16, "the plan ended at {} m", end.progress);
+    // The offset held for that job only: a ProgressOffset is refused while a job runs, and the
+    // next job starts at the plan's start again.
+    cell.send(&square_job(200, ORIGIN, 0.04, 1, 0.03));
+    cell.control(Command::Start, 0.0);
+    let b = run_until(&mut cell, 60_000, |c, _| c.last.unwrap().status.path_speed > 0.0);
+    assert!(b.progress < 1e-3, "a new job at {} m of the plan", b.progress);
+    cell.control(Command::ProgressOffset, 0.05);
+    let out = cell.step();
+    assert!(
+        out.events().iter().any(|e| matches!(e, strand_core::Event::ControlRejected { reason: strand_ipc::RejectReason::NotAllowed, .. }))
+    );
+}

@@ -4,20 +4,27 @@
 //!
 //! - [`check_parser`]: any bytes through [`Parser`]: no panic; an error names the file, a line of the
 //!   input (≥ 1), a column within that line (0 = the whole line) and a non-empty message, and ends the
-//!   stream; every segment has finite fields, increasing sequence numbers, a source line of the input,
-//!   and only the last segment of a program read without error carries `LAST`.
+//!   stream; every segment has finite fields, passes `Segment::check`, has increasing sequence
+//!   numbers and a source line of the input, and only the last segment of a program read without
+//!   error carries `LAST`.
 //! - [`check_path`]: the segments (at most [`MAX_SEGMENTS`], long dwells clamped) through a
-//!   [`PathEngine`] (default limits, 1 kHz) with the last flagged `LAST`: every segment accepted, the
-//!   engine reaches [`Motion::Finished`] within a tick bound computed from the program, and every
-//!   sample is finite and within the speed, acceleration and jerk limits.
+//!   [`PathEngine`] (default limits, 1 kHz; with external axes when the input maps rotary words) with
+//!   the last flagged `LAST`: every segment accepted, the engine reaches [`Motion::Finished`] within
+//!   a tick bound computed from the program, and every sample is finite and within the speed,
+//!   acceleration and jerk limits.
+//!
+//! The options: an input whose first byte is [`ROTARY_MARK`] or above runs the rest of its bytes
+//! with 5-axis options (rotary words `A`/`B`/`C` mapped onto external axes, some with the
+//! tool-direction dialect; the byte's two low bits pick one of four, see [`split_options`]); any
+//! other input (every text program) runs whole with the default options.
 
 #![allow(dead_code)]
 
 use std::io::Cursor;
 
 use nalgebra::Vector3;
-use strand_core::{Motion, PathConfig, PathEngine, PathSample, Segment, SegmentFlags, SegmentKind};
-use strand_job::gcode::{GcodeError, GcodeOptions, GcodeSegment, Parser, segment_length};
+use strand_core::{AxisLimits, Motion, PathConfig, PathEngine, PathSample, Segment, SegmentFlags, SegmentKind};
+use strand_job::gcode::{GcodeError, GcodeOptions, GcodeSegment, Parser, ROTARY_AXES, segment_length};
 
 /// File name given to the parser.
 pub const FILE: &str = "fuzz.gcode";
@@ -29,6 +36,28 @@ pub const MAX_DWELL_S: f64 = 2.0;
 pub const MAX_TICKS: u64 = 200_000;
 /// Control period (s).
 pub const DT: f64 = 1e-3;
+/// A first byte from here up selects 5-axis options (and is not part of the program).
+pub const ROTARY_MARK: u8 = 0x80;
+/// The external axes' limits in [`check_path`] (rad/s, rad/s², rad/s³): a quick turntable.
+pub const AXIS_LIMITS: AxisLimits = AxisLimits { velocity: 3.0, acceleration: 30.0, jerk: 600.0 };
+
+/// The options `data` runs with and the program it holds (see the module documentation): after a
+/// first byte ≥ [`ROTARY_MARK`], its two low bits pick C alone (0); A (sign −1, offset 0.1 rad) and
+/// C (1); B and C with the tool-direction dialect (2); C (sign −1, offset 0.5 rad) with the
+/// tool-direction dialect (3).
+pub fn split_options(data: &[u8]) -> (GcodeOptions, &[u8]) {
+    let Some((&first, program)) = data.split_first().filter(|(first, _)| **first >= ROTARY_MARK) else {
+        return (GcodeOptions::default(), data);
+    };
+    let (words, signs, offsets, tool_direction): (&[&str], &[f64], &[f64], bool) = match first & 3 {
+        0 => (&["C"], &[], &[], false),
+        1 => (&["A", "C"], &[-1.0, 1.0], &[0.1, -0.2], false),
+        2 => (&["B", "C"], &[], &[], true),
+        _ => (&["C"], &[-1.0], &[0.5], true),
+    };
+    let options = GcodeOptions::default().with_rotary(words, signs, offsets).expect("valid rotary options");
+    (GcodeOptions { tool_direction, ..options }, program)
+}
 
 /// What the parser made of an input.
 pub struct Parsed {
@@ -36,9 +65,10 @@ pub struct Parsed {
     pub error: Option<GcodeError>,
 }
 
-/// Runs `data` through the parser and checks everything it returns.
+/// Runs `data` through the parser (with the options it selects, [`split_options`]) and checks
+/// everything it returns.
 pub fn check_parser(data: &[u8]) -> Parsed {
-    let options = GcodeOptions::default();
+    let (options, data) = split_options(data);
     let first_seq = options.first_seq;
     let mut parser = Parser::new(Cursor::new(data), FILE, options);
     let lines = line_count(data);
@@ -133,6 +163,9 @@ fn check_segment(g: &GcodeSegment, lines: usize) {
     let extrude = s.flags.contains(SegmentFlags::EXTRUDE);
     let travel = s.flags.contains(SegmentFlags::TRAVEL);
     assert!(!(extrude && travel), "line {at}: both EXTRUDE and TRAVEL");
+    if let Err(e) = s.check() {
+        panic!("line {at}: the segment fails its own check: {e}: {s:?}");
+    }
 }
 
 /// Runs `data` through the parser, then its segments through the path engine, checking both.
@@ -150,8 +183,10 @@ pub fn check_path(data: &[u8]) -> Option<u64> {
         }
     }
     let config = PathConfig::default();
-    let options = GcodeOptions::default();
+    let (options, _) = split_options(data);
     let mut engine = PathEngine::new(&config, DT, options.start, options.orientation).expect("default path config");
+    let axis_count = options.rotary.iter().rposition(Option::is_some).map_or(0, |k| k + 1);
+    engine.set_external_axes(&[AXIS_LIMITS; ROTARY_AXES][..axis_count]);
     assert!(engine.free_space() >= segments.len(), "the intake queue holds fewer than {MAX_SEGMENTS} segments");
     for (k, s) in segments.iter().enumerate() {
         if let Err(e) = engine.push(s) {
@@ -184,12 +219,25 @@ pub fn check_path(data: &[u8]) -> Option<u64> {
 
 /// An upper bound on the ticks the program needs: each segment as if run from rest to rest at
 /// min(feed, max speed, √(a_c·r) on an arc) with the acceleration and jerk ramps, dwells as given,
-/// all four times over, plus 10 s. None if it is above [`MAX_TICKS`].
+/// plus, for a segment that turns external axes, the time the largest turn takes at
+/// [`AXIS_LIMITS`] (at the speed share the engine plans lines at, and as the smooth step a dwell
+/// turns them by), all four times over, plus 10 s. None if it is above [`MAX_TICKS`].
 pub fn tick_bound(segments: &[Segment], start: &Vector3<f64>, config: &PathConfig) -> Option<u64> {
     let (a, j) = (config.max_acceleration, config.max_jerk);
     let mut at = *start;
+    let mut axes = [0.0; ROTARY_AXES];
     let mut total = 0.0;
     for s in segments {
+        if let Some(next) = s.axes {
+            let turn = next.iter().zip(&axes).map(|(n, a)| (n - a).abs()).fold(0.0, f64::max);
+            let limits = AXIS_LIMITS;
+            // 10τ³ − 15τ⁴ + 6τ⁵: peak speed 1.875, acceleration 5.78, jerk 60 times turn/T^k.
+            total += turn / (0.9 * limits.velocity)
+                + 1.875 * turn / limits.velocity
+                + (5.78 * turn / limits.acceleration).sqrt()
+                + (60.0 * turn / limits.jerk).cbrt();
+            axes = next;
+        }
         total += match s.kind {
             SegmentKind::Dwell => s.duration,
             SegmentKind::Line | SegmentKind::Arc => {

@@ -43,7 +43,7 @@ fn segment(seq: u64, x: f64) -> Segment {
         seq,
         stamp_ns: 1_000 + seq,
         kind: SegmentKind::Arc as u32,
-        flags: segment_flags::EXTRUDE | segment_flags::LAYER_START | segment_flags::PRESSURE_ADVANCE,
+        flags: segment_flags::EXTRUDE | segment_flags::LAYER_START | segment_flags::PRESSURE_ADVANCE | segment_flags::AXES,
         end: [x, 0.25, -0.125],
         centre: [x / 2.0, 0.5, 0.0],
         normal: [0.0, 0.0, 1.0],
@@ -55,6 +55,7 @@ fn segment(seq: u64, x: f64) -> Segment {
         source_line: 40 + seq as u32,
         _reserved: 0,
         pressure_advance: 0.03 + 1e-3 * x,
+        axes: [0.5 * x, -0.25],
     }
 }
 

@@ -37,7 +37,7 @@ use strand_ipc::{Command, FaultCode, JobOutcome, RunState};
 use crate::config::Config;
 use strand_core::BaseMode;
 use strand_core::kin::{JointVector, MAX_JOINTS};
-use strand_core::{Controller, Event, MAX_SEGMENTS_PER_TICK, TickInput};
+use strand_core::{Event, MAX_SEGMENTS_PER_TICK, TickInput};
 use strand_job::bed::BedTransform;
 use strand_job::load::BaseTrajectory;
 use strand_job::timing::MAX_SEGMENT_SECONDS;
@@ -403,7 +403,10 @@ pub fn check_job(
     }
     let model = cfg.robot.build_model().map_err(|e| CheckError::Controller(e.to_string()))?;
     let n = model.dof();
-    let joint_names: Vec<String> = model.joints().iter().map(|j| j.name.clone()).collect();
+    // The arm's joints, then a positioner's axes: the names a finding gives.
+    let positioner = cfg.robot.build_positioner().map_err(|e| CheckError::Controller(e.to_string()))?;
+    let joint_names: Vec<String> =
+        model.joints().iter().chain(positioner.iter().flat_map(|p| p.model().joints())).map(|j| j.name.clone()).collect();
     let limits: Vec<_> = (0..n).map(|i| *model.limits(i)).collect();
     let mut settings = cfg.controller_settings();
     // Every stretch off the path is reported; the fault it would cause is marked on it.
@@ -411,7 +414,7 @@ pub fn check_job(
     let tcp_time = settings.controller.tcp_error_time;
     settings.controller.tcp_error_limit = 0.0;
     let sigma_threshold = settings.clik.sigma_threshold;
-    let mut ctl = Controller::new(&settings, model.clone()).map_err(|e| CheckError::Controller(e.to_string()))?;
+    let mut ctl = cfg.robot.build_controller(&settings).map_err(|e| CheckError::Controller(e.to_string()))?;
     let bed = BedTransform::new(&cfg.bed).map_err(|e| CheckError::Controller(e.to_string()))?;
     let bed_origin = bed.point(&Vector3::zeros());
     let bed_normal = (bed.point(&Vector3::z()) - bed_origin).normalize();
@@ -441,9 +444,11 @@ pub fn check_job(
     // Tracking samples every 10 ms, as a tracker would send them.
     let pose_every = ((0.01 / dt).round() as u64).max(1);
 
+    // The arm's joints, then a positioner's axes (at home unless `initial_joints` says).
+    let cell_dof = ctl.cell_dof();
     let mut q_robot = [0.0; MAX_JOINTS];
-    for i in 0..n {
-        q_robot[i] = cfg.service.initial_joints.get(i).copied().unwrap_or(limits[i].middle());
+    for i in 0..cell_dof {
+        q_robot[i] = cfg.service.initial_joints.get(i).copied().unwrap_or(if i < n { limits[i].middle() } else { 0.0 });
     }
     let first_seq = job.segments[0].seq;
     let layer_of = |seq: u64| -> Option<i32> { job.layers.get(seq.checked_sub(first_seq)? as usize).copied().flatten() };
@@ -529,7 +534,8 @@ pub fn check_job(
         let now = t0_ns + tick * dt_ns;
         let mut input = TickInput::new(tick, now);
         state_seq += 1;
-        input.joint_state = Some(ipc::JointState { seq: state_seq, stamp_ns: now, dof: n as u32, position: q_robot, ..Default::default() });
+        input.joint_state =
+            Some(ipc::JointState { seq: state_seq, stamp_ns: now, dof: cell_dof as u32, position: q_robot, ..Default::default() });
         if tracked && tick.is_multiple_of(pose_every) {
             let (p, q) = match (trajectory, &base_setpoint) {
                 (Some((traj, _)), _) => traj.pose_at(tick as f64 * dt, &mount_position, &mount_orientation, cfg.base.mount_rpy[2]),

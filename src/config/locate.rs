@@ -56,14 +56,23 @@ pub(crate) fn is_name(arg: &Path) -> bool {
         && !arg.to_string_lossy().starts_with('.')
 }
 
+/// True for a NAME inside the config tree with folders (`cells/kr6-turntable`): relative, every
+/// component a normal one, no extension, not starting with a dot.
+pub(crate) fn is_tree_name(arg: &Path) -> bool {
+    arg.components().all(|c| matches!(c, Component::Normal(_)))
+        && arg.components().count() > 1
+        && arg.extension().is_none()
+        && !arg.to_string_lossy().starts_with('.')
+}
+
 /// A path the user gave: itself if it exists, else an error naming it.
 pub fn explicit(path: &Path) -> Result<PathBuf, ConfigError> {
     if path.exists() { Ok(path.to_path_buf()) } else { Err(ConfigError::new(path, "no such file")) }
 }
 
 /// The service config for a `--config` argument: the default ([`DEFAULT`]) when absent, `NAME.toml`
-/// for a bare NAME (`iiwa7`, `free-flyer`; see [`is_name`]), else the path as given (which must
-/// exist).
+/// for a bare NAME (`iiwa7`, `free-flyer`; see [`is_name`]) or a NAME in a folder of the tree
+/// (`cells/kr6-turntable`) that is not a file here, else the path as given (which must exist).
 pub fn service_config(arg: Option<&Path>) -> Result<PathBuf, ConfigError> {
     service_config_or(arg, DEFAULT)
 }
@@ -73,6 +82,8 @@ pub fn service_config_or(arg: Option<&Path>, default: &str) -> Result<PathBuf, C
     match arg {
         None => find(default),
         Some(a) if is_name(a) && !a.exists() => find(&format!("{}.toml", a.display())),
+        // A NAME inside the tree (`cells/kr6-turntable`): relative, no extension, not here.
+        Some(a) if is_tree_name(a) && !a.exists() => find(&format!("{}.toml", a.display())),
         Some(a) => explicit(a),
     }
 }

@@ -15,6 +15,7 @@
 //!   controller's own per-tick code, and the [`Segment`] it takes.
 //! - Kinematics ([`kin`]): the chain, FK, Jacobians, manipulability and the CLIK, for the tools and
 //!   benches that check a job or a robot.
+//! - The positioner ([`Positioner`]): the external axes that carry the part, and the work's motion.
 //! - The base estimator and the extruder model, for the simulator and the tools that predict them.
 
 mod base;
@@ -24,6 +25,7 @@ mod extrude;
 mod following;
 pub mod kin;
 mod path;
+mod positioner;
 mod setting;
 
 pub use base::{BaseConfig, BaseEstimator, BaseMode, BaseState, EstimatorKind, MAX_WINDOW, PoseRejection};
@@ -33,7 +35,8 @@ pub use controller::{
 };
 pub use extrude::{Extruder, ExtruderCommand, ExtruderConfig};
 pub use path::{
-    Geometry, InvalidPathConfig, InvalidSegment, MAX_ARC_SWEEP, Motion, PathConfig, PathEngine, PathPoint, PathSample, PathStats,
-    PlanningMode, Segment, SegmentError, SegmentFlags, SegmentKind, arc_geometry, distance_to_arc, distance_to_segment,
+    AxisLimits, Geometry, InvalidPathConfig, InvalidSegment, MAX_ARC_SWEEP, Motion, PathConfig, PathEngine, PathPoint, PathSample,
+    PathStats, PlanningMode, Segment, SegmentError, SegmentFlags, SegmentKind, arc_geometry, distance_to_arc, distance_to_segment,
 };
+pub use positioner::{Carries, Positioner, PositionerError};
 pub use setting::InvalidSetting;

@@ -205,11 +205,13 @@ impl Runner {
     pub fn new(controller: Controller, service: &ServiceConfig, joint_state_timeout: f64, rate_hz: f64) -> Result<Self, RunError> {
         let _ = strand_ipc::ports::cleanup_dead_nodes();
         let ports = ServicePorts::open(&ServiceNames::new(&service.prefix), "strand")?;
-        let n = controller.model().dof();
+        // The arm's joints, then a positioner's axes (at home, 0, unless `initial_joints` says).
+        let n = controller.cell_dof();
         let mut echo_state = ipc::JointState { dof: n as u32, ..Default::default() };
         let middle = controller.model().middle_configuration();
+        let arm = controller.model().dof();
         for i in 0..n {
-            echo_state.position[i] = service.initial_joints.get(i).copied().unwrap_or(middle[i]);
+            echo_state.position[i] = service.initial_joints.get(i).copied().unwrap_or(if i < arm { middle[i] } else { 0.0 });
         }
         Ok(Runner {
             ports,

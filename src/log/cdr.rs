@@ -147,6 +147,11 @@ impl<'a> CdrReader<'a> {
         Ok(CdrReader { buf, pos: 4 })
     }
 
+    /// The byte offset reached.
+    pub fn position(&self) -> usize {
+        self.pos
+    }
+
     /// Bytes not read yet.
     pub fn remaining(&self) -> usize {
         self.buf.len() - self.pos

@@ -362,11 +362,15 @@ strand_msgs/TickInput input
 strand_msgs/TickOutput output
 strand_msgs/TickTiming timing
 strand_msgs/BaseCommand base_command
+float64[] segment_axes
 ";
 
-/// The base command (`TickOutput::base_command`) is written after the timing, last: a log from
-/// before it ends there, and reads back with an invalid (absent) base command, which is what its
-/// controller had. Replays compare it with the rest of the output ([`encode_output`]).
+/// The base command (`TickOutput::base_command`) is written after the timing, then the external
+/// axes of this tick's input segments (`Segment::axes`, two numbers each, in order: a `Segment`
+/// record leaves them out so that logs from before them keep their layout). A log from before
+/// either ends earlier and reads back with an invalid (absent) base command and zero axes, which is
+/// what its controller had. Replays compare the base command with the rest of the output
+/// ([`encode_output`]).
 impl CdrType for Tick {
     fn ros_type() -> String {
         "strand_msgs/Tick".to_string()
@@ -383,12 +387,30 @@ impl CdrType for Tick {
         self.output.write(w);
         self.timing.write(w);
         self.output.base_command.write(w);
+        let segments = self.input.segments();
+        w.len(segments.len() * ipc::MAX_EXTERNAL_AXES);
+        for s in segments {
+            for a in s.axes {
+                w.f64(a);
+            }
+        }
     }
     fn read(r: &mut CdrReader) -> Result<Self, CdrError> {
         let mut v = Tick { input: TickInput::read(r)?, output: TickOutput::read(r)?, timing: TickTiming::read(r)? };
-        // More than the alignment padding a writer may add: the base command follows.
+        // More than the alignment padding a writer may add: the base command follows, then the axes.
         if r.remaining() > 3 {
             v.output.base_command = ipc::BaseCommand::read(r)?;
+        }
+        if r.remaining() > 3 {
+            let n = v.input.segment_count as usize;
+            if r.len(n * ipc::MAX_EXTERNAL_AXES)? != n * ipc::MAX_EXTERNAL_AXES {
+                return Err(CdrError::Truncated { at: r.position(), what: "segment_axes (two per segment)" });
+            }
+            for k in 0..n {
+                for a in 0..ipc::MAX_EXTERNAL_AXES {
+                    v.input.segments[k].axes[a] = r.f64()?;
+                }
+            }
         }
         Ok(v)
     }

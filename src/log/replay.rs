@@ -7,7 +7,6 @@ use super::cdr::{CdrType, CdrWriter, Scalar};
 use super::messages::encode_output;
 use super::reader::{LogFile, ReadError};
 use crate::config::Config;
-use strand_core::Controller;
 
 /// The outcome of a replay.
 #[derive(Clone, Debug, PartialEq)]
@@ -69,8 +68,7 @@ pub fn verify_with(files: &[LogFile], change: impl FnOnce(&mut Config)) -> Resul
     let first = files.first().ok_or(ReplayError::Empty { file: String::new() })?;
     let mut cfg = first.config()?;
     change(&mut cfg);
-    let model = cfg.robot.build_model().map_err(|e| ReplayError::Build(e.to_string()))?;
-    let mut controller = Controller::new(&cfg.controller_settings(), model).map_err(|e| ReplayError::Build(e.to_string()))?;
+    let mut controller = cfg.robot.build_controller(&cfg.controller_settings()).map_err(|e| ReplayError::Build(e.to_string()))?;
     let (mut replayed_bytes, mut logged_bytes) = (CdrWriter::new(), CdrWriter::new());
     let mut expected = 0u64;
     for file in files {

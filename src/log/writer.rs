@@ -67,6 +67,8 @@ pub struct LogContext {
     pub rate_hz: f64,
     /// The scene channels' rates (`[view]`).
     pub view: ViewConfig,
+    /// Every joint a command carries: the arm's, then a positioner's axes.
+    pub joint_names: Vec<String>,
 }
 
 impl LogContext {
@@ -79,6 +81,12 @@ impl LogContext {
             model: model.clone(),
             rate_hz: cfg.controller.rate_hz,
             view: cfg.view.clone(),
+            joint_names: model
+                .joints()
+                .iter()
+                .chain(cfg.robot.build_positioner().ok().flatten().iter().flat_map(|p| p.model().joints().iter()))
+                .map(|j| j.name.clone())
+                .collect(),
         }
     }
 }
@@ -415,7 +423,7 @@ struct WriterThread {
 
 impl WriterThread {
     fn new(cfg: LogConfig, ctx: LogContext, first_path: PathBuf, shared: Arc<Shared>) -> Self {
-        let joint_names = ctx.model.joints().iter().map(|j| j.name.clone()).collect();
+        let joint_names = ctx.joint_names.clone();
         let clock_offset_ns = unix_now_ns() as i128 - crate::io::clock::monotonic_ns() as i128;
         WriterThread {
             cfg,

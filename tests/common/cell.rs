@@ -46,8 +46,7 @@ pub(crate) struct Cell {
 
 impl Cell {
     pub(crate) fn new(cfg: &Config, q_start: &[f64]) -> Self {
-        let model = cfg.robot.build_model().unwrap();
-        let ctl = Controller::new(&cfg.controller_settings(), model).unwrap();
+        let ctl = cfg.robot.build_controller(&cfg.controller_settings()).unwrap_or_else(|e| panic!("{e}"));
         let mut q_robot = [0.0; 8];
         q_robot[..q_start.len()].copy_from_slice(q_start);
         Cell {
@@ -81,7 +80,7 @@ impl Cell {
         let mut input = TickInput::new(self.tick, self.now_ns());
         if self.driver {
             self.state_seq += 1;
-            let dof = self.ctl.model().dof();
+            let dof = self.ctl.cell_dof();
             input.joint_state = Some(ipc::JointState {
                 seq: self.state_seq,
                 stamp_ns: self.now_ns(),

@@ -4,7 +4,7 @@ Every message is a fixed-size ``#[repr(C)]`` struct on the Rust side with no imp
 gap is a named ``_reserved`` field, always zero), so the ``ctypes.Structure`` below with the same
 fields in the same order has the same layout. iceoryx2 checks the type name, size and alignment
 when a service is opened, so each class has a ``type_name()`` staticmethod returning the exact
-string of the Rust ``#[type_name("strand.v3.…")]`` attribute; a mismatch gives ``IncompatibleTypes``
+string of the Rust ``#[type_name("strand.v4.…")]`` attribute; a mismatch gives ``IncompatibleTypes``
 instead of misread bytes. The sizes are asserted at import time (they are part of the contract and
 the Rust test ``sizes_are_stable`` pins the same numbers).
 
@@ -54,7 +54,7 @@ __all__ = [
 # --- constants -------------------------------------------------------------------------------------
 
 #: Version of the contract; part of every type name and published in every Status.
-CONTRACT_VERSION = 3
+CONTRACT_VERSION = 4
 #: Joints per message (the longest chain strand drives).
 MAX_JOINTS = 8
 #: Segments per SegmentBatch.
@@ -82,6 +82,8 @@ class SegmentFlags(enum.IntFlag):
     LAST = 8
     #: ``Segment.pressure_advance`` holds the program's pressure advance for this segment.
     PRESSURE_ADVANCE = 16
+    #: ``Segment.axes`` holds where the cell's external axes are at the segment's end.
+    AXES = 32
 
 
 class ExtruderFlags(enum.IntFlag):
@@ -118,6 +120,8 @@ class Command(enum.IntEnum):
     #: The robot's own speed scaling (fraction, 0.01 to 1), from its driver: the path runs at the
     #: feed override times it.
     ROBOT_SPEED_SCALING = 9
+    #: The next job starts ``value`` m along a moving base's plan (a resumed job).
+    PROGRESS_OFFSET = 10
 
 
 class RunState(enum.IntEnum):
@@ -222,7 +226,7 @@ class _Message(ctypes.Structure):
 
 
 class Segment(_Message):
-    """One planned motion segment, world frame W. 176 bytes."""
+    """One planned motion segment, world frame W (with a positioner: the work frame at home). 192 bytes."""
 
     _fields_ = [
         ("seq", _u64),
@@ -240,11 +244,12 @@ class Segment(_Message):
         ("source_line", _u32),
         ("_reserved", _u32),
         ("pressure_advance", _f64),
+        ("axes", _f64 * 2),
     ]
 
     @staticmethod
     def type_name() -> str:
-        return "strand.v3.Segment"
+        return "strand.v4.Segment"
 
     @classmethod
     def line(
@@ -283,7 +288,7 @@ class SegmentBatch(_Message):
 
     @staticmethod
     def type_name() -> str:
-        return "strand.v3.SegmentBatch"
+        return "strand.v4.SegmentBatch"
 
     def as_list(self) -> list[Segment]:
         """The segments in use (copies)."""
@@ -303,7 +308,7 @@ class Control(_Message):
 
     @staticmethod
     def type_name() -> str:
-        return "strand.v3.Control"
+        return "strand.v4.Control"
 
 
 class JointState(_Message):
@@ -323,7 +328,7 @@ class JointState(_Message):
 
     @staticmethod
     def type_name() -> str:
-        return "strand.v3.JointState"
+        return "strand.v4.JointState"
 
 
 class BasePose(_Message):
@@ -338,7 +343,7 @@ class BasePose(_Message):
 
     @staticmethod
     def type_name() -> str:
-        return "strand.v3.BasePose"
+        return "strand.v4.BasePose"
 
 
 class JointCommand(_Message):
@@ -359,7 +364,7 @@ class JointCommand(_Message):
 
     @staticmethod
     def type_name() -> str:
-        return "strand.v3.JointCommand"
+        return "strand.v4.JointCommand"
 
 
 class ExtruderCommand(_Message):
@@ -379,7 +384,7 @@ class ExtruderCommand(_Message):
 
     @staticmethod
     def type_name() -> str:
-        return "strand.v3.ExtruderCommand"
+        return "strand.v4.ExtruderCommand"
 
 
 class BaseCommand(_Message):
@@ -401,7 +406,7 @@ class BaseCommand(_Message):
 
     @staticmethod
     def type_name() -> str:
-        return "strand.v3.BaseCommand"
+        return "strand.v4.BaseCommand"
 
 
 class Status(_Message):
@@ -445,7 +450,7 @@ class Status(_Message):
 
     @staticmethod
     def type_name() -> str:
-        return "strand.v3.Status"
+        return "strand.v4.Status"
 
     def credit_limit(self) -> int:
         """The last segment sequence number a feeder may send now."""
@@ -483,7 +488,7 @@ class JobProgress(_Message):
 
     @staticmethod
     def type_name() -> str:
-        return "strand.v3.JobProgress"
+        return "strand.v4.JobProgress"
 
 
 # --- service names ---------------------------------------------------------------------------------
@@ -528,8 +533,8 @@ MESSAGE_TYPES = (Segment, SegmentBatch, Control, JointState, BasePose, JointComm
 
 #: Sizes from the Rust test ``sizes_are_stable`` (wire/src/lib.rs).
 EXPECTED_SIZES = {
-    Segment: 176,
-    SegmentBatch: 24 + 32 * 176,
+    Segment: 192,
+    SegmentBatch: 24 + 32 * 192,
     Control: 32,
     JointState: 24 + 5 * 64,
     BasePose: 72,
@@ -540,8 +545,8 @@ EXPECTED_SIZES = {
     JobProgress: 112,
 }
 
-assert ctypes.sizeof(Segment) == 176
-assert ctypes.sizeof(SegmentBatch) == 24 + 32 * 176
+assert ctypes.sizeof(Segment) == 192
+assert ctypes.sizeof(SegmentBatch) == 24 + 32 * 192
 assert ctypes.sizeof(Control) == 32
 assert ctypes.sizeof(JointState) == 344
 assert ctypes.sizeof(BasePose) == 72

@@ -7,7 +7,7 @@
 //! gap is a named `_reserved` field, always zero), so a Python `ctypes.Structure` or a C++ struct with
 //! the same fields in the same order has the same layout, and the bytes of a message are fully
 //! defined (the logger can store them bit for bit). Each type carries an explicit iceoryx2 type name
-//! that includes the contract version ("strand.v3.Segment"): a client built against another version
+//! that includes the contract version ("strand.v4.Segment"): a client built against another version
 //! fails to open the service with `IncompatibleTypes` instead of misreading bytes. [`CONTRACT_VERSION`]
 //! is also published in every [`Status`]. (The type names and the `ZeroCopySend` marker come from
 //! iceoryx2's two building-block crates of derive macro and trait, not from iceoryx2 itself.)
@@ -53,7 +53,7 @@ macro_rules! wire_enum {
 }
 
 /// Version of this contract. Bumped on any change of layout or meaning; part of every type name.
-pub const CONTRACT_VERSION: u32 = 3;
+pub const CONTRACT_VERSION: u32 = 4;
 /// Joints per message (the longest chain strand drives).
 pub const MAX_JOINTS: usize = 8;
 /// Segments per [`SegmentBatch`].
@@ -87,11 +87,22 @@ pub mod segment_flags {
     pub const LAST: u32 = 8;
     /// `Segment::pressure_advance` holds the program's pressure advance for this segment.
     pub const PRESSURE_ADVANCE: u32 = 16;
+    /// `Segment::axes` holds where the cell's external axes (a positioner under the part) are at
+    /// the segment's end; without it they keep their position over the segment.
+    pub const AXES: u32 = 32;
 }
 
-/// One planned motion segment, world frame W. 176 bytes.
+/// External axes a [`Segment`] can carry (a two-axis positioner: tilt and turn).
+pub const MAX_EXTERNAL_AXES: usize = 2;
+
+/// One planned motion segment, world frame W. 192 bytes.
+///
+/// In a cell with a positioner (external axes that carry the part), `end`, `centre`, `normal` and
+/// `orientation` are in the *work frame at home*: where they lie in W while every external axis is
+/// at 0. The part rides on the positioner; the controller moves the points with it (the path's
+/// speed is then the speed on the part: tool-tip following).
 #[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
-#[type_name("strand.v3.Segment")]
+#[type_name("strand.v4.Segment")]
 #[repr(C)]
 pub struct Segment {
     /// Sequence number; consecutive within a job (a gap is rejected).
@@ -126,11 +137,15 @@ pub struct Segment {
     /// the [`segment_flags::PRESSURE_ADVANCE`] bit is set; the controller clamps it to its config's
     /// `[extruder] max_pressure_advance`. Without the bit the config's `pressure_advance` holds.
     pub pressure_advance: f64,
+    /// Where the cell's external axes are at the segment's end (rad or m, in the order of the
+    /// cell's `[positioner]` chain; unused entries 0), valid with [`segment_flags::AXES`]. Over
+    /// the segment they move in proportion to the path travelled.
+    pub axes: [f64; MAX_EXTERNAL_AXES],
 }
 
 /// Up to [`SEGMENT_BATCH_CAPACITY`] segments in one message, in order.
 #[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
-#[type_name("strand.v3.SegmentBatch")]
+#[type_name("strand.v4.SegmentBatch")]
 #[repr(C)]
 pub struct SegmentBatch {
     /// Batch sequence number.
@@ -184,12 +199,18 @@ wire_enum! {
         /// falling behind its commands; the operator's feed override (`Status::feed_override`)
         /// stays the operator's.
         RobotSpeedScaling = 9,
+        /// The next job starts `value` metres along a moving base's plan (`[base] plan`, by the
+        /// print's progress) instead of at its start: a job resumed at segment n (strand-feed
+        /// `--resume-from`, `--resume-layer`) sends the program's path length before n, so the base
+        /// goes where the plan has it there, not back to the plan's start. Idle only; 0 to 10⁶ m;
+        /// it holds until that job ends.
+        ProgressOffset = 10,
     }
 }
 
 /// A command to the controller. 32 bytes.
 #[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
-#[type_name("strand.v3.Control")]
+#[type_name("strand.v4.Control")]
 #[repr(C)]
 pub struct Control {
     /// Sequence number.
@@ -220,7 +241,7 @@ pub mod joint_state_flags {
 
 /// Measured joint state from the robot driver, and what the driver last told the robot. 344 bytes.
 #[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
-#[type_name("strand.v3.JointState")]
+#[type_name("strand.v4.JointState")]
 #[repr(C)]
 pub struct JointState {
     /// Sequence number.
@@ -251,7 +272,7 @@ pub struct JointState {
 /// Published by the feeder about once a second on its own service (the controller does not read
 /// it); history 1, so a console that opens late gets the latest at the next publish. 112 bytes.
 #[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
-#[type_name("strand.v3.JobProgress")]
+#[type_name("strand.v4.JobProgress")]
 #[repr(C)]
 pub struct JobProgress {
     /// Sequence number.
@@ -316,7 +337,7 @@ impl JobProgress {
 
 /// A measured pose of the robot base B in W, from tracking. 72 bytes.
 #[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
-#[type_name("strand.v3.BasePose")]
+#[type_name("strand.v4.BasePose")]
 #[repr(C)]
 pub struct BasePose {
     /// Sequence number.
@@ -331,7 +352,7 @@ pub struct BasePose {
 
 /// The joint command for the robot driver. 240 bytes.
 #[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
-#[type_name("strand.v3.JointCommand")]
+#[type_name("strand.v4.JointCommand")]
 #[repr(C)]
 pub struct JointCommand {
     /// Sequence number (one per tick).
@@ -367,7 +388,7 @@ pub mod extruder_flags {
 
 /// The extruder command for the extruder driver. 64 bytes.
 #[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
-#[type_name("strand.v3.ExtruderCommand")]
+#[type_name("strand.v4.ExtruderCommand")]
 #[repr(C)]
 pub struct ExtruderCommand {
     /// Sequence number (one per tick).
@@ -396,7 +417,7 @@ pub struct ExtruderCommand {
 /// moved there within the base's velocity and acceleration limits. Published every tick while the
 /// service has a plan; `valid` is 0 without one. 152 bytes.
 #[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
-#[type_name("strand.v3.BaseCommand")]
+#[type_name("strand.v4.BaseCommand")]
 #[repr(C)]
 pub struct BaseCommand {
     /// Sequence number (one per tick).
@@ -535,7 +556,7 @@ wire_enum! {
 /// last segment sequence number they may send (credit-based back-pressure: nothing is ever dropped).
 /// 192 bytes.
 #[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
-#[type_name("strand.v3.Status")]
+#[type_name("strand.v4.Status")]
 #[repr(C)]
 pub struct Status {
     /// Sequence number (one per tick).
@@ -681,8 +702,8 @@ mod tests {
     /// The sizes are part of the contract (Python and C++ mirrors check them).
     #[test]
     fn sizes_are_stable() {
-        assert_eq!(size_of::<Segment>(), 176);
-        assert_eq!(size_of::<SegmentBatch>(), 24 + 32 * 176);
+        assert_eq!(size_of::<Segment>(), 192);
+        assert_eq!(size_of::<SegmentBatch>(), 24 + 32 * 192);
         assert_eq!(size_of::<Control>(), 32);
         assert_eq!(size_of::<JointState>(), 24 + 5 * 64);
         assert_eq!(size_of::<BasePose>(), 72);

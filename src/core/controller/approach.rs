@@ -1,13 +1,22 @@
 //! The approach: a joint-space move to a job's first point, without extruding. The inverse
 //! kinematics of the first point is solved a few iterations per tick (so no tick takes long), then
 //! one rsruckig trajectory, jerk-limited and with every joint synchronised, takes the arm there at
-//! `[controller] approach_speed_fraction` of its limits.
+//! `[controller] approach_speed_fraction` of its limits. A positioner's axes move in the same
+//! trajectory to where the job starts them, and the first point is solved where they put the work.
 
 use nalgebra::{UnitQuaternion, Vector3};
 use rsruckig::prelude::*;
 
+use strand_wire::MAX_EXTERNAL_AXES;
+
+use super::command::CellJoints;
 use crate::base::BaseState;
 use crate::kin::{Clik, JointVector, RobotModel, TcpTarget};
+use crate::positioner::Positioner;
+
+/// Where a job starts: the first point (m, W, in the work frame at home), the tool orientation
+/// there, and the positioner's axes (rad or m).
+pub(super) type FirstPoint = (Vector3<f64>, UnitQuaternion<f64>, [f64; MAX_EXTERNAL_AXES]);
 
 /// IK iterations per tick while solving for the first point, and in total before giving up.
 const IK_ITERATIONS_PER_TICK: u32 = 25;
@@ -66,8 +75,8 @@ pub(super) struct Approach {
 }
 
 impl Approach {
-    /// An approach for `model` at `speed_fraction` of its joint limits, ticking every `dt` s.
-    pub(super) fn new(model: &RobotModel, speed_fraction: f64, dt: f64, ik: Clik) -> Self {
+    /// An approach for the cell's joints at `speed_fraction` of their limits, ticking every `dt` s.
+    pub(super) fn new(model: &CellJoints, speed_fraction: f64, dt: f64, ik: Clik) -> Self {
         let n = model.dof();
         let mut input = InputParameter::new(Some(n));
         input.synchronization = Synchronization::Time;
@@ -112,20 +121,27 @@ impl Approach {
         true
     }
 
-    /// One tick towards `first_point` (W) from the command (`q`, `qd`, `qdd`) through `base`.
+    /// One tick towards `first_point` (W) from the command (`q`, `qd`, `qdd`: the cell's joints)
+    /// through `base`, the work where `positioner` puts it with the first point's axes.
+    #[allow(clippy::too_many_arguments)]
     pub(super) fn step(
         &mut self,
         model: &RobotModel,
-        first_point: (Vector3<f64>, UnitQuaternion<f64>),
+        joints: &CellJoints,
+        positioner: Option<&Positioner>,
+        first_point: FirstPoint,
         base: &BaseState,
         (q, qd, qdd): (&JointVector, &JointVector, &JointVector),
     ) -> ApproachStep {
-        let n = model.dof();
+        let (arm, n) = (joints.arm(), joints.dof());
         if let Phase::Solving { iterations } = self.phase {
             if iterations == 0 {
                 // The IK target is fixed when the approach starts; if the base moves meanwhile, the
                 // CLIK takes up the difference when the path starts.
-                let b = base.world_to_base(&TcpTarget::at_rest(first_point.0, first_point.1));
+                let mut b = base.world_to_base(&TcpTarget::at_rest(first_point.0, first_point.1));
+                if let Some(p) = positioner {
+                    b = p.carry(&b, &first_point.2, &[0.0; MAX_EXTERNAL_AXES]);
+                }
                 self.target = TcpTarget::at_rest(b.position, b.orientation);
             }
             let target = self.target;
@@ -158,7 +174,7 @@ impl Approach {
                 self.input.current_position[i] = q[i];
                 self.input.current_velocity[i] = qd[i];
                 self.input.current_acceleration[i] = qdd[i];
-                self.input.target_position[i] = self.q_first[i];
+                self.input.target_position[i] = if i < arm { self.q_first[i] } else { first_point.2[i - arm] };
                 self.input.target_velocity[i] = 0.0;
                 self.input.target_acceleration[i] = 0.0;
             }

@@ -16,6 +16,11 @@
 //! move); otherwise it is where the tool is. If the robot is not at the first point, Start first moves
 //! it there in joint space with rsruckig (jerk-limited, all joints synchronised), without extruding.
 //!
+//! A cell with a positioner (external axes that carry the part) has its axes after the arm's in
+//! every joint array; the job is in the work frame at home, the path runs along it (its speed is
+//! the speed over the part), its segments say where the axes are, and the CLIK follows the target
+//! where the axes carry it (`positioner.rs`).
+//!
 //! The final command stage enforces every joint's position, velocity and acceleration limits on
 //! every command, counts each clamp, and never lets a non-finite number out: a NaN anywhere is a
 //! fault, and the arm brakes from its last good command.
@@ -33,15 +38,17 @@ use super::base_setpoint::BaseSetpoint;
 use super::extrude::Extruder;
 use super::following::FollowingWatch;
 use super::kin::{Clik, ClikStep, JointVector, MAX_JOINTS, PathVelocity, RobotModel, TcpTarget};
-use super::path::{Motion, PathEngine, PathSample, SegmentError, SegmentFlags, SegmentKind};
+use super::path::{AxisLimits, Motion, PathEngine, PathSample, SegmentError, SegmentFlags, SegmentKind};
+use super::positioner::{Positioner, PositionerError};
+use strand_wire::MAX_EXTERNAL_AXES;
 
 mod approach;
 mod command;
 mod intake;
 mod tick;
 
-use approach::{Approach, ApproachStep};
-use command::JointCommandStage;
+use approach::{Approach, ApproachStep, FirstPoint};
+use command::{CellJoints, JointCommandStage};
 use intake::Intake;
 pub use tick::{
     ControllerConfig, ControllerError, ControllerSettings, CycleCounters, Event, MAX_BASE_POSES_PER_TICK, MAX_CONTROLS_PER_TICK,
@@ -51,6 +58,10 @@ pub use tick::{
 /// The controller. See the module documentation.
 pub struct Controller {
     model: RobotModel,
+    /// The cell's positioner, if it has one.
+    positioner: Option<Positioner>,
+    /// The joints a command carries: the arm's, then the positioner's.
+    joints: CellJoints,
     cfg: ControllerConfig,
     dt: f64,
     dt_ns: u64,
@@ -61,7 +72,7 @@ pub struct Controller {
     /// The joint-space move to a job's first point.
     approach: Approach,
     /// First point of the job (W) and its orientation.
-    first_point: Option<(Vector3<f64>, UnitQuaternion<f64>)>,
+    first_point: Option<FirstPoint>,
 
     state: RunState,
     fault: FaultCode,
@@ -114,6 +125,9 @@ pub struct Controller {
     base_progress: f64,
     /// The length of this job's leading travel (m; 0 without one): where its progress starts.
     base_lead_in: f64,
+    /// Where along the base's plan the next (or this) job starts (m): `Command::ProgressOffset`,
+    /// sent for a resumed job; 0 again when that job ends.
+    base_offset: f64,
 }
 
 impl Controller {
@@ -126,8 +140,11 @@ impl Controller {
         let engine = PathEngine::new(&settings.path, dt, Vector3::zeros(), UnitQuaternion::identity())?;
         let extruder = Extruder::new(&settings.extruder, dt).map_err(ControllerError::Extruder)?;
         let clik = Clik::new(settings.clik)?;
-        let approach = Approach::new(&model, settings.controller.approach_speed_fraction, dt, clik.clone());
+        let joints = CellJoints::new(&model, None);
+        let approach = Approach::new(&joints, settings.controller.approach_speed_fraction, dt, clik.clone());
         Ok(Controller {
+            positioner: None,
+            joints,
             cfg: settings.controller.clone(),
             dt,
             dt_ns: (dt * 1e9).round() as u64,
@@ -138,6 +155,7 @@ impl Controller {
             base_setpoint: BaseSetpoint::new(&settings.base, dt),
             base_progress: 0.0,
             base_lead_in: 0.0,
+            base_offset: 0.0,
             approach,
             first_point: None,
             state: RunState::Idle,
@@ -174,6 +192,46 @@ impl Controller {
             ),
             model,
         })
+    }
+
+    /// The same controller in a cell with `positioner` under the part: its axes follow in every
+    /// joint array after the arm's, segments may say where they are, and the arm follows the work
+    /// they carry (module documentation). Call before the first tick.
+    pub fn with_positioner(mut self, positioner: Positioner) -> Result<Self, PositionerError> {
+        let (arm, axes) = (self.model.dof(), positioner.dof());
+        if arm + axes > MAX_JOINTS {
+            return Err(PositionerError::TooManyJoints { arm, axes, max: MAX_JOINTS });
+        }
+        let limits: [AxisLimits; MAX_EXTERNAL_AXES] = std::array::from_fn(|i| {
+            let l = positioner.model().limits(i.min(axes - 1));
+            AxisLimits { velocity: l.velocity, acceleration: l.acceleration, jerk: l.jerk }
+        });
+        self.engine.set_external_axes(&limits[..axes]);
+        self.joints = CellJoints::new(&self.model, Some(&positioner));
+        self.approach = Approach::new(&self.joints, self.cfg.approach_speed_fraction, self.dt, self.clik.clone());
+        // At home until the first joint state says where the axes are.
+        for i in 0..axes {
+            let l = positioner.model().limits(i);
+            self.command.q[arm + i] = 0f64.clamp(l.lower, l.upper);
+        }
+        self.positioner = Some(positioner);
+        Ok(self)
+    }
+
+    /// The cell's positioner, if any.
+    pub fn positioner(&self) -> Option<&Positioner> {
+        self.positioner.as_ref()
+    }
+
+    /// All the joints a command carries: the arm's and the positioner's.
+    pub fn cell_dof(&self) -> usize {
+        self.joints.dof()
+    }
+
+    /// Where the positioner's axes are commanded (rad or m; zeros without one).
+    fn axes_command(&self) -> [f64; MAX_EXTERNAL_AXES] {
+        let arm = self.joints.arm();
+        std::array::from_fn(|i| if arm + i < self.joints.dof() { self.command.q[arm + i] } else { 0.0 })
     }
 
     /// The robot.
@@ -288,7 +346,7 @@ impl Controller {
     }
 
     fn is_moving(&self) -> bool {
-        self.command.is_moving(self.model.dof())
+        self.command.is_moving(self.joints.dof())
     }
 
     fn hold_still(&mut self) {
@@ -301,13 +359,13 @@ impl Controller {
 
     fn take_joint_state(&mut self, input: &TickInput, out: &mut TickOutput) {
         let Some(js) = input.joint_state else { return };
-        let n = self.model.dof();
+        let n = self.joints.dof();
         if js.dof as usize != n {
             self.reject(None, RejectReason::WrongDof);
             out.push(Event::JointStateRejected { seq: js.seq, reason: RejectReason::WrongDof });
             return;
         }
-        let Some(q) = self.model.joint_vector(&js.position[..n]) else {
+        let Some(q) = self.joints.vector(&js.position) else {
             self.reject(None, RejectReason::NonFinite);
             out.push(Event::JointStateRejected { seq: js.seq, reason: RejectReason::NonFinite });
             return;
@@ -318,8 +376,7 @@ impl Controller {
         self.last_state_stamp = js.stamp_ns;
         self.robot_target = None;
         if js.flags & joint_state_flags::TARGET_KNOWN != 0
-            && let (Some(target), Some(velocity)) =
-                (self.model.joint_vector(&js.robot_target[..n]), self.model.joint_vector(&js.robot_target_velocity[..n]))
+            && let (Some(target), Some(velocity)) = (self.joints.vector(&js.robot_target), self.joints.vector(&js.robot_target_velocity))
         {
             self.robot_target = Some(target);
             self.robot_target_velocity = velocity;
@@ -347,7 +404,7 @@ impl Controller {
     /// tool falls behind along it for the few cycles that takes.
     fn robot_held(&mut self, target: &JointVector) {
         let velocity = self.robot_target_velocity;
-        if self.state == RunState::Approaching && self.approach.restart_from(target, &velocity, self.model.dof()) {
+        if self.state == RunState::Approaching && self.approach.restart_from(target, &velocity, self.joints.dof()) {
             self.command.q = *target;
             self.command.qd = velocity;
             self.command.qdd = JointVector::zeros();
@@ -451,15 +508,29 @@ impl Controller {
                 }
                 self.flow_override = value;
             }
+            Command::ProgressOffset => {
+                if self.state != RunState::Idle {
+                    return Err(RejectReason::NotAllowed);
+                }
+                if !(value.is_finite() && (0.0..=1e6).contains(&value)) {
+                    return Err(RejectReason::BadValue);
+                }
+                self.base_offset = value;
+                self.base_progress = value;
+            }
         }
         Ok(())
     }
 
-    /// The TCP of the current command in W (through the base estimate at `now_ns`).
+    /// The TCP of the current command in W (through the base estimate at `now_ns`), on the work
+    /// at home (where a job's points are): brought back from where the positioner's axes are.
     fn tool_world(&self, now_ns: u64) -> (Vector3<f64>, UnitQuaternion<f64>) {
         let f = self.model.forward_kinematics(&self.command.q);
-        let base = self.base.at(now_ns);
-        base.base_to_world(&f.translation.vector, &UnitQuaternion::from_rotation_matrix(&f.rotation))
+        let (mut p, mut q) = (f.translation.vector, UnitQuaternion::from_rotation_matrix(&f.rotation));
+        if let Some(positioner) = &self.positioner {
+            (p, q) = positioner.to_home(&p, &q, &self.axes_command());
+        }
+        self.base.at(now_ns).base_to_world(&p, &q)
     }
 
     fn take_segment(&mut self, w: &ipc::Segment, now_ns: u64, out: &mut TickOutput) {
@@ -475,6 +546,12 @@ impl Controller {
             return Err((RejectReason::NotReady, ""));
         }
         let mut segment = self.intake.admit(w)?;
+        if let (Some(axes), Some(positioner)) = (segment.axes, &self.positioner) {
+            let model = positioner.model();
+            if (0..positioner.dof()).any(|i| !(model.limits(i).lower..=model.limits(i).upper).contains(&axes[i])) {
+                return Err((RejectReason::OutOfBounds, "axes"));
+            }
+        }
         if self.engine.free_space() == 0 {
             return Err((RejectReason::QueueFull, ""));
         }
@@ -484,30 +561,35 @@ impl Controller {
             // goes there, and the line itself, now from there to its end, brings the tool straight
             // down on the path: a joint-space move sags between its ends, next to a bed a crash.
             // Without a leading travel the job starts where the tool is.
-            let first = if segment.kind == SegmentKind::Line && !segment.extrudes() && segment.filament == 0.0 {
-                let there = self.command.known && {
+            // The positioner's axes start where the leading travel puts them, else where they are.
+            let axes_now = self.axes_command();
+            let first: FirstPoint = if segment.kind == SegmentKind::Line && !segment.extrudes() && segment.filament == 0.0 {
+                let axes = segment.axes.unwrap_or(axes_now);
+                let there = self.command.known && axes == axes_now && {
                     let (p, q) = self.tool_world(now_ns);
                     (p - segment.end).norm() <= self.cfg.approach_position_tolerance
                         && (q * Vector3::z()).angle(&(segment.orientation * Vector3::z())) <= self.cfg.approach_orientation_tolerance
                 };
                 // Already there (a job following another at the same point): no approach at all.
                 let lift = if there { 0.0 } else { self.cfg.approach_lift };
-                (segment.end - (segment.orientation * Vector3::z()) * lift, segment.orientation)
+                (segment.end - (segment.orientation * Vector3::z()) * lift, segment.orientation, axes)
             } else if self.command.known {
-                self.tool_world(now_ns)
+                let (p, q) = self.tool_world(now_ns);
+                (p, q, axes_now)
             } else {
                 return Err((RejectReason::NotReady, ""));
             };
-            self.engine.reset_at(first.0, first.1);
+            self.engine.reset_with_axes(first.0, first.1, first.2);
             self.first_point = Some(first);
             // The base's plan counts progress from the end of the leading travel (what the
-            // approach replaced); a new job reads it from its start again.
+            // approach replaced); a new job reads it from its start again (or from
+            // `Command::ProgressOffset`: a resumed job).
             self.base_lead_in = if segment.kind == SegmentKind::Line && !segment.extrudes() && segment.filament == 0.0 {
                 (segment.end - first.0).norm()
             } else {
                 0.0
             };
-            self.base_progress = 0.0;
+            self.base_progress = self.base_offset;
             // A job may open with a standstill (a slicer's first retraction, `G10`, a `G4`): it
             // stands wherever the tool is, whatever point the program had in mind.
             if segment.kind == SegmentKind::Dwell {
@@ -533,10 +615,11 @@ impl Controller {
             self.layer = LayerCount::default();
             // Nothing queued yet: the job starts where the tool is and waits for segments.
             let (p, q) = self.tool_world(now_ns);
-            self.engine.reset_at(p, q);
-            self.first_point = Some((p, q));
-            // A new job reads the base's plan from its start again.
-            self.base_progress = 0.0;
+            let axes = self.axes_command();
+            self.engine.reset_with_axes(p, q, axes);
+            self.first_point = Some((p, q, axes));
+            // A new job reads the base's plan from its start again (or from `Command::ProgressOffset`).
+            self.base_progress = self.base_offset;
             self.base_lead_in = 0.0;
         }
         self.job_open = true;
@@ -544,9 +627,13 @@ impl Controller {
         self.last_sample = None;
         self.engine.set_hold(false);
         let (p, q) = self.tool_world(now_ns + self.dt_ns);
-        let (first_p, first_q) = self.first_point.unwrap_or((p, q));
+        let axes = self.axes_command();
+        let (first_p, first_q, first_axes) = self.first_point.unwrap_or((p, q, axes));
         let nozzle_angle = (q * Vector3::z()).angle(&(first_q * Vector3::z()));
-        if (p - first_p).norm() <= self.cfg.approach_position_tolerance && nozzle_angle <= self.cfg.approach_orientation_tolerance {
+        if (p - first_p).norm() <= self.cfg.approach_position_tolerance
+            && nozzle_angle <= self.cfg.approach_orientation_tolerance
+            && axes == first_axes
+        {
             self.enter_running();
         } else {
             self.approach.begin(&self.command.q);
@@ -574,6 +661,7 @@ impl Controller {
     fn end_job(&mut self, outcome: JobOutcome, out: &mut TickOutput) {
         self.outcome = outcome;
         self.job_open = false;
+        self.base_offset = 0.0;
         self.intake.restart_sequence();
         let last_seq = self.last_sample.map_or(0, |s| s.seq);
         out.push(Event::JobEnded { outcome, last_seq });
@@ -591,7 +679,7 @@ impl Controller {
             return self.latch_fault(FaultCode::JointStateLost, out);
         }
         if self.cfg.following_error_limit > 0.0 && self.command.known && self.last_state_ns == Some(now_ns) {
-            let n = self.model.dof();
+            let n = self.joints.dof();
             // Against what the robot was told, when its driver says: after a hold the driver's
             // answers catch up with the command, and the robot follows the answers.
             let told = self.robot_target.as_ref().unwrap_or(&self.command.q);
@@ -620,8 +708,17 @@ impl Controller {
             RunState::Stopping if self.stop_by_brake => self.brake(),
             RunState::Approaching => self.approach_step(base, out),
             RunState::Running if self.settling => {
-                let (p, q) = self.first_point.unwrap_or_else(|| self.tool_world(0));
-                let step = self.clik.step(&self.model, &self.command.q, &base.world_to_base(&TcpTarget::at_rest(p, q)), self.dt);
+                let (p, q, axes) = self.first_point.unwrap_or_else(|| {
+                    let (p, q) = self.tool_world(0);
+                    (p, q, self.axes_command())
+                });
+                let (axes, axes_velocity) = self.axes_within_limits(&axes);
+                let mut target = base.world_to_base(&TcpTarget::at_rest(p, q));
+                if let Some(positioner) = &self.positioner {
+                    target = positioner.carry(&target, &axes, &axes_velocity);
+                }
+                let mut step = self.clik.step(&self.model, &self.command.q, &target, self.dt);
+                self.place_axes(&mut step.q, &axes);
                 // On a planned base, the path also waits for the base's setpoint to be at the plan's
                 // start (a second job brings the base back there first).
                 let progress = self.base_progress;
@@ -634,8 +731,7 @@ impl Controller {
                     self.settling = false;
                 }
                 let d = &mut out.diagnostics;
-                d.tcp_target_world = p;
-                d.tcp_target_orientation = q;
+                (d.tcp_target_world, d.tcp_target_orientation) = base.base_to_world(&target.position, &target.orientation);
                 d.clik_scale = step.scale;
                 d.sigma_min = step.sigma_min;
                 self.last_clik = Some(step);
@@ -652,13 +748,25 @@ impl Controller {
                 // Only the path's own velocity slows the path: what the base's motion or the feedback
                 // costs is not cured by a slower path (slowing for it would stall the job).
                 let r_bw = base.orientation.inverse();
-                let path_b = PathVelocity { linear: r_bw * sample.velocity, angular: r_bw * sample.angular_velocity };
-                let step = self.clik.step_on_path(&self.model, &self.command.q, &base.world_to_base(&target_w), &path_b, self.dt);
+                let mut path_b = PathVelocity { linear: r_bw * sample.velocity, angular: r_bw * sample.angular_velocity };
+                let mut target_b = base.world_to_base(&target_w);
+                let (axes, axes_velocity) = self.axes_within_limits(&sample.axes);
+                if let Some(positioner) = &self.positioner {
+                    // The positioner's axes move with the path: what they add to the target's
+                    // velocity is the path's too (a slower path turns them slower). The work is
+                    // carried where the axes are commanded, limits kept: should one fall behind
+                    // the path, the nozzle still lands on the part where the path says.
+                    let path_home = TcpTarget { linear_velocity: path_b.linear, angular_velocity: path_b.angular, ..target_b };
+                    let (target, path) = positioner.carry_both(&target_b, &path_home, &axes, &axes_velocity);
+                    path_b = PathVelocity { linear: path.linear_velocity, angular: path.angular_velocity };
+                    target_b = target;
+                }
+                let mut step = self.clik.step_on_path(&self.model, &self.command.q, &target_b, &path_b, self.dt);
+                self.place_axes(&mut step.q, &axes);
                 self.speed_scale = step.path_scale;
                 let d = &mut out.diagnostics;
                 d.path_scale = step.path_scale;
-                d.tcp_target_world = sample.position;
-                d.tcp_target_orientation = sample.orientation;
+                (d.tcp_target_world, d.tcp_target_orientation) = base.base_to_world(&target_b.position, &target_b.orientation);
                 d.clik_scale = step.scale;
                 d.sigma_min = step.sigma_min;
                 d.path_speed = sample.speed;
@@ -681,7 +789,7 @@ impl Controller {
             && !self.stop_by_brake;
         let mut rate = 0.0;
         if on_path && let Some(sample) = self.last_sample {
-            self.base_progress = (sample.s - self.base_lead_in).max(0.0);
+            self.base_progress = self.base_offset + (sample.s - self.base_lead_in).max(0.0);
             rate = if sample.s > self.base_lead_in { sample.speed } else { 0.0 };
         }
         let brake = matches!(self.state, RunState::EmergencyStopping | RunState::Fault);
@@ -690,7 +798,29 @@ impl Controller {
 
     /// Joint brake ([`JointCommandStage::brake`]).
     fn brake(&self) -> JointVector {
-        self.command.brake(&self.model, self.dt)
+        self.command.brake(&self.joints, self.dt)
+    }
+
+    /// The positioner's axes this tick on their way to `wanted` (rad or m) within their limits, as
+    /// the final stage will command them ([`crate::kin::JointLimits::step`] from the command), and
+    /// their velocities (rad/s or m/s).
+    fn axes_within_limits(&self, wanted: &[f64; MAX_EXTERNAL_AXES]) -> ([f64; MAX_EXTERNAL_AXES], [f64; MAX_EXTERNAL_AXES]) {
+        let (arm, n) = (self.joints.arm(), self.joints.dof());
+        let (mut axes, mut velocity) = ([0.0; MAX_EXTERNAL_AXES], [0.0; MAX_EXTERNAL_AXES]);
+        for i in 0..n - arm {
+            let (q, qd) = (self.command.q[arm + i], self.command.qd[arm + i]);
+            let s = self.joints.limits(arm + i).step(q, qd, (wanted[i] - q) / self.dt, self.dt);
+            (axes[i], velocity[i]) = (s.position, s.velocity);
+        }
+        (axes, velocity)
+    }
+
+    /// Writes the positioner's axes (rad or m) after the arm's joints in `q`.
+    fn place_axes(&self, q: &mut JointVector, axes: &[f64; MAX_EXTERNAL_AXES]) {
+        let arm = self.joints.arm();
+        for i in arm..self.joints.dof() {
+            q[i] = axes[i - arm];
+        }
     }
 
     fn approach_step(&mut self, base: &BaseState, out: &mut TickOutput) -> JointVector {
@@ -699,7 +829,7 @@ impl Controller {
             return self.command.q;
         };
         let c = &self.command;
-        match self.approach.step(&self.model, first_point, base, (&c.q, &c.qd, &c.qdd)) {
+        match self.approach.step(&self.model, &self.joints, self.positioner.as_ref(), first_point, base, (&c.q, &c.qd, &c.qdd)) {
             ApproachStep::Hold => self.command.q,
             ApproachStep::Move(q) => q,
             ApproachStep::Failed => {
@@ -713,13 +843,13 @@ impl Controller {
     /// ([`JointCommandStage::limit`]), reports the start of a clamp, and turns a non-finite command
     /// into a fault with a brake from the last good one.
     fn final_stage(&mut self, q_des: &JointVector, out: &mut TickOutput) {
-        let n = self.model.dof();
+        let n = self.joints.dof();
         let mut q_des = *q_des;
         if !q_des.iter().take(n).all(|x| x.is_finite()) {
             self.latch_fault(FaultCode::NonFinite, out);
             q_des = self.brake();
         }
-        if let Some(joint) = self.command.limit(&self.model, self.dt, &q_des) {
+        if let Some(joint) = self.command.limit(&self.joints, self.dt, &q_des) {
             out.push(Event::Clamped { joint });
         }
     }
@@ -781,7 +911,8 @@ impl Controller {
         timeout > 0.0 && now_ns.saturating_sub(since) as f64 * 1e-9 > timeout
     }
 
-    /// The Cartesian following-error watchdog (`core::following`), after this tick's command:
+    /// The Cartesian following-error watchdog (`core::following`), after this tick's command (with
+    /// external axes: on the part):
     /// while the path runs, the commanded TCP against the path target and (with a joint state fresh
     /// this tick) the measured TCP against the recent path, both through the estimated base pose.
     /// A trip latches `TcpErrorLimit` in the same tick, so this tick's extruder command is already off.
@@ -794,12 +925,27 @@ impl Controller {
             self.following.reset();
             return;
         }
-        let measured = (self.last_state_ns == Some(input.time_ns)).then(|| {
-            let f = self.model.forward_kinematics(&self.q_measured);
-            base.base_to_world(&f.translation.vector, &UnitQuaternion::from_rotation_matrix(&f.rotation)).0
-        });
+        // With external axes, on the part (the work frame at home): the path's own target, the
+        // commanded TCP brought back by the commanded axes, the measured one by the measured
+        // axes, so a table or track that falls behind its command shows as what it does to the
+        // bead. Without, in W as the diagnostics have them.
+        let arm = self.joints.arm();
+        let on_part = |q: &JointVector| -> Vector3<f64> {
+            let f = self.model.forward_kinematics(q);
+            let (mut p, r) = (f.translation.vector, UnitQuaternion::from_rotation_matrix(&f.rotation));
+            if let Some(positioner) = &self.positioner {
+                let axes = std::array::from_fn(|i| if arm + i < self.joints.dof() { q[arm + i] } else { 0.0 });
+                p = positioner.to_home(&p, &r, &axes).0;
+            }
+            base.base_to_world(&p, &r).0
+        };
+        let measured = (self.last_state_ns == Some(input.time_ns)).then(|| on_part(&self.q_measured));
         let d = &out.diagnostics;
-        let (error, trips) = self.following.observe(input.time_ns, &d.tcp_target_world, &d.tcp_command_world, measured.as_ref());
+        let (target, commanded) = match (&self.positioner, self.last_sample) {
+            (Some(_), Some(sample)) => (sample.position, on_part(&self.command.q)),
+            _ => (d.tcp_target_world, d.tcp_command_world),
+        };
+        let (error, trips) = self.following.observe(input.time_ns, &target, &commanded, measured.as_ref());
         out.diagnostics.tcp_error = error;
         if trips {
             self.latch_fault_with(FaultCode::TcpErrorLimit, error, out);
@@ -835,7 +981,7 @@ impl Controller {
     }
 
     fn fill_outputs(&mut self, input: &TickInput, out: &mut TickOutput) {
-        let n = self.model.dof();
+        let n = self.joints.dof();
         self.out_seq += 1;
         let seq = self.out_seq;
         let jc = &mut out.joint_command;
@@ -941,6 +1087,8 @@ fn rest_sample() -> PathSample {
         dwell_filament_rate: 0.0,
         pressure_advance: None,
         motion: Motion::Idle,
+        axes: [0.0; MAX_EXTERNAL_AXES],
+        axes_velocity: [0.0; MAX_EXTERNAL_AXES],
     }
 }
 

@@ -33,7 +33,8 @@ pub struct ControllerConfig {
     /// Measured joints further than this (rad or m) from the last command → fault. 0 disables.
     pub following_error_limit: f64,
     /// Cartesian following error (m): the distance between the path target and the TCP of the
-    /// commanded joints (and, with a joint state fresh this tick, of the measured joints), in W.
+    /// commanded joints (and, with a joint state fresh this tick, of the measured joints), in W
+    /// (in a cell with external axes: on the part, each TCP brought back by its own axes).
     /// Above it for `tcp_error_time` while the path runs → `TcpErrorLimit` fault. 0 disables.
     pub tcp_error_limit: f64,
     /// How long (s) the Cartesian following error may stay above `tcp_error_limit`.

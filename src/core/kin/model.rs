@@ -390,16 +390,6 @@ impl RobotModel {
         (&self.origins[..self.n], &self.axes[..self.n], &self.kinds[..self.n], &self.tcp_offset)
     }
 
-    /// Copies a slice into a [`JointVector`]; `None` if its length is not `dof()` or a value is not finite.
-    pub(crate) fn joint_vector(&self, q: &[f64]) -> Option<JointVector> {
-        if q.len() != self.n || q.iter().any(|x| !x.is_finite()) {
-            return None;
-        }
-        let mut v = JointVector::zeros();
-        v.as_mut_slice()[..self.n].copy_from_slice(q);
-        Some(v)
-    }
-
     /// True if every joint of `q` lies within its position limits (inclusive).
     pub fn within_limits(&self, q: &JointVector) -> bool {
         self.joints.iter().enumerate().all(|(i, j)| q[i] >= j.limits.lower && q[i] <= j.limits.upper)

@@ -8,7 +8,7 @@ mod profile;
 mod segment;
 
 pub use config::{InvalidPathConfig, PathConfig, PlanningMode};
-pub use engine::{Motion, PathEngine, PathSample, PathStats, SegmentError};
+pub use engine::{AxisLimits, Motion, PathEngine, PathSample, PathStats, SegmentError};
 pub use geometry::{Geometry, PathPoint, arc_geometry};
 pub use geometry::{distance_to_arc, distance_to_segment};
 pub use segment::{InvalidSegment, MAX_ARC_SWEEP, Segment, SegmentFlags, SegmentKind};

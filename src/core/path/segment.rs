@@ -76,6 +76,11 @@ pub struct Segment {
     /// Marlin's `M900 K`, RepRapFirmware's `M572 S`); None keeps the config's. The extruder clamps it
     /// to `[extruder] max_pressure_advance`.
     pub pressure_advance: Option<f64>,
+    /// Where the cell's external axes (a positioner under the part) are at the segment's end (rad
+    /// or m, in the chain order of `[positioner]`; unused entries 0); None: they stay where they
+    /// are. Over the segment they move in proportion to the path travelled; the points are then in
+    /// the work frame at home (where they lie in W with every external axis at 0).
+    pub axes: Option<[f64; ipc::MAX_EXTERNAL_AXES]>,
 }
 
 impl Default for Segment {
@@ -94,6 +99,7 @@ impl Default for Segment {
             flags: SegmentFlags::default(),
             source_line: 0,
             pressure_advance: None,
+            axes: None,
         }
     }
 }
@@ -142,6 +148,7 @@ impl Segment {
             ("filament", self.filament.is_finite()),
             ("duration", self.duration.is_finite()),
             ("pressure_advance", self.pressure_advance.is_none_or(f64::is_finite)),
+            ("axes", self.axes.is_none_or(|a| a.iter().all(|x| x.is_finite()))),
         ] {
             if !ok {
                 return invalid(NonFinite, field, "is not finite");
@@ -193,7 +200,9 @@ impl TryFrom<&ipc::Segment> for Segment {
             return Err(InvalidSegment { reject: RejectReason::UnknownKind, field: "kind", reason: "is not a segment kind" });
         };
         let finite = |v: &[f64]| v.iter().all(|x| x.is_finite());
-        for (field, ok) in [("orientation", finite(&w.orientation)), ("pressure_advance", w.pressure_advance.is_finite())] {
+        for (field, ok) in
+            [("orientation", finite(&w.orientation)), ("pressure_advance", w.pressure_advance.is_finite()), ("axes", finite(&w.axes))]
+        {
             if !ok {
                 return Err(InvalidSegment { reject: RejectReason::NonFinite, field, reason: "is not finite" });
             }
@@ -211,9 +220,10 @@ impl TryFrom<&ipc::Segment> for Segment {
             feed: w.feed,
             filament: w.filament,
             duration: w.duration,
-            flags: SegmentFlags(w.flags & !ipc::segment_flags::PRESSURE_ADVANCE),
+            flags: SegmentFlags(w.flags & !(ipc::segment_flags::PRESSURE_ADVANCE | ipc::segment_flags::AXES)),
             source_line: w.source_line,
             pressure_advance: (w.flags & ipc::segment_flags::PRESSURE_ADVANCE != 0).then_some(w.pressure_advance),
+            axes: (w.flags & ipc::segment_flags::AXES != 0).then_some(w.axes),
         };
         segment.check()?;
         // The controller used to renormalise here: keep the bits the engine has always seen.

@@ -1,5 +1,5 @@
 //! The jobs the tools run when given none — the demo's first layers of the 35 mm box and its 200 mm
-//! truss, the benchmarks' PrusaSlicer box — built into the binaries, so `strand-demo` and
+//! truss, the turntable cell's helix cylinder, the benchmarks' PrusaSlicer box — built into the binaries, so `strand-demo` and
 //! `strand-bench` run outside the repository too.
 
 use std::path::{Path, PathBuf};
@@ -15,12 +15,16 @@ pub static FILES: &[(&str, &[u8])] = &[
     job!("tests/data/gcode/slic3r/box35.gcode"),
     job!("tests/data/gcode/truss/truss_200mm.gcode"),
     job!("tests/data/gcode/prusaslicer/box35.gcode"),
+    job!("tests/data/gcode/turntable/helix_cylinder.gcode"),
 ];
 
 /// The demo's default job for a fixed base: Slic3r's 35 mm box.
 pub const DEMO_BOX: &str = "tests/data/gcode/slic3r/box35.gcode";
 /// The demo's default job for a tracked base: the 200 mm 1D truss.
 pub const DEMO_TRUSS: &str = "tests/data/gcode/truss/truss_200mm.gcode";
+/// The demo's default job for a cell with a rotary table (`cells/kr6-turntable`): a 60 mm
+/// cylinder printed as one helix, the table turning under a nearly still arm.
+pub const DEMO_HELIX: &str = "tests/data/gcode/turntable/helix_cylinder.gcode";
 
 /// A folder under which every path of [`FILES`] exists: the working directory when it has them (the
 /// repository root), else the built-in copy written to the cache folder of

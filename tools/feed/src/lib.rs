@@ -17,7 +17,7 @@ use strand::config::Config;
 use strand_core::{Segment, SegmentFlags, SegmentKind};
 use strand_ipc as ipc;
 use strand_job::gcode::GcodeOptions;
-pub use strand_job::load::{LayeredSegments, load_segments, to_wire};
+pub use strand_job::load::{LayeredSegments, load_segments, load_segments_with, to_wire};
 
 use strand_cli::error::{Result, ToolError};
 
@@ -32,6 +32,10 @@ pub struct Job {
     pub lengths: Vec<f64>,
     /// Segments of the program left out by `--resume-from`.
     pub skipped: usize,
+    /// Where a resumed job starts along the program's path (m, past its leading travel): sent as
+    /// `Command::ProgressOffset` before Start, so a moving base's plan by progress goes on from
+    /// there (0 for a job from its start).
+    pub progress_offset: f64,
     /// Parser warnings, one line each.
     pub warnings: Vec<String>,
 }
@@ -51,10 +55,11 @@ pub fn batch(segments: &[ipc::Segment], batch_seq: u64) -> ipc::SegmentBatch {
 /// travel (numbered `n − 1`) to where segment `n` starts, so a job interrupted at `n` can go on.
 pub fn load_gcode(path: &Path, cfg: &Config, resume_from: Option<u64>) -> Result<Job> {
     let bed = cfg.bed_transform()?;
-    let (mut all, mut warnings) = load_segments(path, &bed)?;
+    let (mut all, mut warnings) = load_segments_with(path, &bed, cfg.gcode_options())?;
     warnings.extend(program_pressure_advance(all.iter().map(|(s, _)| s), cfg));
     let mut start = bed.point(&GcodeOptions::default().start);
     let mut skipped = 0;
+    let mut progress_offset = 0.0;
     if let Some(n) = resume_from {
         let Some(k) = all.iter().position(|(s, _)| s.seq >= n) else {
             return Err(ToolError::Usage(format!("--resume-from {n}: the program has only {} segments", all.len())));
@@ -71,6 +76,16 @@ pub fn load_gcode(path: &Path, cfg: &Config, resume_from: Option<u64>) -> Result
                 source_line: prev.source_line,
                 ..Segment::default()
             };
+            // The path the program ran before segment k, past its leading travel (which the
+            // controller's progress does not count): where a moving base's plan goes on from.
+            let mut at = start;
+            for (i, (s, _)) in all[..k].iter().enumerate() {
+                let leading = i == 0 && s.kind == SegmentKind::Line && !s.extrudes() && s.filament == 0.0;
+                if !leading {
+                    progress_offset += strand_job::gcode::segment_length(&at, s);
+                }
+                at = s.end;
+            }
             start = if k >= 2 { all[k - 2].0.end } else { start };
             skipped = k;
             all.drain(..k);
@@ -89,6 +104,7 @@ pub fn load_gcode(path: &Path, cfg: &Config, resume_from: Option<u64>) -> Result
         layers: all.iter().map(|(_, l)| *l).collect(),
         lengths,
         skipped,
+        progress_offset,
         warnings,
     })
 }
@@ -192,6 +208,14 @@ pub struct LayerResume {
 }
 
 impl Job {
+    /// The job opens with a leading travel (a line that moves no filament): the controller's
+    /// approach replaces it, and its progress starts at its end.
+    fn leads_with_travel(&self) -> bool {
+        self.segments
+            .first()
+            .is_some_and(|s| s.kind == ipc::SegmentKind::Line as u32 && s.flags & ipc::segment_flags::EXTRUDE == 0 && s.filament == 0.0)
+    }
+
     /// Starts the job at the first segment of layer `r.layer`: a travel up to `r.clearance` above
     /// everything printed before it (over the layer's start point), a travel straight down onto
     /// it, a prime, then the layer and the rest of the program. The controller's approach takes
@@ -255,8 +279,12 @@ impl Job {
         lengths.extend_from_slice(&self.lengths[k..]);
         let mut layers = vec![layer; lead.len()];
         layers.extend_from_slice(&self.layers[k..]);
+        // Where a moving base's plan goes on from: the path before the layer (past the leading
+        // travel), less the travel down onto its start (which the controller's progress counts).
+        let before: f64 = self.lengths[..k].iter().skip(usize::from(self.leads_with_travel())).sum();
+        let progress_offset = (self.progress_offset + before - lengths[1]).max(0.0);
         self.skipped += k;
-        Ok(Job { segments, layers, lengths, skipped: self.skipped, warnings: self.warnings })
+        Ok(Job { segments, layers, lengths, skipped: self.skipped, progress_offset, warnings: self.warnings })
     }
 }
 

@@ -166,6 +166,9 @@ pub fn stream(job: &Job, opts: &StreamOptions, interrupts: &AtomicU32, keys: Opt
                 }
                 sent += n;
                 if !started {
+                    if job.progress_offset > 0.0 {
+                        send_control_value(&mut control_seq, Command::ProgressOffset, job.progress_offset)?;
+                    }
                     send_control(&mut control_seq, Command::Start)?;
                     started = true;
                     start_sent_at = Some(Instant::now());
@@ -192,6 +195,9 @@ pub fn stream(job: &Job, opts: &StreamOptions, interrupts: &AtomicU32, keys: Opt
                         ipc::RejectReason::from_u32(status.last_reject_reason).unwrap_or_default()
                     )
                 });
+            }
+            if job.progress_offset > 0.0 {
+                send_control_value(&mut control_seq, Command::ProgressOffset, job.progress_offset)?;
             }
             send_control(&mut control_seq, Command::Start)?;
             start_sent_at = Some(Instant::now());

@@ -158,4 +158,9 @@ fn resume_starts_with_a_travel_to_where_the_segment_starts() {
     assert!(resumed.segments.windows(2).all(|w| w[1].seq == w[0].seq + 1));
     // World coordinates: the [bed] offset is applied.
     assert!((full.segments[1].end[0] - (cfg.bed.offset[0] + 0.010)).abs() < 1e-12);
+    // Where a moving base's plan goes on from: the path of segments 2 to 6 (the first is the
+    // leading travel, which the controller's progress does not count).
+    assert_eq!(full.progress_offset, 0.0);
+    let before: f64 = full.lengths[1..6].iter().sum();
+    assert!(before > 0.0 && (resumed.progress_offset - before).abs() < 1e-12, "{} against {before}", resumed.progress_offset);
 }

@@ -17,4 +17,4 @@ pub mod segfile;
 pub mod timing;
 
 pub use bed::{BedConfig, BedTransform};
-pub use load::{BaseTrajectory, JobError, LayeredSegments, load_segments, to_wire, wire_job};
+pub use load::{BaseTrajectory, JobError, LayeredSegments, load_segments, load_segments_with, to_wire, wire_job};

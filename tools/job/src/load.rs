@@ -52,7 +52,9 @@ pub fn to_wire(s: &Segment) -> ipc::Segment {
         seq: s.seq,
         stamp_ns: 0,
         kind: s.kind as u32,
-        flags: s.flags.0 | if s.pressure_advance.is_some() { ipc::segment_flags::PRESSURE_ADVANCE } else { 0 },
+        flags: s.flags.0
+            | if s.pressure_advance.is_some() { ipc::segment_flags::PRESSURE_ADVANCE } else { 0 }
+            | if s.axes.is_some() { ipc::segment_flags::AXES } else { 0 },
         end: s.end.into(),
         centre: s.centre.into(),
         normal: s.normal.into(),
@@ -64,6 +66,7 @@ pub fn to_wire(s: &Segment) -> ipc::Segment {
         source_line: s.source_line,
         _reserved: 0,
         pressure_advance: s.pressure_advance.unwrap_or(0.0),
+        axes: s.axes.unwrap_or_default(),
     }
 }
 
@@ -85,11 +88,18 @@ pub type LayeredSegments = Vec<(Segment, Option<i32>)>;
 /// program or a segment file ([`crate::segfile`], told apart by its header line, whatever the file
 /// is called); both are in bed coordinates. An error if it has no motion.
 pub fn load_segments(path: &Path, bed: &BedTransform) -> Result<(LayeredSegments, Vec<String>), JobError> {
+    load_segments_with(path, bed, GcodeOptions::default())
+}
+
+/// As [`load_segments`], a G-code program read with `options` (a cell's rotary words: the
+/// service config's `Config::gcode_options`); its dialect is still the file's, its first
+/// segment still 1.
+pub fn load_segments_with(path: &Path, bed: &BedTransform, options: GcodeOptions) -> Result<(LayeredSegments, Vec<String>), JobError> {
     let (all, warnings) = if segfile::is_segment_file(path) {
         let file = segfile::read_path(path, 1)?;
         (file.segments.iter().map(|(s, layer)| (bed.segment(s), *layer)).collect(), Vec::new())
     } else {
-        let options = GcodeOptions { first_seq: 1, ..GcodeOptions::for_path(path) };
+        let options = GcodeOptions { first_seq: 1, dialect: GcodeOptions::for_path(path).dialect, ..options };
         let mut parser = parse_file(path, options)?;
         let mut all = Vec::new();
         for item in parser.by_ref() {

@@ -32,6 +32,7 @@
 //! | `flags` | | all | any of `"extrude"`, `"travel"`, `"layer_start"`, `"last"`; default: `extrude` for a move with filament > 0, `travel` for any other move, none for a dwell |
 //! | `layer` | | all | slicer layer index (optional; otherwise counted from `layer_start` flags) |
 //! | `pressure_advance` | s | all | the program's pressure advance for this segment, ≥ 0 (optional; the controller clamps it to `[extruder] max_pressure_advance`; absent keeps the config's) |
+//! | `axes` | rad or m | all | where the cell's external axes (a positioner under the part) are at the segment's end, in the chain order of `[positioner]`: 1 or 2 finite numbers (with 1, the second axis is 0). Over a line or arc they move in proportion to the path, over a dwell they turn in place; the points are then in the work frame at home (where they lie with every external axis at 0). Optional: absent, the axes stay where they are |
 //!
 //! An orientation is accepted if its norm is within 1e-6 of 1, and normalised unless it is unit to
 //! rounding (1e-12). An arc's start
@@ -50,6 +51,7 @@ use serde::Deserialize;
 use thiserror::Error;
 
 use strand_core::{MAX_ARC_SWEEP, Segment, SegmentFlags, SegmentKind};
+use strand_wire::MAX_EXTERNAL_AXES;
 
 /// The header's `format` value.
 pub(crate) const FORMAT: &str = "strand-segments";
@@ -121,6 +123,8 @@ struct Record {
     layer: Option<i32>,
     #[serde(default)]
     pressure_advance: Option<f64>,
+    #[serde(default)]
+    axes: Option<Vec<f64>>,
 }
 
 /// The tool orientation that points the nozzle (tool z) along `nozzle` (any length > 0), reached
@@ -211,6 +215,19 @@ fn finite3(key: &str, v: Option<[f64; 3]>) -> Result<Option<Vector3<f64>>, Strin
     }
 }
 
+/// The `axes` key: 1 or [`MAX_EXTERNAL_AXES`] finite numbers (rad or m), missing entries 0.
+fn external_axes(values: &[f64]) -> Result<[f64; MAX_EXTERNAL_AXES], String> {
+    if values.is_empty() || values.len() > MAX_EXTERNAL_AXES {
+        return Err(format!("axes: {} entries, give 1 to {MAX_EXTERNAL_AXES} (one per external axis)", values.len()));
+    }
+    if let Some(bad) = values.iter().find(|v| !v.is_finite()) {
+        return Err(format!("axes: {bad} is not finite"));
+    }
+    let mut axes = [0.0; MAX_EXTERNAL_AXES];
+    axes[..values.len()].copy_from_slice(values);
+    Ok(axes)
+}
+
 fn required<T>(key: &str, kind: &str, v: Option<T>) -> Result<T, String> {
     v.ok_or_else(|| format!("{key}: required for a {kind}"))
 }
@@ -260,6 +277,7 @@ fn segment(
         return Err(format!("pressure_advance: {k} s must be finite and ≥ 0"));
     }
     s.pressure_advance = r.pressure_advance;
+    s.axes = r.axes.as_deref().map(external_axes).transpose()?;
     match kind {
         SegmentKind::Dwell => {
             absent("end", kind_name, &r.end)?;
@@ -357,7 +375,7 @@ pub fn write<W: Write>(out: W, segments: &[Segment], note: &str) -> io::Result<(
     out.flush()
 }
 
-/// [`write`] to a file; the error names it (line 0: the file as a whole).
+/// [`write()`] to a file; the error names it (line 0: the file as a whole).
 pub fn write_path(path: &Path, segments: &[Segment], note: &str) -> Result<(), SegfileError> {
     let failed = |e: std::io::Error| SegfileError { file: path.display().to_string(), line: 0, message: format!("cannot write: {e}") };
     let f = File::create(path).map_err(failed)?;
@@ -391,6 +409,10 @@ fn record(out: &mut String, s: &Segment) {
     let _ = write!(out, ",\"filament\":{:?}", s.filament);
     if let Some(k) = s.pressure_advance {
         let _ = write!(out, ",\"pressure_advance\":{k:?}");
+    }
+    if let Some(axes) = s.axes {
+        let values: Vec<String> = axes.iter().map(|a| format!("{a:?}")).collect();
+        let _ = write!(out, ",\"axes\":[{}]", values.join(","));
     }
     let flags: Vec<String> = FLAG_NAMES.iter().filter(|(f, _)| s.flags.contains(*f)).map(|(_, n)| format!("\"{n}\"")).collect();
     let _ = write!(out, ",\"flags\":[{}]}}", flags.join(","));
@@ -442,16 +464,26 @@ mod tests {
                 ..Segment::default()
             },
             Segment { seq: 4, kind: SegmentKind::Dwell, duration: 0.25, filament: -1e-3, orientation: tilt, ..Segment::default() },
+            Segment {
+                seq: 5,
+                end: Vector3::new(0.1, 0.07, 0.0),
+                feed: 0.01,
+                flags: SegmentFlags::TRAVEL,
+                orientation: tilt,
+                axes: Some([0.1 / 3.0, -std::f64::consts::PI]),
+                ..Segment::default()
+            },
+            Segment { seq: 6, kind: SegmentKind::Dwell, duration: 0.5, orientation: tilt, axes: Some([1.0, 0.0]), ..Segment::default() },
         ];
         let mut bytes = Vec::new();
         write(&mut bytes, &segments, "test").unwrap();
         let back = read(bytes.as_slice(), "mem", 1).unwrap();
         assert_eq!(back.note.as_deref(), Some("test"));
-        assert_eq!(back.segments.len(), 4);
+        assert_eq!(back.segments.len(), 6);
         for ((got, layer), want) in back.segments.iter().zip(&segments) {
             let mut want = *want;
             if want.kind == SegmentKind::Dwell {
-                want.end = segments[2].end;
+                want.end = segments[if want.seq < 5 { 2 } else { 4 }].end;
             }
             assert_eq!(got.source_line, want.seq as u32 + 1, "one line per segment after the header");
             let got = Segment { source_line: 0, ..*got };
@@ -496,6 +528,11 @@ mod tests {
                 "{\"end\":[0,0,0],\"feed\":1,\"flags\":[\"last\"]}\n{\"end\":[0,0,0],\"feed\":1}",
                 "5: flags: \"last\" on a segment that is not",
             ),
+            ("{\"end\":[0,0,0],\"feed\":1,\"axes\":[1,2,3]}", "5: axes: 3 entries, give 1 to 2"),
+            ("{\"end\":[0,0,0],\"feed\":1,\"axes\":[]}", "5: axes: 0 entries, give 1 to 2"),
+            ("{\"end\":[0,0,0],\"feed\":1,\"axes\":[1e999]}", "5: number out of range"),
+            ("{\"end\":[0,0,0],\"feed\":1,\"axes\":[\"a\"]}", "5: invalid type"),
+            ("{\"end\":[0,0,0],\"feed\":1,\"axes\":0.5}", "5: invalid type"),
         ];
         for (bad, want) in cases {
             let text = format!("{HEADER}{{\"end\":[0.01,0,0],\"feed\":1}}\n\n{{\"end\":[0.01,0.01,0],\"feed\":1}}\n{bad}\n");
@@ -509,6 +546,22 @@ mod tests {
         let e =
             parse(&format!("{HEADER}{{\"kind\":\"arc\",\"end\":[0,0,0],\"centre\":[0,0,0],\"normal\":[0,0,1],\"sweep\":1,\"feed\":1}}"));
         assert!(e.unwrap_err().to_string().contains("2: kind: an arc cannot be the first segment"));
+    }
+
+    #[test]
+    fn axes_take_one_or_two_numbers_and_absent_keeps_them() {
+        let text = format!(
+            "{HEADER}{{\"end\":[0.01,0,0],\"feed\":1,\"axes\":[0.5]}}\n{{\"kind\":\"dwell\",\"duration\":1,\"axes\":[0.5,-0.25]}}\n{{\"end\":[0.02,0,0],\"feed\":1}}\n"
+        );
+        let f = parse(&text).unwrap();
+        let axes: Vec<_> = f.segments.iter().map(|(s, _)| s.axes).collect();
+        assert_eq!(axes, [Some([0.5, 0.0]), Some([0.5, -0.25]), None]);
+        let mut bytes = Vec::new();
+        let segments: Vec<Segment> = f.segments.iter().map(|(s, _)| *s).collect();
+        write(&mut bytes, &segments, "").unwrap();
+        let text = String::from_utf8(bytes).unwrap();
+        assert!(text.contains(",\"axes\":[0.5,0.0],") && text.contains(",\"axes\":[0.5,-0.25],"), "{text}");
+        assert_eq!(text.matches("\"axes\"").count(), 2, "written only when set: {text}");
     }
 
     #[test]

@@ -46,6 +46,20 @@ impl PathTicks {
     }
 }
 
+/// Where a tick's path target is on the part (m, W, the work frame at home, where the job's points
+/// are): with a positioner, its target brought back from where the tick's commanded axes (after the
+/// `arm` joints) put the part; without one, the target itself.
+pub fn target_on_part(out: &TickOutput, positioner: Option<&strand_core::Positioner>, arm: usize) -> Vector3<f64> {
+    let target = out.diagnostics.tcp_target_world;
+    let Some(p) = positioner else {
+        return target;
+    };
+    let base = &out.diagnostics.base;
+    let in_base = base.orientation.inverse() * (target - base.position);
+    let axes = std::array::from_fn(|k| out.joint_command.position.get(arm + k).copied().unwrap_or(0.0));
+    base.position + base.orientation * p.to_home(&in_base, &UnitQuaternion::identity(), &axes).0
+}
+
 /// The TCP in W from joint positions `q` (rad or m) through the base pose the tick used.
 pub fn tcp_world(model: &RobotModel, q: &JointVector, base: &BaseState) -> Vector3<f64> {
     let tcp = model.forward_kinematics(q);

@@ -26,18 +26,20 @@ pub struct Truth {
     pub flow_actual: f64,
     /// Largest thruster command over its limit (1 = at the limit; 0 without a flyer).
     pub thrust_saturation: f64,
+    /// The nozzle tip on the part (m, W, in the work frame at home, where a job's points are):
+    /// with a positioner, brought back from where its actual axes carry the part; else `tcp`.
+    pub tcp_part: [f64; 3],
 }
 
 impl Truth {
     /// The CSV header of [`Truth::csv_row`].
-    pub const CSV_HEADER: &'static str =
-        "time_ns,tcp_x,tcp_y,tcp_z,base_x,base_y,base_z,base_theta,base_plan_x,base_plan_y,flow_cmd_m3s,flow_actual_m3s,thrust_saturation";
+    pub const CSV_HEADER: &'static str = "time_ns,tcp_x,tcp_y,tcp_z,base_x,base_y,base_z,base_theta,base_plan_x,base_plan_y,flow_cmd_m3s,flow_actual_m3s,thrust_saturation,tcp_part_x,tcp_part_y,tcp_part_z";
 
     /// One CSV row (SI units; f64 printed exactly so the reader gets the same bits).
     pub fn csv_row(&self) -> String {
         let t = self;
         format!(
-            "{},{:?},{:?},{:?},{:?},{:?},{:?},{:?},{:?},{:?},{:?},{:?},{:?}",
+            "{},{:?},{:?},{:?},{:?},{:?},{:?},{:?},{:?},{:?},{:?},{:?},{:?},{:?},{:?},{:?}",
             t.time_ns,
             t.tcp[0],
             t.tcp[1],
@@ -50,7 +52,10 @@ impl Truth {
             t.base_planned[1],
             t.flow_commanded,
             t.flow_actual,
-            t.thrust_saturation
+            t.thrust_saturation,
+            t.tcp_part[0],
+            t.tcp_part[1],
+            t.tcp_part[2]
         )
     }
 }
@@ -80,6 +85,8 @@ pub fn read_truth(path: &Path) -> Result<Vec<Truth>> {
             flow_commanded: f(10)?,
             flow_actual: f(11)?,
             thrust_saturation: f(12)?,
+            // A file from before the column: no positioner, the part is where W is.
+            tcp_part: if rec.len() > 15 { [f(13)?, f(14)?, f(15)?] } else { [f(1)?, f(2)?, f(3)?] },
         });
     }
     Ok(rows)

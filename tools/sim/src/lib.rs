@@ -3,7 +3,9 @@
 //! (`strand-sim`) wires it to the service over iceoryx2; tests drive it directly.
 //!
 //! The sim also knows the truth the controller cannot see: where the nozzle really is (the actual
-//! joints through the actual base) and how much melt really leaves it. [`Truth`] rows carry that,
+//! joints through the actual base; with a positioner, also where it is on the part the actual axes
+//! carry) and how much melt really leaves it. A positioner's axes are joints like the arm's, after
+//! them: the same dead time, lag, limits and noise. [`Truth`] rows carry that,
 //! stamped with the sim's time, so the demo can compare them with the targets in the service's log.
 //!
 //! [`demo`] is strand-demo: the service, this sim and the feeder on a bundled job, then a summary.
@@ -19,8 +21,8 @@ use nalgebra::{UnitQuaternion, Vector3};
 use rand::rngs::StdRng;
 use rand::{RngExt, SeedableRng};
 use strand::config::Config;
-use strand_core::BaseMode;
 use strand_core::kin::{JointVector, RobotModel};
+use strand_core::{BaseMode, Carries, Positioner};
 use strand_ipc as ipc;
 
 use config::SimConfig;
@@ -64,6 +66,8 @@ impl Gaussian {
 /// The plant. See the module documentation.
 pub struct Sim {
     model: RobotModel,
+    /// The cell's positioner, if any: its axes follow the arm's joints.
+    positioner: Option<Positioner>,
     /// Mount pose of a fixed base (and the flyer's z, roll and pitch).
     mount_position: Vector3<f64>,
     mount_orientation: UnitQuaternion<f64>,
@@ -88,10 +92,22 @@ impl Sim {
     /// joint positions, its clock starting at `start_ns`.
     pub fn new(cfg: &Config, sim: &SimConfig, start: &[f64], start_ns: u64) -> Result<Self> {
         let model = cfg.robot.build_model()?;
+        let positioner = cfg.robot.build_positioner()?;
         let n = model.dof();
-        if start.len() != n {
-            return Err(ToolError::Usage(format!("start posture has {} values; the robot has {n} joints", start.len())));
+        let axes = positioner.as_ref().map_or(0, Positioner::dof);
+        if start.len() != n && start.len() != n + axes {
+            return Err(ToolError::Usage(format!(
+                "start posture has {} values; the robot has {n} joints{}",
+                start.len(),
+                if axes > 0 { format!(" and its positioner {axes} axes") } else { String::new() }
+            )));
         }
+        let mut limits: Vec<(f64, f64)> = (0..n).map(|i| (model.limits(i).lower, model.limits(i).upper)).collect();
+        if let Some(p) = &positioner {
+            limits.extend((0..axes).map(|i| (p.model().limits(i).lower, p.model().limits(i).upper)));
+        }
+        // A positioner not in the start posture starts at home.
+        let start: Vec<f64> = (0..n + axes).map(|i| start.get(i).copied().unwrap_or(0.0)).collect();
         let dt = 1.0 / cfg.controller.rate_hz;
         let dt_ns = (1e9 / cfg.controller.rate_hz).round() as u64;
         let mount = cfg.base.mount();
@@ -110,7 +126,8 @@ impl Sim {
             _ => None,
         };
         let mut sim = Sim {
-            joints: JointPlant::new(&model, &sim.joints, dt, start),
+            joints: JointPlant::new(&limits, &sim.joints, dt, &start),
+            positioner,
             extruder: ExtruderPlant::new(&sim.extruder, cfg.extruder.filament_diameter, dt),
             tracker: tracked.then(|| Tracker::new(&sim.tracker, start_ns)),
             flyer,
@@ -171,14 +188,37 @@ impl Sim {
 
     /// The nozzle in the robot's base frame (m): FK of the actual joints.
     fn tcp_in_base(&self) -> Vector3<f64> {
-        let q = JointVector::from_fn(|i, _| if i < self.joints.dof() { self.joints.position[i] } else { 0.0 });
+        let q = JointVector::from_fn(|i, _| if i < self.model.dof() { self.joints.position[i] } else { 0.0 });
         self.model.forward_kinematics(&q).translation.vector
     }
 
-    /// The nozzle in W (m): through the actual base.
+    /// The positioner's actual axes (rad or m; zeros without one).
+    fn axes(&self) -> [f64; ipc::MAX_EXTERNAL_AXES] {
+        let (arm, n) = (self.model.dof(), self.joints.dof());
+        std::array::from_fn(|i| if arm + i < n { self.joints.position[arm + i] } else { 0.0 })
+    }
+
+    /// The nozzle on the part (m, W, in the work frame at home): where the actual axes carry the
+    /// part, brought back; the nozzle in W without a positioner.
+    fn tcp_on_part(&self) -> Vector3<f64> {
+        let Some(positioner) = &self.positioner else {
+            return self.actual_tcp();
+        };
+        let (home, _) = positioner.to_home(&self.tcp_in_base(), &UnitQuaternion::identity(), &self.axes());
+        let (p, r) = self.base_pose();
+        p + r * home
+    }
+
+    /// The nozzle in W (m): through the actual base (and where a track has carried it).
     fn actual_tcp(&self) -> Vector3<f64> {
         let (p, r) = self.base_pose();
-        p + r * self.tcp_in_base()
+        let in_base = match &self.positioner {
+            Some(track) if track.carries() == Carries::Robot => {
+                track.to_home(&self.tcp_in_base(), &UnitQuaternion::identity(), &self.axes()).0
+            }
+            _ => self.tcp_in_base(),
+        };
+        p + r * in_base
     }
 
     fn heading(&self) -> f64 {
@@ -190,9 +230,11 @@ impl Sim {
         let tcp = self.actual_tcp();
         let t = (self.time_ns - self.start_ns) as f64 * 1e-9;
         let planned = self.flyer.as_ref().map_or([p.x, p.y, self.mount_yaw], |f| f.planned(t));
+        let on_part = self.tcp_on_part();
         Truth {
             time_ns: self.time_ns,
             tcp: [tcp.x, tcp.y, tcp.z],
+            tcp_part: [on_part.x, on_part.y, on_part.z],
             base: [p.x, p.y, p.z],
             base_theta: self.heading(),
             base_planned: [planned[0], planned[1], p.z],

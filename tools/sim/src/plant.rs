@@ -3,7 +3,6 @@
 
 use std::collections::VecDeque;
 
-use strand_core::kin::RobotModel;
 use strand_ipc::MAX_JOINTS;
 
 use super::Gaussian;
@@ -31,17 +30,16 @@ pub(crate) struct JointPlant {
 }
 
 impl JointPlant {
-    /// A plant at rest at `start` (clamped to the limits), cycling every `dt` seconds.
-    pub(crate) fn new(model: &RobotModel, cfg: &JointPlantConfig, dt: f64, start: &[f64]) -> Self {
-        let dof = model.dof();
+    /// A plant of the joints whose position limits are `limits` ((lower, upper), rad or m: the
+    /// arm's, then a positioner's), at rest at `start` (clamped to the limits), cycling every `dt` s.
+    pub(crate) fn new(limits: &[(f64, f64)], cfg: &JointPlantConfig, dt: f64, start: &[f64]) -> Self {
+        let dof = limits.len().min(MAX_JOINTS);
         let mut lower = [0.0; MAX_JOINTS];
         let mut upper = [0.0; MAX_JOINTS];
         let mut position = [0.0; MAX_JOINTS];
         for i in 0..dof {
-            let l = model.limits(i);
-            lower[i] = l.lower;
-            upper[i] = l.upper;
-            position[i] = start[i].clamp(l.lower, l.upper);
+            (lower[i], upper[i]) = limits[i];
+            position[i] = start[i].clamp(lower[i], upper[i]);
         }
         let gain = if cfg.lag > 0.0 { 1.0 - (-dt / cfg.lag).exp() } else { 1.0 };
         JointPlant {

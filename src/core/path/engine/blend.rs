@@ -8,11 +8,15 @@ impl PathEngine {
     /// Turns one segment into pieces, blending the corner from the previous line in lookahead mode.
     pub(super) fn append(&mut self, s: &Segment) {
         let start_point = self.tail.map_or(self.current_end_point(), |t| t.end);
+        let axes_start = self.tail.map_or(self.pieces_end_axes(), |t| t.axes_end);
+        let axes_end = s.axes.unwrap_or(axes_start);
         match s.kind {
             SegmentKind::Dwell => {
                 self.tail = None;
                 let piece = self.new_piece(Geometry::Hold { point: start_point }, 0.0, s, 0.0);
-                let index = self.pieces.push(Piece { hold_time: s.duration, hold_filament: s.filament, ..piece });
+                let axes_delta = difference(&axes_end, &axes_start);
+                let hold_time = s.duration.max(self.axes_step_time(&axes_delta));
+                let index = self.pieces.push(Piece { hold_time, hold_filament: s.filament, axes: axes_start, axes_delta, ..piece });
                 self.path_end = self.pieces.get(index).end();
                 self.mark_dirty(index);
             }
@@ -72,6 +76,19 @@ impl PathEngine {
                 let q_trim = slerp_along(&q_start, &s.orientation, trimmed_start / length);
                 piece.orientation = q_trim;
                 piece.rotation = geom::quaternion_log(&(s.orientation * q_trim.inverse()));
+                piece.axes = lerp(&axes_start, &axes_end, trimmed_start / length);
+                piece.axes_delta = difference(&axes_end, &piece.axes);
+                piece.geometric_cap = piece.geometric_cap.min(self.axes_speed_cap(&piece));
+                // The axes' rate along the path before this piece: the blend's just appended, else the
+                // tail segment's (its last piece may be trimmed to nothing), else none (from rest).
+                let before = if trimmed_start > 0.0 {
+                    Some(piece_rate(self.pieces.get(self.pieces.tail - 1)))
+                } else {
+                    self.tail.map(|t| tail_rate(&t))
+                };
+                if let Some(before) = before {
+                    piece.junction_cap = piece.junction_cap.min(self.axes_junction_cap(&before, &piece_rate(&piece)));
+                }
                 let index = self.pieces.push(piece);
                 self.path_end = self.pieces.get(self.pieces.tail - 1).end();
                 self.mark_dirty(self.tail.map_or(index, |t| t.piece).min(index));
@@ -85,6 +102,8 @@ impl PathEngine {
                     trimmed_start,
                     q_start,
                     q_end: s.orientation,
+                    axes_start,
+                    axes_end,
                     zeta,
                     zeta_previous,
                     feed: s.feed,
@@ -116,6 +135,63 @@ impl PathEngine {
         } else {
             self.sample_geometry().position
         }
+    }
+
+    /// The external axes at the end of the last piece (where the next one starts).
+    pub(super) fn pieces_end_axes(&self) -> [f64; MAX_EXTERNAL_AXES] {
+        if self.pieces.len() > 0 {
+            let p = self.pieces.get(self.pieces.tail - 1);
+            sum(&p.axes, &p.axes_delta)
+        } else {
+            self.last_piece_axes
+        }
+    }
+
+    /// The speed cap (m/s) that keeps every external axis within [`AXIS_SPEED_SHARE`] of its
+    /// speed limit over a line or arc piece (its rate along the path times the path speed).
+    pub(super) fn axes_speed_cap(&self, p: &Piece) -> f64 {
+        let mut cap = f64::INFINITY;
+        if p.length > 0.0 {
+            for (limit, delta) in self.axis_limits[..self.axis_count].iter().zip(p.axes_delta) {
+                let rate = delta.abs() / p.length;
+                if rate > 0.0 {
+                    cap = cap.min(AXIS_SPEED_SHARE * limit.velocity / rate);
+                }
+            }
+        }
+        cap
+    }
+
+    /// The speed cap (m/s) at a junction where the external axes' rates along the path (rad/m or
+    /// m/m) change from `before` to `after`: each axis's speed steps by at most half a tick of its
+    /// acceleration (the other half is the path's own slowing or speeding up in that tick).
+    pub(super) fn axes_junction_cap(&self, before: &[f64; MAX_EXTERNAL_AXES], after: &[f64; MAX_EXTERNAL_AXES]) -> f64 {
+        let mut cap = f64::INFINITY;
+        for (i, limit) in self.axis_limits[..self.axis_count].iter().enumerate() {
+            let step = (after[i] - before[i]).abs();
+            if step > 0.0 {
+                cap = cap.min(0.5 * limit.acceleration * self.dt / step);
+            }
+        }
+        cap
+    }
+
+    /// How long (s) the smooth step 10τ³ − 15τ⁴ + 6τ⁵ must take to move the external axes by
+    /// `delta` within their limits: its peak speed is 1.875·Δ/T, its peak acceleration
+    /// 10/√3·Δ/T², its peak jerk 60·Δ/T³.
+    pub(super) fn axes_step_time(&self, delta: &[f64; MAX_EXTERNAL_AXES]) -> f64 {
+        let mut t: f64 = 0.0;
+        for (limit, d) in self.axis_limits[..self.axis_count].iter().zip(delta) {
+            let d = d.abs();
+            if d > 0.0 {
+                t = t
+                    .max(1.875 * d / limit.velocity)
+                    .max((10.0 / 3f64.sqrt() * d / limit.acceleration).sqrt())
+                    .max(libm::cbrt(60.0 * d / limit.jerk));
+            }
+        }
+        // Whole ticks, at least one: the step is sampled at the tick rate.
+        if t > 0.0 { (t / self.dt).ceil().max(1.0) * self.dt } else { 0.0 }
     }
 
     pub(super) fn pieces_end_orientation(&self) -> UnitQuaternion<f64> {
@@ -187,6 +263,9 @@ impl PathEngine {
             let rotation_fraction =
                 if tail.length - tail.trimmed_start > 0.0 { tp.length / (tail.length - tail.trimmed_start) } else { 1.0 };
             tp.rotation *= rotation_fraction;
+            for d in tp.axes_delta.iter_mut() {
+                *d *= rotation_fraction;
+            }
         }
         let q_in = slerp_along(&tail.q_start, &tail.q_end, (tail.length - d) / tail.length);
         let q_out = slerp_along(&tail.q_end, &s.orientation, d / length);
@@ -202,8 +281,38 @@ impl PathEngine {
         arc.first = (tail_piece.seq, tail_piece.source_line, tail_piece.flags, tail_piece.flow);
         arc.orientation = q_in;
         arc.rotation = geom::quaternion_log(&(q_out * q_in.inverse()));
+        let s_axes = s.axes.unwrap_or(tail.axes_end);
+        arc.axes = lerp(&tail.axes_start, &tail.axes_end, (tail.length - d) / tail.length);
+        arc.axes_delta = difference(&lerp(&tail.axes_end, &s_axes, d / length), &arc.axes);
+        arc.geometric_cap = arc.geometric_cap.min(self.axes_speed_cap(&arc));
+        arc.junction_cap = arc.junction_cap.min(self.axes_junction_cap(&tail_rate(tail), &piece_rate(&arc)));
         self.pieces.push(arc);
         self.stats.blends += 1;
         Some(d)
     }
+}
+
+/// a − b, entry by entry.
+pub(super) fn difference(a: &[f64; MAX_EXTERNAL_AXES], b: &[f64; MAX_EXTERNAL_AXES]) -> [f64; MAX_EXTERNAL_AXES] {
+    std::array::from_fn(|i| a[i] - b[i])
+}
+
+/// a + b, entry by entry.
+pub(super) fn sum(a: &[f64; MAX_EXTERNAL_AXES], b: &[f64; MAX_EXTERNAL_AXES]) -> [f64; MAX_EXTERNAL_AXES] {
+    std::array::from_fn(|i| a[i] + b[i])
+}
+
+/// a + (b − a)·u, entry by entry.
+pub(super) fn lerp(a: &[f64; MAX_EXTERNAL_AXES], b: &[f64; MAX_EXTERNAL_AXES], u: f64) -> [f64; MAX_EXTERNAL_AXES] {
+    std::array::from_fn(|i| a[i] + (b[i] - a[i]) * u)
+}
+
+/// The external axes' rates along a line or arc piece (rad/m or m/m; 0 on a hold).
+pub(super) fn piece_rate(p: &Piece) -> [f64; MAX_EXTERNAL_AXES] {
+    std::array::from_fn(|i| if p.length > 0.0 { p.axes_delta[i] / p.length } else { 0.0 })
+}
+
+/// The external axes' rates along the tail segment as a whole (rad/m or m/m).
+fn tail_rate(t: &Tail) -> [f64; MAX_EXTERNAL_AXES] {
+    std::array::from_fn(|i| if t.length > 0.0 { (t.axes_end[i] - t.axes_start[i]) / t.length } else { 0.0 })
 }

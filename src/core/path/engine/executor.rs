@@ -51,6 +51,10 @@ impl PathEngine {
                 let p = self.pieces.get(self.pieces.head);
                 geom::quaternion_exp(&p.rotation) * p.orientation
             };
+            self.last_piece_axes = {
+                let p = self.pieces.get(self.pieces.head);
+                super::blend::sum(&p.axes, &p.axes_delta)
+            };
             self.pieces.pop();
         }
     }
@@ -636,7 +640,10 @@ impl PathEngine {
         } else {
             (self.last_piece_orientation, Vector3::zeros(), 0, 0, SegmentFlags::default(), 0.0, 0.0)
         };
+        let (axes, axes_velocity) = self.sample_axes();
         PathSample {
+            axes,
+            axes_velocity,
             position: point.position,
             velocity: point.tangent * state.v,
             acceleration: point.curvature * (state.v * state.v) + point.tangent * state.a,
@@ -654,6 +661,34 @@ impl PathEngine {
             pressure_advance,
             motion: self.motion,
         }
+    }
+}
+
+impl PathEngine {
+    /// The external axes and their velocities at the cursor (see [`PathSample::axes`]).
+    fn sample_axes(&self) -> ([f64; MAX_EXTERNAL_AXES], [f64; MAX_EXTERNAL_AXES]) {
+        if self.pieces.len() == 0 || self.piece >= self.pieces.tail {
+            return (self.last_piece_axes, [0.0; MAX_EXTERNAL_AXES]);
+        }
+        let p = self.pieces.get(self.piece);
+        let (fraction, rate) = if p.is_hold() {
+            match self.plan {
+                // The smooth step over the dwell: S(τ) = 10τ³ − 15τ⁴ + 6τ⁵, S'(τ) = 30τ²(1 − τ)².
+                Plan::Dwell { duration } if duration > 0.0 && self.motion == Motion::Dwelling => {
+                    let tau = (self.plan_time / duration).clamp(0.0, 1.0);
+                    let step = tau * tau * tau * (10.0 + tau * (-15.0 + 6.0 * tau));
+                    let slope = 30.0 * tau * tau * (1.0 - tau) * (1.0 - tau) / duration;
+                    (step, slope)
+                }
+                // Done (its time spent) or not begun.
+                _ => (if p.hold_time == 0.0 { 1.0 } else { 0.0 }, 0.0),
+            }
+        } else if p.length > 0.0 {
+            (((self.state.s - p.start) / p.length).clamp(0.0, 1.0), self.state.v / p.length)
+        } else {
+            (0.0, 0.0)
+        };
+        (std::array::from_fn(|i| p.axes[i] + p.axes_delta[i] * fraction), std::array::from_fn(|i| p.axes_delta[i] * rate))
     }
 }
 

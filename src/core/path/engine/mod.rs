@@ -59,6 +59,7 @@ use super::geometry::{Geometry, PathPoint, arc_geometry};
 use super::profile::{Braking, PathState, Trapezoid};
 use super::segment::{Segment, SegmentFlags, SegmentKind};
 use crate::kin::geom;
+use strand_wire::MAX_EXTERNAL_AXES;
 
 mod blend;
 mod executor;
@@ -80,6 +81,21 @@ const STRAIGHT: f64 = 1e-7;
 /// sub-micrometre moves, where speeds are a few 1e-5 m/s, that is a 1e-4 share of v²/r (a
 /// property run found 3.000367 m/s² against 3). Planning at 0.999 keeps the limit itself.
 const CENTRIPETAL_PLANNING_SHARE: f64 = 0.999;
+
+/// The speed and acceleration limits of one external axis ([`PathEngine::set_external_axes`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct AxisLimits {
+    /// Largest speed (rad/s or m/s).
+    pub velocity: f64,
+    /// Largest acceleration (rad/s² or m/s²).
+    pub acceleration: f64,
+    /// Largest jerk (rad/s³ or m/s³).
+    pub jerk: f64,
+}
+
+/// The share of an external axis's speed limit a segment is planned at (the rest is the CLIK's and
+/// the final stage's room).
+const AXIS_SPEED_SHARE: f64 = 0.95;
 
 /// Why a segment was refused. Nothing already accepted is affected. `seq` is the segment's sequence
 /// number, `field` the wire field at fault.
@@ -148,6 +164,11 @@ pub struct PathSample {
     pub pressure_advance: Option<f64>,
     /// What the engine is doing.
     pub motion: Motion,
+    /// Where the cell's external axes are (rad or m; entries past the cell's count 0): they
+    /// move in proportion to the path over a segment, and smoothly over a dwell that turns them.
+    pub axes: [f64; MAX_EXTERNAL_AXES],
+    /// Their velocities (rad/s or m/s).
+    pub axes_velocity: [f64; MAX_EXTERNAL_AXES],
 }
 
 /// Counters for status and tests.
@@ -200,6 +221,10 @@ struct Piece {
     /// Orientation at the start and the rotation vector over the piece (rad, W).
     orientation: UnitQuaternion<f64>,
     rotation: Vector3<f64>,
+    /// The external axes at the start (rad or m) and their travel over the piece (over a line or
+    /// arc in proportion to the path, over a hold's dwell along a smooth step).
+    axes: [f64; MAX_EXTERNAL_AXES],
+    axes_delta: [f64; MAX_EXTERNAL_AXES],
     seq: u64,
     source_line: u32,
     flags: SegmentFlags,
@@ -236,6 +261,8 @@ impl Piece {
             hold_filament: 0.0,
             orientation,
             rotation: Vector3::zeros(),
+            axes: [0.0; MAX_EXTERNAL_AXES],
+            axes_delta: [0.0; MAX_EXTERNAL_AXES],
             seq: 0,
             source_line: 0,
             flags: SegmentFlags::default(),
@@ -274,6 +301,9 @@ struct Tail {
     /// Orientation at the segment's start and end.
     q_start: UnitQuaternion<f64>,
     q_end: UnitQuaternion<f64>,
+    /// The external axes at the segment's start and end.
+    axes_start: [f64; MAX_EXTERNAL_AXES],
+    axes_end: [f64; MAX_EXTERNAL_AXES],
     /// 004's ζ = v²/(a·L) of this and the previous segment.
     zeta: f64,
     zeta_previous: f64,
@@ -310,6 +340,8 @@ pub struct PathEngine {
     /// End point and orientation of the last accepted segment (the next one starts there).
     last_end: Vector3<f64>,
     last_orientation: UnitQuaternion<f64>,
+    /// The external axes at the end of the last accepted segment.
+    last_axes: [f64; MAX_EXTERNAL_AXES],
     last_seq: Option<u64>,
     /// Path position of the end of the last piece (m).
     path_end: f64,
@@ -335,6 +367,11 @@ pub struct PathEngine {
     /// Where the tool rests when no piece is left (m, W), and its orientation.
     rest_point: Vector3<f64>,
     last_piece_orientation: UnitQuaternion<f64>,
+    /// Where the external axes rest when no piece is left.
+    last_piece_axes: [f64; MAX_EXTERNAL_AXES],
+    /// The external axes' limits ([`set_external_axes`](Self::set_external_axes)); `axis_count` used.
+    axis_limits: [AxisLimits; MAX_EXTERNAL_AXES],
+    axis_count: usize,
     /// Seconds of dwell completed since the start (the dwell clock); with `state.s` it is the
     /// engine's progress measure (see [`progress`](Self::progress)).
     dwell_done: f64,
@@ -378,6 +415,7 @@ impl PathEngine {
             tail: None,
             last_end: start,
             last_orientation: orientation,
+            last_axes: [0.0; MAX_EXTERNAL_AXES],
             last_seq: None,
             path_end: 0.0,
             dirty_from: None,
@@ -394,6 +432,9 @@ impl PathEngine {
             plan_origin: 0.0,
             rest_point: start,
             last_piece_orientation: orientation,
+            last_piece_axes: [0.0; MAX_EXTERNAL_AXES],
+            axis_limits: [AxisLimits { velocity: f64::INFINITY, acceleration: f64::INFINITY, jerk: f64::INFINITY }; MAX_EXTERNAL_AXES],
+            axis_count: 0,
             dwell_done: 0.0,
             motion: Motion::Idle,
             otg: Ruckig::new(None, dt),
@@ -411,6 +452,13 @@ impl PathEngine {
     /// fresh engine would, keeping the counters, the feed override and all memory. The path position
     /// starts again at 0. For a new job, or after a controlled stop has brought the tool to rest.
     pub(crate) fn reset_at(&mut self, start: Vector3<f64>, orientation: UnitQuaternion<f64>) {
+        self.reset_with_axes(start, orientation, self.last_piece_axes);
+    }
+
+    /// As [`reset_at`](Self::reset_at), with the external axes at `axes` (rad or m).
+    pub(crate) fn reset_with_axes(&mut self, start: Vector3<f64>, orientation: UnitQuaternion<f64>, axes: [f64; MAX_EXTERNAL_AXES]) {
+        self.last_axes = axes;
+        self.last_piece_axes = axes;
         self.intake.head = self.intake.tail;
         self.pieces.head = self.pieces.tail;
         self.piece = self.pieces.tail;
@@ -453,6 +501,27 @@ impl PathEngine {
     /// The tool's current path state: speed (m/s) and acceleration (m/s²) along the path.
     pub(crate) fn path_motion(&self) -> (f64, f64) {
         (self.state.v, self.state.a)
+    }
+
+    /// The external axes' limits ([`set_external_axes`](Self::set_external_axes)).
+    pub fn external_axes(&self) -> &[AxisLimits] {
+        &self.axis_limits[..self.axis_count]
+    }
+
+    /// The cell's external axes that ride along the path (a positioner under the part), with
+    /// their limits, in chain order; at most [`MAX_EXTERNAL_AXES`] (more are ignored). A segment
+    /// then may carry where they are at its end (`Segment::axes`): over a line or arc they move
+    /// in proportion to the path, whose speed is capped so that no axis passes
+    /// [`AXIS_SPEED_SHARE`] of its speed limit, and the speed at a junction where an axis's rate
+    /// along the path changes is capped so that its speed steps by no more than one tick of its
+    /// acceleration; over a dwell (or a move of the axes alone) they follow a smooth step
+    /// (10τ³ − 15τ⁴ + 6τ⁵), the dwell lengthened until that step keeps every axis within its speed,
+    /// acceleration and jerk limits. Without axes (the default) a segment that carries them is
+    /// refused. The path's own acceleration and jerk are not lowered for them: in a cell whose job
+    /// turns an axis fast per metre of path, `[path] max_acceleration` must leave the axes room.
+    pub fn set_external_axes(&mut self, limits: &[AxisLimits]) {
+        self.axis_count = limits.len().min(MAX_EXTERNAL_AXES);
+        self.axis_limits[..self.axis_count].copy_from_slice(&limits[..self.axis_count]);
     }
 
     /// The configuration in use.
@@ -538,6 +607,17 @@ impl PathEngine {
         if self.intake.room() == 0 {
             return Err(SegmentError::QueueFull { seq });
         }
+        let turns_axes = segment.axes.is_some_and(|a| a != self.last_axes);
+        if segment.kind == SegmentKind::Line && (segment.end - self.last_end).norm() < MIN_LENGTH && turns_axes {
+            // A move of the external axes only (the tool stays on its point of the part, which
+            // turns): a dwell, as long as the axes need (see `append`).
+            let dwell = Segment { kind: SegmentKind::Dwell, end: self.last_end, duration: 0.0, filament: 0.0, ..*segment };
+            self.intake.push(dwell);
+            self.last_axes = segment.axes.unwrap_or(self.last_axes);
+            self.last_seq = Some(seq);
+            self.stats.accepted += 1;
+            return Ok(());
+        }
         if segment.kind == SegmentKind::Line && (segment.end - self.last_end).norm() < MIN_LENGTH {
             self.stats.skipped_zero_length += 1;
             self.stats.last_skipped = Some(seq);
@@ -555,6 +635,7 @@ impl PathEngine {
         self.intake.push(*segment);
         self.last_end = segment.end;
         self.last_orientation = segment.orientation;
+        self.last_axes = segment.axes.unwrap_or(self.last_axes);
         self.last_seq = Some(seq);
         self.stats.accepted += 1;
         Ok(())
@@ -569,6 +650,14 @@ impl PathEngine {
             return bad("seq", "must increase");
         }
         s.check().map_err(|e| SegmentError::Invalid { seq, field: e.field, reason: e.reason })?;
+        if let Some(axes) = s.axes {
+            if self.axis_count == 0 {
+                return bad("axes", "moves external axes, and this cell has none");
+            }
+            if axes[self.axis_count..].iter().any(|a| *a != 0.0) {
+                return bad("axes", "moves more external axes than this cell has");
+            }
+        }
         // What depends on the segments before it.
         if s.kind == SegmentKind::Dwell && (s.end - self.last_end).norm() > 1e-9 {
             return bad("end", "a dwell must stay at the previous end point");

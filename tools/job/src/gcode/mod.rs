@@ -3,10 +3,11 @@
 //!
 //! This module owns the reading of G-code text: the lexical rules (words, numbers, comments,
 //! checksums: `lexer`), the words of a line (`block`), the modal state of the program (units,
-//! distance modes, plane, feed, extruder mode, `G92` offsets: `interpreter`, with the code tables in
-//! `codes`), the conversion of each motion block into a line, arc (`arc`) or dwell segment, the
-//! firmware commands slicers add to RS274/NGC (`dialect`), slicer comments (`tags`), and the
-//! bookkeeping of what it did and did not act on (`report`). It does not place the part on the bed (segments are in the
+//! distance modes, plane, feed, extruder mode, `G92` offsets, rotary axes and tool direction:
+//! `interpreter`, with the code tables in `codes` and the rotary words' mapping in `rotary`), the
+//! conversion of each motion block into a line, arc (`arc`) or dwell segment, the firmware commands
+//! slicers add to RS274/NGC (`dialect`), slicer comments (`tags`), and the bookkeeping of what it
+//! did and did not act on (`report`). It does not place the part on the bed (segments are in the
 //! G-code frame, converted to metres; a later stage maps them) and it is not used by the real-time
 //! loop: it allocates, but never in proportion to the length of the program. It reads one line at a
 //! time from any [`BufRead`] (lines longer than [`MAX_LINE_BYTES`] are an error), holds back only the
@@ -19,8 +20,10 @@
 //! [`Parser`] is an iterator of [`GcodeSegment`]s: the [`Segment`] (units m, m/s, s, rad), its 1-based
 //! source line and the slicer [`Tags`] in force there (feature, layer, top of layer, layer height).
 //! Sequence numbers count up from [`GcodeOptions::first_seq`]; every segment carries
-//! [`GcodeOptions::orientation`]; the last segment of a program that ends normally (end of input,
-//! `M2`/`M30` or a closing `%`) carries [`SegmentFlags::LAST`] (so the parser holds one segment back).
+//! [`GcodeOptions::orientation`] (under the tool-direction dialect, the orientation of the modal
+//! tool direction; with mapped rotary words, the external axes too: see "5-axis programs"); the
+//! last segment of a program that ends normally (end of input, `M2`/`M30` or a closing `%`)
+//! carries [`SegmentFlags::LAST`] (so the parser holds one segment back).
 //! A segment is `EXTRUDE` when it moves in XYZ and pushes filament (ΔE > 0), `TRAVEL` when it moves
 //! without doing so (a retract-while-moving "wipe" is a travel with negative filament), and
 //! `LAYER_START` when it is the first line or arc after a layer marker.
@@ -35,7 +38,9 @@
 //!   in/min → m/s); `F0` or a negative `F` is an error wherever it appears.
 //! - **`G4` units.** `S` is seconds. `P` is milliseconds in the firmware dialect (Marlin,
 //!   RepRapFirmware, Klipper) and seconds in RS274/NGC (LinuxCNC): see [`Dialect`]. `P` and `S`
-//!   together are an error.
+//!   together are an error. Every dwell the parser makes (`G4`, E-only and rotary-only moves,
+//!   firmware retraction) lasts less than 10⁶ s, and more than 0 s if it moves filament, as
+//!   `Segment::check` requires: a longer one is an error at the word that asked for it.
 //! - **E-only moves** (a slicer's retraction `G1 E-1 F2100` and its undo `G1 E1`) become a `Dwell` of
 //!   duration |ΔE|/F with `filament` = ΔE: the extruder moves while the arm stands still. A move with
 //!   neither XYZ nor E change is skipped and counted as a note of kind `"zero-length"`. A motion line
@@ -61,7 +66,8 @@
 //!   parameters, `[...]` expressions and `O` words.
 //! - **Positions** (targets, `G92` offsets, arc centres and radii, extruder positions) beyond
 //!   ±[`MAX_COORDINATE`] (10⁶ m) after unit conversion are errors, so no later sum or square can
-//!   overflow; every value a segment carries is finite.
+//!   overflow; so are rotary words and rotary positions beyond ±[`MAX_ANGLE`] (10⁶ degrees); every
+//!   value a segment carries is finite.
 //! - **Not acted on.** Codes and words the parser does not act on (temperatures, fans, spindle,
 //!   homing `G28`, tool length `G43`, work offsets, `S`, ...) are reported once per kind with the
 //!   first line and a count ([`Parser::warnings`]). The words on a line with an M-code (or `G28`,
@@ -73,8 +79,45 @@
 //!   whatever follows an M-code the parser cannot read (`M486 AShape-Box`) are the M-code's business.
 //!   `M2`/`M30` and a closing `%` end the program and any code after them is counted, not executed.
 //!   Codes that would change the path if ignored (cutter compensation, splines, canned cycles,
-//!   scaling, `G52`/`G53`, inverse-time feed, rotary axes A B C U V W, ...) are errors.
+//!   scaling, `G52`/`G53`, inverse-time feed, axes U V W, and rotary axes A B C unless
+//!   [`GcodeOptions::rotary`] maps them, ...) are errors.
 //! - **Errors** stop the iterator with a [`GcodeError`] naming file, line and 1-based column.
+//!
+//! # 5-axis programs
+//!
+//! Two options read the words of a 5-axis program (a positioner under the part, a tilting tool),
+//! following RS274/NGC (LinuxCNC) where it has a rule:
+//!
+//! - **Rotary words** ([`GcodeOptions::rotary`], built from a robot file's `[positioner]` by
+//!   [`GcodeOptions::with_rotary`]). Entry k maps a word `A`, `B` or `C` onto external axis k:
+//!   [`Segment::axes`]`[k]` = sign · (degrees · π/180) + offset (rad). The words are degrees in
+//!   every unit mode (`G20` changes lengths, not angles), absolute under `G90` and increments under
+//!   `G91` (the distance mode of XYZ); `G92 C10` makes the axis read 10° where it stands (its
+//!   program offset, as for XYZ; `G92` without words zeroes them with XYZ and E; `G92.1`/`G92.2`
+//!   clear the offsets); homing (`G28`) is not acted on for them either. A program starts with every
+//!   axis at 0°. A `G0`/`G1`/`G2`/`G3` with a mapped word moves its axis; from the first such move
+//!   on, every segment (dwells included) carries [`Segment::axes`] with every mapped axis where it
+//!   then is (entries without a word 0), so no segment relies on the controller remembering them;
+//!   before it, segments carry None. Over a line or arc the axes turn in proportion to the path, and
+//!   the feed is the tool's speed over the part (tool-centre-point following): the XYZ points are
+//!   in the work frame at home. A move that turns rotary axes and leaves XYZ where they are (its XYZ
+//!   displacement below 10⁻¹² m, the parser's zero length) is a `Dwell` carrying the axes and the
+//!   move's filament (an `E` on it extrudes in place), of duration = the largest turn (degrees) /
+//!   the feed read as degrees per minute, as RS274/NGC reads `F` on a rotary-only move: the number
+//!   of the last `F` as written (whatever the length unit), after `M220`; for `G0`, the last `F`
+//!   given on a `G0` line, else 90°/s. The duration must lie in (0, 10⁶) s, else an error at the
+//!   `F` word (or the motion word if `F` is on an earlier line). Each such dwell counts under the
+//!   note `"rotary only"`. A word that is not mapped stays an error (`unsupported axis word A`).
+//! - **Tool direction** ([`GcodeOptions::tool_direction`]). On a line whose motion is `G0`/`G1`
+//!   (never `G2`/`G3`, whose `I J K` are the arc's centre), `I J K` give the tool axis as a
+//!   vector from the nozzle tip up the nozzle, away from the part (the usual CAM output; any
+//!   length > 0; a missing word is 0; all zero is an error at the first of them). Lines and arcs
+//!   from then on carry the orientation that turns [`GcodeOptions::orientation`] (whose z axis is
+//!   the nozzle, pointing at the part) by the shortest rotation that points its z axis along
+//!   −(I, J, K) (straight against it, within 10⁻⁹ rad: π about that orientation's own x axis). The
+//!   direction is modal. Dwells keep the orientation of the last line or arc (the tool turns over
+//!   moves, never in place): a direction given on a line that does not move in XYZ waits for the
+//!   next line or arc, with a note `"tool direction without a move"`.
 //!
 //! # Dialects
 //!
@@ -127,6 +170,7 @@ mod interpreter;
 mod lexer;
 mod limits;
 mod report;
+mod rotary;
 
 pub use arc::segment_length;
 use block::Block;
@@ -134,6 +178,7 @@ pub use dialect::{Dialect, FirmwareRetraction};
 use interpreter::Interpreter;
 use lexer::{Fault, Lexed, Lexer, LineKind};
 pub use limits::{ProgramLimits, ProgramSetting};
+pub use rotary::{MAX_ANGLE, ROTARY_AXES, RotaryAxis, RotaryConfigError, check_mapping};
 
 /// Metres per millimetre.
 const MM: f64 = 1e-3;
@@ -173,6 +218,17 @@ pub struct GcodeOptions {
     /// What `G10`/`G11` do until the program sets its own (`M207`, `SET_RETRACTION`). Default:
     /// Marlin's, 3 mm at 45 mm/s, recovered at 8 mm/s.
     pub firmware_retraction: FirmwareRetraction,
+    /// Rotary words (`A`, `B`, `C`; degrees in the program) mapped onto the external axes: entry k
+    /// drives [`Segment::axes`]`[k]` (rad): sign · word · π/180 + offset (see "5-axis programs" in
+    /// the module documentation). Default: none, and `A`/`B`/`C` words are errors. Build it from a
+    /// robot file's `[positioner]` with [`GcodeOptions::with_rotary`].
+    pub rotary: [Option<RotaryAxis>; ROTARY_AXES],
+    /// The tool-direction dialect: on `G0`/`G1` the words `I J K` give the tool axis (a
+    /// dimensionless vector of any length > 0, pointing from the nozzle tip up the nozzle, away
+    /// from the part), and later segments carry the orientation that points the nozzle along
+    /// −(I, J, K) (see "5-axis programs" in the module documentation). Default: false (`I J K` on a
+    /// line are words not acted on).
+    pub tool_direction: bool,
 }
 
 impl Default for GcodeOptions {
@@ -185,6 +241,8 @@ impl Default for GcodeOptions {
             first_seq: 0,
             dialect: Dialect::Firmware,
             firmware_retraction: FirmwareRetraction::default(),
+            rotary: [None; ROTARY_AXES],
+            tool_direction: false,
         }
     }
 }
@@ -194,6 +252,14 @@ impl GcodeOptions {
     /// what every caller that reads a file should start from.
     pub fn for_path(path: &Path) -> Self {
         GcodeOptions { dialect: Dialect::from_path(path), ..GcodeOptions::default() }
+    }
+
+    /// These options with the rotary words of a robot file's `[positioner]` section: `words[k]`
+    /// (`"A"`, `"B"` or `"C"`) drives external axis k with `signs[k]` (±1) and `offsets[k]` (rad);
+    /// empty `signs` / `offsets` mean +1 / 0 for every word. The error names the key at fault
+    /// (`gcode_words`, `gcode_signs`, `gcode_offsets`): see [`RotaryAxis::from_config`].
+    pub fn with_rotary<S: AsRef<str>>(self, words: &[S], signs: &[f64], offsets: &[f64]) -> Result<Self, RotaryConfigError> {
+        Ok(GcodeOptions { rotary: RotaryAxis::from_config(words, signs, offsets)?, ..self })
     }
 }
 
@@ -262,7 +328,7 @@ impl fmt::Display for Warning {
 pub struct GcodeError {
     /// File name as given to the parser.
     pub file: String,
-    /// Line (1-based; 0 if the file could not be opened).
+    /// Line (1-based; 0 if the file could not be opened or the options are invalid).
     pub line: usize,
     /// Column of the offending word (1-based characters; 0 for the whole line).
     pub column: usize,
@@ -295,8 +361,18 @@ pub struct Parser<R: BufRead> {
 
 impl<R: BufRead> Parser<R> {
     /// A parser reading `reader`; `file_name` is used in errors only.
+    /// Options whose rotary mapping is invalid (see [`check_mapping`]) make the first item an
+    /// error (line 0, column 0) and end the iteration.
     pub fn new(reader: R, file_name: &str, options: GcodeOptions) -> Self {
+        let invalid = check_mapping(&options.rotary).err().map(|e| GcodeError {
+            file: file_name.to_string(),
+            line: 0,
+            column: 0,
+            message: format!("invalid options: rotary words: {e}"),
+        });
         Parser {
+            input_done: invalid.is_some(),
+            error: invalid,
             reader,
             file: file_name.to_string(),
             line_bytes: Vec::with_capacity(256),
@@ -304,8 +380,6 @@ impl<R: BufRead> Parser<R> {
             block: Block::default(),
             interpreter: Interpreter::new(options),
             queue: VecDeque::with_capacity(4),
-            error: None,
-            input_done: false,
             lines_read: 0,
         }
     }

@@ -20,7 +20,7 @@ pub(crate) const MAX_DELAY_TICKS: u64 = 200;
 /// The shift (ticks) that best lays the nozzle's actual path (`truth`) onto the ticks' path targets,
 /// in mean distance over the ticks on the path; 0 if nothing ran.
 pub fn path_delay_ticks(ticks: &[Executing], truth: &[Truth], dt_ns: u64) -> u64 {
-    let by_time: std::collections::HashMap<u64, Vector3<f64>> = truth.iter().map(|t| (t.time_ns, Vector3::from(t.tcp))).collect();
+    let by_time: std::collections::HashMap<u64, Vector3<f64>> = truth.iter().map(|t| (t.time_ns, Vector3::from(t.tcp_part))).collect();
     let running: Vec<&Executing> = ticks.iter().filter(|e| e.busy && e.seq > 0).collect();
     if running.is_empty() {
         return 0;
@@ -179,9 +179,11 @@ pub fn calibrate_log(log: &strand::log::reader::LogFile, truth: &[Truth]) -> str
     let dt = dt_ns as f64 * 1e-9;
     let flow_at: std::collections::HashMap<u64, f64> = truth.iter().map(|t| (t.time_ns, t.flow_actual)).collect();
     let (mut commanded, mut flow, mut ticks) = (Vec::new(), Vec::new(), Vec::new());
+    let positioner = cfg.robot.build_positioner()?;
+    let arm = cfg.robot.build_model()?.dof();
     for tick in log.ticks() {
         let tick = tick?;
-        ticks.push(Executing::of(tick.input.time_ns, &tick.output));
+        ticks.push(Executing::on_part(tick.input.time_ns, &tick.output, positioner.as_ref(), arm));
         if let Some(f) = flow_at.get(&(tick.input.time_ns + dt_ns)) {
             commanded.push(tick.output.extruder.filament_rate);
             flow.push(*f);

@@ -197,13 +197,19 @@ impl Bead {
 impl Executing {
     /// What the tick at `time_ns` (ns) that gave `out` was doing.
     pub fn of(time_ns: u64, out: &strand_core::TickOutput) -> Executing {
+        Executing::on_part(time_ns, out, None, 0)
+    }
+
+    /// As [`of`](Self::of) in a cell with a positioner (after the `arm` joints): the target on the
+    /// part ([`crate::target_on_part`]), where the sim's `tcp_part` is.
+    pub fn on_part(time_ns: u64, out: &strand_core::TickOutput, positioner: Option<&strand_core::Positioner>, arm: usize) -> Executing {
         let s = &out.status;
         Executing {
             time_ns,
             seq: s.executing_seq,
             line: s.executing_line,
             busy: !matches!(RunState::from_u32(s.run_state), Some(RunState::Idle | RunState::Fault) | None),
-            target: out.diagnostics.tcp_target_world,
+            target: crate::target_on_part(out, positioner, arm),
         }
     }
 }
@@ -236,12 +242,14 @@ pub fn measure(log: &LogFile, truth: &[Truth], features: Option<&Features>) -> R
     let cfg = log.config()?;
     let dt_ns = (1e9 / cfg.controller.rate_hz).round() as u64;
     let filament_area = std::f64::consts::PI * 0.25 * cfg.extruder.filament_diameter.powi(2);
+    let positioner = cfg.robot.build_positioner()?;
+    let arm = cfg.robot.build_model()?.dof();
     let mut segments = Vec::new();
     let mut ticks = Vec::new();
     for tick in log.ticks() {
         let tick = tick?;
         segments.extend(tick.input.segments().iter().copied());
-        ticks.push(Executing::of(tick.input.time_ns, &tick.output));
+        ticks.push(Executing::on_part(tick.input.time_ns, &tick.output, positioner.as_ref(), arm));
     }
     Ok(measure_run(&ticks, &asked_sections(&segments, filament_area), truth, dt_ns, features))
 }
@@ -280,7 +288,7 @@ pub fn measure_run(ticks: &[Executing], sections: &HashMap<u64, f64>, truth: &[T
     let mut previous: Option<Vector3<f64>> = None;
     let mut last_at = Vector3::zeros();
     for row in truth {
-        let at = Vector3::from(row.tcp);
+        let at = Vector3::from(row.tcp_part);
         let moved = previous.map_or(Vector3::zeros(), |p| at - p);
         previous = Some(at);
         let direction = match (target_at(row.time_ns), target_at(row.time_ns.wrapping_sub(dt_ns))) {

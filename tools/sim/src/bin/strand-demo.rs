@@ -32,7 +32,8 @@ struct Cli {
     /// A robot by name: iiwa7, iiwa14, vp6242, meca500, irb140 (uses <robot>.toml, found as above).
     #[arg(long, conflicts_with = "config")]
     robot: Option<String>,
-    /// The job (default: the first layers of the 35 mm box; the 200 mm 1D truss for a tracked base).
+    /// The job (default: the first layers of the 35 mm box; the 200 mm 1D truss for a tracked base;
+    /// the helix cylinder for a cell with a rotary table).
     #[arg(long)]
     gcode: Option<PathBuf>,
     /// Stream only the first N layers (default: 3 of the box; all of any other job).

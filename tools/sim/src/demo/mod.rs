@@ -49,7 +49,8 @@ pub struct DemoOptions {
     pub config: Option<PathBuf>,
     /// A robot by name (uses `<robot>.toml`).
     pub robot: Option<String>,
-    /// The job (None: the first layers of the 35 mm box; the 200 mm truss for a tracked base).
+    /// The job (None: the first layers of the 35 mm box; the 200 mm truss for a tracked base; the
+    /// helix cylinder for a cell with a rotary table).
     pub gcode: Option<PathBuf>,
     /// Stream only the first N layers (None: 3 of the box; all of any other job).
     pub layers: Option<usize>,
@@ -88,6 +89,7 @@ pub fn run(opts: &DemoOptions) -> Result<bool> {
     let (gcode, layers) = match &opts.gcode {
         Some(g) => (locate::explicit(g)?, opts.layers),
         None if tracked => (jobs::root()?.join(jobs::DEMO_TRUSS), opts.layers),
+        None if cfg.robot.positioner.is_some() => (jobs::root()?.join(jobs::DEMO_HELIX), opts.layers),
         None => (jobs::root()?.join(jobs::DEMO_BOX), Some(opts.layers.unwrap_or(3))),
     };
     let sim_cfg = match &opts.sim {

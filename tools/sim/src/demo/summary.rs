@@ -16,7 +16,7 @@ use strand_ipc::RunState;
 use strand_cli::error::Result;
 use strand_replay::bead::{Bead, Features};
 use strand_replay::truth::Truth;
-use strand_replay::{PathTicks, tcp_world};
+use strand_replay::{PathTicks, target_on_part, tcp_world};
 
 /// Distribution of a quantity (SI unit as named by the field that holds it).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
@@ -134,6 +134,9 @@ pub fn report(log: &Path, truth: &[Truth], flyer: bool, features: Option<&Featur
     let cfg = file.config()?;
     let dt_ns = (1e9 / cfg.controller.rate_hz).round() as u64;
     let model = cfg.robot.build_model()?;
+    // With a positioner the error is measured on the part: the target brought back from where the
+    // commanded axes put it, the nozzle from where the actual axes put the part (`tcp_part`).
+    let positioner = cfg.robot.build_positioner()?;
     let by_time: HashMap<u64, &Truth> = truth.iter().map(|t| (t.time_ns, t)).collect();
     let mut r = Report {
         robot: model.name().to_string(),
@@ -161,7 +164,7 @@ pub fn report(log: &Path, truth: &[Truth], flyer: bool, features: Option<&Featur
             started = Some(i.time_ns);
         }
         if let Some(js) = &i.joint_state
-            && js.dof as usize == dof
+            && js.dof as usize >= dof
         {
             let mut q = strand_core::kin::JointVector::zeros();
             q.as_mut_slice()[..dof].copy_from_slice(&js.position[..dof]);
@@ -170,9 +173,16 @@ pub fn report(log: &Path, truth: &[Truth], flyer: bool, features: Option<&Featur
         r.tcp_error_fault_m = r.tcp_error_fault_m.max(o.diagnostics.tcp_error);
         if path_ticks.update(o) {
             let target = o.diagnostics.tcp_target_world;
+            let target_on_part = target_on_part(o, positioner.as_ref(), dof);
             match by_time.get(&(i.time_ns + dt_ns)) {
                 Some(t) => {
-                    errors.push(((t.tcp[0] - target.x).powi(2) + (t.tcp[1] - target.y).powi(2) + (t.tcp[2] - target.z).powi(2)).sqrt());
+                    let on_part = t.tcp_part;
+                    errors.push(
+                        ((on_part[0] - target_on_part.x).powi(2)
+                            + (on_part[1] - target_on_part.y).powi(2)
+                            + (on_part[2] - target_on_part.z).powi(2))
+                        .sqrt(),
+                    );
                     if flyer {
                         reach.push((t.tcp[0] - t.base[0]).hypot(t.tcp[1] - t.base[1]));
                     }

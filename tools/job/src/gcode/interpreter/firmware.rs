@@ -57,6 +57,7 @@ impl Interpreter {
         });
         if filament != 0.0 {
             let duration = self.limit_extruder_time(filament, filament.abs() / speed, line);
+            let duration = super::dwell_time(duration, filament, column, kind)?;
             let segment = Segment { kind: SegmentKind::Dwell, end: self.machine.position, filament, duration, ..Segment::default() };
             self.emit(segment, line, out);
         }

@@ -1,12 +1,13 @@
 //! Interpretation: the modal state of a program and the segments each block makes. The state and
 //! every method on it live here and in the children (`arcs`: `G2`/`G3`; `firmware`: the firmware
-//! codes and Klipper's extended commands; `tags`: the slicers' annotations). The pure helpers they
-//! use — arc geometry, the code tables, the dialects' and the limits' state, the lexer — sit beside
-//! this module and never name the interpreter, so the parser's modules import each other without a
-//! loop.
+//! codes and Klipper's extended commands; `rotary`: the rotary words `A`/`B`/`C` and the tool
+//! direction; `tags`: the slicers' annotations). The pure helpers they use — arc geometry, the code
+//! tables, the dialects' and the limits' state, the rotary mapping, the lexer — sit beside this
+//! module and never name the interpreter, so the parser's modules import each other without a loop.
 
 mod arcs;
 mod firmware;
+mod rotary;
 mod tags;
 
 use std::collections::VecDeque;
@@ -20,6 +21,7 @@ use super::dialect::{Dialect, Firmware};
 use super::lexer::{Fault, Value, bounded, code_name, finite};
 use super::report::Reports;
 use super::{GcodeOptions, GcodeSegment, MM, Tags, ZERO_LENGTH};
+use rotary::{Rotary, Tool, ZERO_ANGLE};
 use strand_core::{Segment, SegmentFlags, SegmentKind};
 
 /// Modes that persist from line to line.
@@ -35,6 +37,10 @@ pub(super) struct Modal {
     pub(super) feed: Option<f64>,
     /// Last feed given on a line executing G0 (m/s).
     pub(super) rapid_feed: Option<f64>,
+    /// The numbers of those two `F` words as written: a move of the rotary axes alone reads them
+    /// as degrees per minute.
+    pub(super) feed_number: Option<f64>,
+    pub(super) rapid_feed_number: Option<f64>,
 }
 
 /// Where the machine is.
@@ -103,6 +109,9 @@ pub(super) struct Interpreter {
     /// M2, M30 or a closing `%` was executed.
     pub(super) ended: bool,
     pub(super) groups_seen: Vec<(Group, usize)>,
+    /// The rotary axes (`A`/`B`/`C`) and the tool direction.
+    rotary: Rotary,
+    tool: Tool,
 }
 
 pub(super) const AXES: [u8; 3] = [b'X', b'Y', b'Z'];
@@ -122,6 +131,8 @@ impl Interpreter {
                 absolute_arc_centres: false,
                 feed: None,
                 rapid_feed: None,
+                feed_number: None,
+                rapid_feed_number: None,
             },
             machine: Machine { position: options.start, offset: Vector3::zeros(), extruder: 0.0 },
             tags: Tags::default(),
@@ -134,6 +145,8 @@ impl Interpreter {
             started: false,
             ended: false,
             groups_seen: Vec::with_capacity(8),
+            rotary: Rotary::default(),
+            tool: Tool { current: options.orientation, target: options.orientation },
             options,
         }
     }
@@ -174,6 +187,7 @@ impl Interpreter {
             return Err(fault);
         }
         let motion = self.motion_to_execute(&plan, block)?;
+        self.read_tool_direction(block, &plan, motion, line)?;
         if !plan.f_is_parameter {
             self.set_feed(block, motion.map(|(m, _)| m), &plan)?;
         }
@@ -195,6 +209,7 @@ impl Interpreter {
         }
         if plan.reset_offsets {
             self.machine.offset = Vector3::zeros();
+            self.rotary.offset = Default::default();
         }
         if let Some((code, column)) = plan.firmware {
             self.firmware_m(code, block, line, column)?;
@@ -316,17 +331,21 @@ impl Interpreter {
         }
         if let Some((motion, column)) = plan.motion {
             self.modal.motion = Some(motion);
-            if plan.set_position.is_some() && block.has_any(&POSITION_WORDS) {
+            if plan.set_position.is_some() && self.has_position_word(block) {
                 return Err(Fault::new(column, format!("{} and G92 on one line both use the axis words", motion.name())));
             }
-            return Ok(moves(block, motion).then_some((motion, column)));
+            return Ok(self.moves(block, motion).then_some((motion, column)));
         }
         let axes_taken = plan.set_position.is_some() || plan.owner.is_some_and(|(_, takes_axes)| takes_axes);
-        let wants_motion = block.has_any(&POSITION_WORDS) || (self.modal.motion.is_some_and(Motion::is_arc) && block.has_any(&ARC_WORDS));
+        let wants_motion = self.has_position_word(block) || (self.modal.motion.is_some_and(Motion::is_arc) && block.has_any(&ARC_WORDS));
         if axes_taken || !wants_motion {
             return Ok(None);
         }
-        let column = first_column(block, &POSITION_WORDS).max(first_column(block, &ARC_WORDS));
+        let position_column = match (first_column(block, &POSITION_WORDS), self.rotary_column(block)) {
+            (0, c) | (c, 0) => c,
+            (a, b) => a.min(b),
+        };
+        let column = position_column.max(first_column(block, &ARC_WORDS));
         match self.modal.motion {
             Some(motion) => Ok(Some((motion, column))),
             None => Err(Fault::new(column, "axis words but no motion mode (G0, G1, G2, G3) is active")),
@@ -345,8 +364,10 @@ impl Interpreter {
             return Err(Fault::new(block.column(b'F'), format!("F{f} is too small to be a feed")));
         }
         self.modal.feed = Some(feed);
+        self.modal.feed_number = Some(f);
         if motion == Some(Motion::Rapid) || (motion.is_none() && plan.motion.is_some_and(|(m, _)| m == Motion::Rapid)) {
             self.modal.rapid_feed = Some(feed);
+            self.modal.rapid_feed_number = Some(f);
         }
         Ok(())
     }
@@ -382,6 +403,7 @@ impl Interpreter {
         if duration < 0.0 {
             return Err(Fault::new(column, format!("negative dwell time {duration} s")));
         }
+        let duration = dwell_time(duration, 0.0, column, "G4 dwell time")?;
         let segment = Segment { kind: SegmentKind::Dwell, end: self.machine.position, duration, ..Segment::default() };
         self.emit(segment, line, out);
         Ok(())
@@ -392,9 +414,10 @@ impl Interpreter {
     /// only axes with a value), with a note.
     pub(super) fn set_position(&mut self, block: &mut Block, line: usize) -> Result<(), Fault> {
         let unit = self.modal.unit;
-        if !block.has_any(&POSITION_WORDS) {
+        if !self.has_position_word(block) {
             self.machine.offset = self.machine.position;
             self.machine.extruder = 0.0;
+            self.rotary.offset = self.rotary.machine;
             return Ok(());
         }
         for (axis, letter) in POSITION_WORDS.iter().enumerate() {
@@ -410,7 +433,7 @@ impl Interpreter {
                 _ => self.machine.offset[axis] = bounded(self.machine.position[axis] - value, param.column)?,
             }
         }
-        Ok(())
+        self.rotary_set_position(block, line)
     }
 
     /// Physical target of the XYZ words (m), marking them used.
@@ -469,6 +492,7 @@ impl Interpreter {
         let feed = self.feed_for(motion, column)? * self.firmware.feed_factor();
         let start = self.machine.position;
         let target = self.target(block)?;
+        let turn = self.rotary_target(block)?;
         let filament = self.extrusion(block)?;
         if motion.is_arc() {
             let arc = self.arc(block, motion, column, target)?;
@@ -484,7 +508,7 @@ impl Interpreter {
             let length = segment_length(&start, &segment).max(ZERO_LENGTH);
             let mut shares = [1.0, 1.0, 1.0, filament.abs() / length];
             shares[normal_axis] = (target[normal_axis] - start[normal_axis]).abs() / length;
-            let feed = self.limit_feed(feed, shares, line);
+            let feed = positive_feed(self.limit_feed(feed, shares, line), column)?;
             self.emit_move(segment, feed, filament, line, out);
             return Ok(());
         }
@@ -493,13 +517,18 @@ impl Interpreter {
         if length >= ZERO_LENGTH {
             let shares =
                 [displacement.x.abs() / length, displacement.y.abs() / length, displacement.z.abs() / length, filament.abs() / length];
-            let feed = self.limit_feed(feed, shares, line);
+            let feed = positive_feed(self.limit_feed(feed, shares, line), column)?;
             self.emit_move(Segment { kind: SegmentKind::Line, end: target, ..Segment::default() }, feed, filament, line, out);
             return Ok(());
+        }
+        self.direction_waits(line, column);
+        if let Some(turn) = turn.filter(|t| *t > ZERO_ANGLE) {
+            return self.rotary_dwell(block, motion, turn, filament, column, line, out);
         }
         if filament != 0.0 {
             let duration = finite(filament.abs() / feed, column)?;
             let duration = self.limit_extruder_time(filament, duration, line);
+            let duration = dwell_time(duration, filament, block.column(b'E').max(column), "extruder-only move")?;
             let segment = Segment { kind: SegmentKind::Dwell, end: self.machine.position, filament, duration, ..Segment::default() };
             self.emit(segment, line, out);
         } else {
@@ -519,13 +548,17 @@ impl Interpreter {
         }
         self.moved_since_marker = true;
         self.machine.position = segment.end;
+        self.tool.current = self.tool.target;
         self.emit(segment, line, out);
     }
 
     pub(super) fn emit(&mut self, mut segment: Segment, line: usize, out: &mut VecDeque<GcodeSegment>) {
         segment.seq = self.next_seq;
         self.next_seq = self.next_seq.wrapping_add(1);
-        segment.orientation = self.options.orientation;
+        segment.orientation = self.tool.current;
+        if segment.axes.is_none() {
+            segment.axes = self.axes();
+        }
         segment.source_line = u32::try_from(line).unwrap_or(u32::MAX);
         // Every segment after a pressure-advance command carries it, so a job resumed part-way
         // still prints with the program's value.
@@ -568,10 +601,37 @@ pub(super) fn merge_owner(owner: Option<(usize, bool)>, column: usize, takes_axe
     }
 }
 
-/// True if an explicit `motion` code on this block moves: position words, or centre words for an
-/// arc (`G2 I.5 J.5` is a full circle where it stands).
-pub(super) fn moves(block: &Block, motion: Motion) -> bool {
-    block.has_any(&POSITION_WORDS) || (motion.is_arc() && block.has_any(&ARC_WORDS))
+impl Interpreter {
+    /// True if the line has a position word: X Y Z E, or a mapped rotary word.
+    pub(super) fn has_position_word(&self, block: &Block) -> bool {
+        block.has_any(&POSITION_WORDS) || self.has_rotary_word(block)
+    }
+
+    /// True if an explicit `motion` code on this block moves: position words, or centre words for
+    /// an arc (`G2 I.5 J.5` is a full circle where it stands).
+    pub(super) fn moves(&self, block: &Block, motion: Motion) -> bool {
+        self.has_position_word(block) || (motion.is_arc() && block.has_any(&ARC_WORDS))
+    }
+}
+
+/// Longest dwell (s): `Segment::check` takes durations below it.
+pub(super) const MAX_DWELL: f64 = 1e6;
+
+/// A dwell's duration (s) as `Segment::check` takes it: below [`MAX_DWELL`], and > 0 if it moves
+/// filament; else an error at `column` naming `what`.
+pub(super) fn dwell_time(duration: f64, filament: f64, column: usize, what: &str) -> Result<f64, Fault> {
+    let moves_filament = filament != 0.0;
+    if duration < MAX_DWELL && (duration > 0.0 || (!moves_filament && duration == 0.0)) {
+        return Ok(duration);
+    }
+    let range = if moves_filament { "(0, 1e6) s (a dwell that moves filament takes time)" } else { "[0, 1e6) s" };
+    Err(Fault::new(column, format!("{what}: {duration} s is not in {range}")))
+}
+
+/// A line's or arc's feed (m/s) after the percentages and limits: > 0 (a feed too small for a
+/// float is an error, never a segment the path engine refuses).
+fn positive_feed(feed: f64, column: usize) -> Result<f64, Fault> {
+    if feed > 0.0 && feed.is_finite() { Ok(feed) } else { Err(Fault::new(column, format!("feed {feed} m/s is too small to move at"))) }
 }
 
 /// Column of the first of `letters` present (0 if none).

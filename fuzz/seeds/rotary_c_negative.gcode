@@ -1,0 +1,11 @@
+ƒ;C with sign -1 and offset 0.5 rad, tool direction on
+G21
+G90
+M82
+G92 E0
+G1 X5 Y5 Z0.2 F3000
+G1 X15 C-20 E1 I0 J0.2 K1 F1200
+C20
+G0 C-40 F7200
+G0 X20 C0
+G1 C10 E1.5 F600
