@@ -187,22 +187,13 @@ fn controller_steps_allocate_nothing_with_a_live_viewer() {
 /// path with the work carried, pause, resume, feed override, stop and an emergency stop.
 #[test]
 fn controller_steps_with_a_turning_table_allocate_nothing() {
-    use common::cell::{Cell, DOWN};
-    use strand_ipc::{Command, Segment, SegmentKind, segment_flags};
+    use common::cell::Cell;
+    use strand_ipc::{Command, segment_flags};
     let cfg = strand::config::Config::load(&strand_testkit::root().join("config/cells/kr6-turntable.toml")).unwrap();
     let mut cell = Cell::new(&cfg, &cfg.service.initial_joints);
     let point = |a: f64| [0.5 - 0.03 * a.cos(), -0.03 * a.sin(), 0.2503];
-    let segment = |seq: u64, end: [f64; 3], table: f64, filament: f64| Segment {
-        seq,
-        kind: SegmentKind::Line as u32,
-        flags: segment_flags::AXES | if filament > 0.0 { segment_flags::EXTRUDE } else { segment_flags::TRAVEL },
-        end,
-        orientation: DOWN,
-        feed: 0.02,
-        filament,
-        axes: [table, 0.0],
-        ..Default::default()
-    };
+    let segment =
+        |seq: u64, end: [f64; 3], table: f64, filament: f64| strand_testkit::line_with_axes(seq, end, [table, 0.0], 0.02, filament);
     let mut job = vec![segment(1, [0.47, 0.0, 0.2553], 0.3, 0.0), segment(2, point(0.0), 0.3, 0.0)];
     for k in 1..=18 {
         let a = (k as f64 * 5.0).to_radians();

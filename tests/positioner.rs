@@ -7,7 +7,7 @@
 
 mod common;
 
-use common::cell::{Cell, DOWN, check_limits};
+use common::cell::{Cell, check_limits};
 use nalgebra::{UnitQuaternion, Vector3};
 use strand::config::Config;
 use strand_core::kin::JointVector;
@@ -44,18 +44,7 @@ fn helix(turned: f64) -> [f64; 3] {
 }
 
 fn segment(seq: u64, end: [f64; 3], table: f64, feed: f64, filament: f64) -> ipc::Segment {
-    let flags = if filament > 0.0 { segment_flags::EXTRUDE } else { segment_flags::TRAVEL } | segment_flags::AXES;
-    ipc::Segment {
-        seq,
-        kind: ipc::SegmentKind::Line as u32,
-        flags,
-        end,
-        orientation: DOWN,
-        feed,
-        filament,
-        axes: [table, 0.0],
-        ..Default::default()
-    }
+    strand_testkit::line_with_axes(seq, end, [table, 0.0], feed, filament)
 }
 
 /// A travel to 5 mm above the start and down onto it, then `turns` turns of the helix in 5° lines,

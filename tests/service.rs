@@ -15,7 +15,7 @@ use strand_testkit::Reaped;
 
 use strand::io::clock::monotonic_ns;
 use strand_ipc::ports::{ClientPorts, ClientRoles};
-use strand_ipc::{self as ipc, FaultCode, JobOutcome, RunState, SEGMENT_BATCH_CAPACITY, SegmentBatch, ServiceNames};
+use strand_ipc::{self as ipc, FaultCode, JobOutcome, RunState, ServiceNames};
 
 const ORIGIN: [f64; 3] = [0.45, -0.02, 0.2];
 const DOWN: [f64; 4] = [0.0, 0.0, 1.0, 0.0];
@@ -118,17 +118,9 @@ fn feed(ports: &ClientPorts, job: &[ipc::Segment]) {
             std::thread::sleep(Duration::from_millis(1));
             continue;
         };
-        let window_end = status.last_received_seq + status.queue_free as u64;
-        let mut batch = SegmentBatch::default();
-        while next < job.len() && (batch.len as usize) < SEGMENT_BATCH_CAPACITY && job[next].seq <= window_end {
-            batch.segments[batch.len as usize] = job[next];
-            batch.len += 1;
-            next += 1;
-        }
+        let batch = strand_testkit::credit_batch(job, &mut next, &status, batch_seq + 1, monotonic_ns());
         if batch.len > 0 {
             batch_seq += 1;
-            batch.seq = batch_seq;
-            batch.stamp_ns = monotonic_ns();
             ports.send_segments(&batch).unwrap();
             // Wait until the service has taken it before counting on the new window.
             let last = job[next - 1].seq;

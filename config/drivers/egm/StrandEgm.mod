@@ -14,6 +14,12 @@ MODULE StrandEgm
     !
     ! The joint targets strand sends are absolute (degrees); the convergence band only matters for
     ! when EGMRunJoint returns, which with \CondTime:=1e6 is never while the sensor streams.
+    !
+    ! A cell with external axes (a positioner or a track in the robot file, after the six robot
+    ! axes): strand-egm reads them from feedBack.externalJoints and sends their absolute targets in
+    ! planned.externalJoints (degrees, or mm for a linear axis). They must belong to this task's
+    ! mechanical units and follow EGM; how EGMActJoint/EGMRunJoint name them is not confirmed
+    ! from a public source (docs/protocols/external-axes.md): check ABB's EGM manual first.
 
     LOCAL CONST jointtarget start := [[0, 0, 0, 0, 30, 0], [9E9, 9E9, 9E9, 9E9, 9E9, 9E9]];
     LOCAL VAR egmident egm_id;

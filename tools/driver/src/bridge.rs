@@ -178,7 +178,7 @@ pub fn run<P: RobotProtocol>(session: &mut Session<P>, opts: &BridgeOptions, sto
                 // robot's next packet must find the driver ready.)
                 let mut answered = false;
                 while let Ok(Some(c)) = ports.receive_joint_command() {
-                    answered |= c.state_seq == last_state_seq && c.valid == 1;
+                    answered |= answers(&c, last_state_seq, session.dof()) && c.valid == 1;
                 }
                 let _ = ports.send_joint_state(&state);
                 last_state_seq = seq;
@@ -197,7 +197,7 @@ pub fn run<P: RobotProtocol>(session: &mut Session<P>, opts: &BridgeOptions, sto
         } else {
             let _ = ports.send_joint_state(&state);
             last_state_seq = seq;
-            let command = wait_command(&ports, seq, session.reply_deadline().unwrap_or(received));
+            let command = wait_command(&ports, seq, session.dof(), session.reply_deadline().unwrap_or(received));
             let r = session.reply(command.as_ref(), &mut reply);
             answer(&socket, &reply, from, received, period_ns, &mut latency, session);
             r
@@ -299,16 +299,35 @@ fn answer<P: RobotProtocol>(
     }
 }
 
-/// The command answering state `seq`, if it comes by `deadline_ns` (older ones are drained).
+/// Whether `cmd` answers state `seq` of a cell of `dof` joints (the arm's and its external axes').
+/// A command for another count of joints (a service run with another robot file) answers nothing:
+/// its missing joints would read as 0 and move the robot there. It is said once, and the driver
+/// holds as for a late command (then faults, and the service is told).
+pub(crate) fn answers(cmd: &JointCommand, seq: u64, dof: usize) -> bool {
+    static SAID: AtomicBool = AtomicBool::new(false);
+    if cmd.dof as usize != dof {
+        if !SAID.swap(true, Ordering::Relaxed) {
+            eprintln!(
+                "strand-driver: the service commands {} joints and this cell has {dof} (the arm's and its external axes'): its commands are not taken; do the service and the driver load the same robot file?",
+                cmd.dof
+            );
+        }
+        return false;
+    }
+    cmd.state_seq == seq
+}
+
+/// The command answering state `seq` of a cell of `dof` joints, if it comes by `deadline_ns`
+/// (older ones are drained).
 ///
 /// It polls with short high-resolution sleeps instead of blocking on the command's event: that
 /// wait is a socket receive timeout, which the kernel counts in scheduler ticks (4 ms at HZ=250),
 /// so a late command would make the hold miss the robot's cycle. The service answers in tens of
 /// microseconds, so the polling is short.
-pub(crate) fn wait_command(ports: &ClientPorts, seq: u64, deadline_ns: u64) -> Option<JointCommand> {
+pub(crate) fn wait_command(ports: &ClientPorts, seq: u64, dof: usize, deadline_ns: u64) -> Option<JointCommand> {
     loop {
         while let Ok(Some(cmd)) = ports.receive_joint_command() {
-            if cmd.state_seq == seq {
+            if answers(&cmd, seq, dof) {
                 return Some(cmd);
             }
         }

@@ -14,6 +14,11 @@
 //!   Meca500): a link carries the cycle's exchange, on the robot's clock (b-CAP mode 2) or the
 //!   driver's.
 //! - [`fake`] — fake robot controllers speaking the real wire formats, for tests and benchmarks.
+//!
+//! A cell's external axes (a positioner under the part, a track under the robot: `[positioner]`
+//! or `[track]` in the robot file) follow the arm's joints in every joint array, on the service's
+//! side and the robot's ([`CellJoints`]): RSI carries them as E1..E6, EGM in `externalJoints`; the
+//! other protocols drive an arm alone and refuse such a cell at start.
 
 pub mod bcap;
 pub mod bridge;
@@ -49,7 +54,8 @@ pub enum SetupError {
         /// What is wrong.
         source: strand_core::InvalidSetting,
     },
-    /// The robot's joints cannot be carried by the protocol (a linear axis where it has none).
+    /// The cell's joints cannot be carried by the protocol: a linear axis where it has none, or
+    /// external axes (a positioner, a track) over a protocol that drives the arm alone.
     #[error("{file}: the robot cannot be driven over {protocol}: {why}")]
     Robot {
         /// The config file.
@@ -69,7 +75,94 @@ pub enum SetupError {
     },
 }
 
-/// The `[driver]` section of `cfg` for `protocol`, checked against the robot.
+/// The joints a driver carries, in the order of every joint array on the wire: the arm's (the
+/// robot file's chain), then its positioner's or track's axes (`[positioner]`, `[track]`), in
+/// chain order.
+#[derive(Clone, Debug)]
+pub struct CellJoints {
+    /// The arm's joints.
+    pub arm: usize,
+    /// The section of the external axes (`"positioner"`, `"track"`), if the cell has one.
+    pub section: Option<&'static str>,
+    /// Every joint, the arm's first.
+    pub joints: Vec<CellJoint>,
+}
+
+/// One joint a driver carries.
+#[derive(Clone, Debug)]
+pub struct CellJoint {
+    /// Its URDF name.
+    pub name: String,
+    /// Prismatic: metres here, millimetres on the vendors' wires (else rad and degrees).
+    pub linear: bool,
+    /// The URDF's position and speed limits, the robot file's acceleration and jerk limits (an
+    /// external axis': its own section's).
+    pub limits: strand_core::kin::JointLimits,
+}
+
+impl CellJoint {
+    fn of(j: &strand_core::kin::Joint) -> CellJoint {
+        CellJoint { name: j.name.clone(), linear: !j.kind.rotates(), limits: j.limits }
+    }
+}
+
+impl CellJoints {
+    /// The arm's joints, then the external axes, of `cfg`'s robot file.
+    pub fn of(cfg: &Config) -> Result<CellJoints, SetupError> {
+        let model = cfg.robot.build_model()?;
+        let positioner = cfg.robot.build_positioner()?;
+        let section = cfg.robot.external_axes().map(|(s, _)| s).filter(|_| positioner.is_some());
+        let mut joints: Vec<CellJoint> = model.joints().iter().map(CellJoint::of).collect();
+        if let Some(p) = &positioner {
+            joints.extend(p.model().joints().iter().map(CellJoint::of));
+        }
+        if joints.len() > strand_ipc::MAX_JOINTS {
+            return Err(SetupError::Section {
+                file: cfg.file.display().to_string(),
+                why: format!(
+                    "the arm's {} joints and the [{}] axes make {}: a joint command carries {}",
+                    model.dof(),
+                    section.unwrap_or("positioner"),
+                    joints.len(),
+                    strand_ipc::MAX_JOINTS
+                ),
+            });
+        }
+        Ok(CellJoints { arm: model.dof(), section, joints })
+    }
+
+    /// All joints: the arm's and the external axes.
+    pub fn dof(&self) -> usize {
+        self.joints.len()
+    }
+
+    /// The external axes.
+    pub fn external(&self) -> usize {
+        self.joints.len() - self.arm
+    }
+}
+
+/// The protocols that carry external axes after the arm's: RSI (E1..E6) and EGM
+/// (`externalJoints`). FRI, UR RTDE, the Meca500's API and b-CAP's slave mode drive the arm alone.
+fn carries_external_axes(p: DriverProtocol) -> bool {
+    matches!(p, DriverProtocol::Egm | DriverProtocol::Rsi)
+}
+
+/// The protocol's name as its maker writes it, for messages.
+fn wire_name(p: DriverProtocol) -> &'static str {
+    match p {
+        DriverProtocol::Egm => "EGM",
+        DriverProtocol::Rsi => "RSI",
+        DriverProtocol::Fri => "FRI",
+        DriverProtocol::Bcap => "b-CAP",
+        DriverProtocol::Meca => "the Meca500's TCP API",
+        DriverProtocol::Ur => "UR RTDE",
+    }
+}
+
+/// The `[driver]` section of `cfg` for `protocol`, checked against the cell: the arm and its
+/// positioner's (or track's) axes. `axis_sign` and `axis_offset` list either the arm's joints (the
+/// external axes then map one to one) or every joint of the cell, arm first.
 pub fn driver_config(cfg: &Config, protocol: DriverProtocol) -> Result<DriverConfig, SetupError> {
     let file = cfg.file.display().to_string();
     let d = cfg.driver.clone().ok_or_else(|| SetupError::Section {
@@ -79,8 +172,42 @@ pub fn driver_config(cfg: &Config, protocol: DriverProtocol) -> Result<DriverCon
     if d.protocol != protocol {
         return Err(SetupError::Section { file, why: format!("[driver] protocol = \"{}\", not \"{}\"", name(d.protocol), name(protocol)) });
     }
-    let model = cfg.robot.build_model()?;
-    d.validate(model.dof()).map_err(|source| SetupError::Setting { file: file.clone(), source })?;
+    let cell = CellJoints::of(cfg)?;
+    if cell.external() > 0 && !carries_external_axes(protocol) {
+        let names: Vec<&str> = cell.joints[cell.arm..].iter().map(|j| j.name.as_str()).collect();
+        return Err(SetupError::Robot {
+            file,
+            protocol: name(protocol),
+            why: format!(
+                "{} carries no external axes: the robot file's [{}] has {} ({}); drive this cell with strand-rsi (KUKA) or strand-egm (ABB), or use a robot file without it",
+                wire_name(protocol),
+                cell.section.unwrap_or("positioner"),
+                names.len(),
+                names.join(", ")
+            ),
+        });
+    }
+    // The per-joint lists: the arm's joints, or the whole cell's.
+    let mapped = if [&d.axis_sign, &d.axis_offset].iter().all(|l| l.is_empty() || l.len() == cell.arm) { cell.arm } else { cell.dof() };
+    if let Some((key, list)) = [("axis_sign", &d.axis_sign), ("axis_offset", &d.axis_offset)]
+        .into_iter()
+        .find(|(_, l)| !l.is_empty() && l.len() != mapped)
+        .filter(|_| cell.external() > 0)
+    {
+        return Err(SetupError::Section {
+            file,
+            why: format!(
+                "[driver] {key} has {} values; the cell has the arm's {} joints and {} [{}] axes: give {} (the arm's; the axes map one to one) or {} (arm first), and the same count in axis_sign and axis_offset",
+                list.len(),
+                cell.arm,
+                cell.external(),
+                cell.section.unwrap_or("positioner"),
+                cell.arm,
+                cell.dof()
+            ),
+        });
+    }
+    d.validate(mapped).map_err(|source| SetupError::Setting { file: file.clone(), source })?;
     // The answer must leave inside the robot's cycle, with room for the answer itself.
     let period = 1.0 / cfg.controller.rate_hz;
     if d.reply_deadline > 0.75 * period {
@@ -137,17 +264,20 @@ fn name(p: DriverProtocol) -> &'static str {
     p.name()
 }
 
-/// A session for the robot of `cfg` with its `[driver]` section `d`: the axis mapping, and the
-/// guard with the URDF's position and velocity limits, the robot file's acceleration limits and
-/// the robot's cycle (`[controller] rate_hz`).
+/// A session for the cell of `cfg` with its `[driver]` section `d`: the axis mapping and the
+/// guard over every joint the driver carries ([`CellJoints`]: the arm's, then its positioner's or
+/// track's axes), with the URDF's position and velocity limits, the robot file's acceleration
+/// limits (the external axes' from their own section) and the robot's cycle (`[controller]
+/// rate_hz`).
 pub fn session<P: RobotProtocol>(cfg: &Config, d: &DriverConfig, mut protocol: P) -> Result<Session<P>, SetupError> {
-    let model = cfg.robot.build_model()?;
-    let linear: Vec<bool> = model.joints().iter().map(|j| !j.kind.rotates()).collect();
+    let cell = CellJoints::of(cfg)?;
+    let linear: Vec<bool> = cell.joints.iter().map(|j| j.linear).collect();
     protocol.set_linear_axes(&linear).map_err(|why| SetupError::Robot { file: cfg.file.display().to_string(), protocol: P::NAME, why })?;
     protocol.set_period(1.0 / cfg.controller.rate_hz);
-    let bounds = model.joints().iter().map(|j| j.limits).collect();
+    let bounds = cell.joints.iter().map(|j| j.limits).collect();
     let guard = ReplyGuard::new(bounds, 1.0 / cfg.controller.rate_hz);
-    let map = AxisMap::new(model.dof(), &d.axis_sign, &d.axis_offset);
+    // Lists of the arm's length leave the external axes one to one (`driver_config` checked them).
+    let map = AxisMap::new(cell.dof(), &d.axis_sign, &d.axis_offset);
     let robot = match d.robot.as_str() {
         "" => None,
         text => Some(text.parse().map_err(|e: strand_robot::BadRobotAddress| SetupError::Setting {

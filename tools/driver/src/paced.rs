@@ -18,7 +18,7 @@ use strand::io::histogram::Histogram;
 use strand_ipc::ports::{ClientPorts, ClientRoles};
 use strand_ipc::{Command, Control, ServiceNames};
 
-use crate::bridge::{BridgeReport, joint_state, log_transition, wait_command};
+use crate::bridge::{BridgeReport, answers, joint_state, log_transition, wait_command};
 use crate::protocol::{Clock, PacketError, RobotProtocol};
 use crate::session::{DriverState, Dropped, Due, ReplyKind, Session};
 
@@ -245,7 +245,7 @@ pub fn run<P: RobotProtocol, L: DriverLink>(
                 let stamp = received.saturating_sub((owed + 1 - i) * period_ns);
                 let _ = ports.send_joint_state(&joint_state(session, state_seq, stamp, qi, &mut previous_q, opts.period));
                 // Within the packet's own reply deadline: the owed ticks must not make its answer late.
-                let command = wait_command(&ports, state_seq, session.reply_deadline().unwrap_or(received));
+                let command = wait_command(&ports, state_seq, session.dof(), session.reply_deadline().unwrap_or(received));
                 if let (_, Some(t)) = session.reply_owed(command.as_ref(), &mut owed_answer) {
                     owed_transition = Some(t);
                 }
@@ -270,7 +270,7 @@ pub fn run<P: RobotProtocol, L: DriverLink>(
             let transition = if !session.stopping() {
                 let mut answered = false;
                 while let Ok(Some(c)) = ports.receive_joint_command() {
-                    answered |= c.state_seq == last_state_seq && c.valid == 1;
+                    answered |= answers(&c, last_state_seq, session.dof()) && c.valid == 1;
                 }
                 let _ = ports.send_joint_state(&state);
                 last_state_seq = seq;
@@ -282,7 +282,7 @@ pub fn run<P: RobotProtocol, L: DriverLink>(
         } else {
             let _ = ports.send_joint_state(&state);
             last_state_seq = seq;
-            let command = wait_command(&ports, seq, session.reply_deadline().unwrap_or(received));
+            let command = wait_command(&ports, seq, session.dof(), session.reply_deadline().unwrap_or(received));
             let r = session.reply(command.as_ref(), &mut reply);
             if let Err(e) = answer(link, &reply, received, period_ns, &mut latency, session) {
                 break StreamEnd::Robot(e.to_string());

@@ -293,7 +293,7 @@ impl Sim {
     /// non-finite ones are ignored, as a base controller would).
     pub fn command_base(&mut self, cmd: &ipc::BaseCommand) {
         let [w, x, y, z] = cmd.orientation;
-        let yaw = (2.0 * (w * z + x * y)).atan2(1.0 - 2.0 * (y * y + z * z));
+        let yaw = UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(w, x, y, z)).euler_angles().2;
         if let Some(f) = self.flyer.as_mut()
             && cmd.valid == 1
         {

@@ -95,3 +95,44 @@ pub fn service_log(dir: &Path, name: &str) -> PathBuf {
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     log
 }
+
+/// Nozzle pointing down in W (π about y), as a wire quaternion (w, x, y, z).
+pub const NOZZLE_DOWN: [f64; 4] = [0.0, 0.0, 1.0, 0.0];
+
+/// A line to `end` (m, W; in a cell with external axes, on the part at home) with the external
+/// axes at `axes` (rad or m) at its end (`AXES`), the nozzle down, at `feed` (m/s): extruding
+/// `filament` (m) when > 0, else a travel.
+pub fn line_with_axes(seq: u64, end: [f64; 3], axes: [f64; 2], feed: f64, filament: f64) -> strand_wire::Segment {
+    use strand_wire::segment_flags::{AXES, EXTRUDE, TRAVEL};
+    strand_wire::Segment {
+        seq,
+        kind: strand_wire::SegmentKind::Line as u32,
+        flags: AXES | if filament > 0.0 { EXTRUDE } else { TRAVEL },
+        end,
+        orientation: NOZZLE_DOWN,
+        feed,
+        filament,
+        axes,
+        ..Default::default()
+    }
+}
+
+/// The next batch of `job`, from `*next` on (advanced past it), that the credit window `status`
+/// announces allows: segments numbered up to `last_received_seq + queue_free`, at most a batch's
+/// capacity; empty when the window is shut. Numbered `batch_seq`, stamped `stamp_ns`.
+pub fn credit_batch(
+    job: &[strand_wire::Segment],
+    next: &mut usize,
+    status: &strand_wire::Status,
+    batch_seq: u64,
+    stamp_ns: u64,
+) -> strand_wire::SegmentBatch {
+    let window_end = status.last_received_seq + u64::from(status.queue_free);
+    let mut batch = strand_wire::SegmentBatch { seq: batch_seq, stamp_ns, ..Default::default() };
+    while *next < job.len() && (batch.len as usize) < strand_wire::SEGMENT_BATCH_CAPACITY && job[*next].seq <= window_end {
+        batch.segments[batch.len as usize] = job[*next];
+        batch.len += 1;
+        *next += 1;
+    }
+    batch
+}

@@ -46,9 +46,11 @@ struct Cli {
     /// is the next one).
     #[arg(long, default_value = "127.0.0.1:0")]
     listen: SocketAddr,
-    /// Axes at the start (degrees, comma-separated: six; seven for FRI). Default: KUKA's RSI start
-    /// pose (0,-90,90,0,90,0), or the LBR iiwa's start posture of config/iiwa7.toml for FRI, or
-    /// the start postures of config/vp6242.toml (b-CAP) and config/meca500.toml (the Meca500).
+    /// Axes at the start (degrees, comma-separated: six; seven for FRI; for EGM and RSI six and then
+    /// the external axes, up to two, degrees or mm for a linear one: the fake sends them in
+    /// `externalJoints` / `EIPos` and follows their targets). Default: KUKA's RSI start pose
+    /// (0,-90,90,0,90,0), or the LBR iiwa's start posture of config/iiwa7.toml for FRI, or the
+    /// start postures of config/vp6242.toml (b-CAP) and config/meca500.toml (the Meca500).
     #[arg(long, value_delimiter = ',', allow_negative_numbers = true)]
     start: Vec<f64>,
     /// The cycle (s).
@@ -164,6 +166,8 @@ fn serve(cli: &Cli) -> ExitCode {
 fn main() -> ExitCode {
     let mut cli = Cli::parse();
     let axes = if matches!(cli.protocol, Protocol::Fri) { 7 } else { 6 };
+    // EGM and RSI carry external axes after the arm's six (as many as a joint command holds).
+    let most = if matches!(cli.protocol, Protocol::Egm | Protocol::Rsi) { strand_ipc::MAX_JOINTS } else { axes };
     if cli.start.is_empty() {
         let deg = |q: &[f64]| q.iter().map(|q| q.to_degrees()).collect();
         cli.start = match cli.protocol {
@@ -174,8 +178,9 @@ fn main() -> ExitCode {
             _ => vec![0.0, -90.0, 90.0, 0.0, 90.0, 0.0],
         };
     }
-    if cli.start.len() != axes || cli.start.iter().any(|x| !x.is_finite()) {
-        eprintln!("strand-fake-robot: --start needs {axes} finite angles (degrees)");
+    if !(axes..=most).contains(&cli.start.len()) || cli.start.iter().any(|x| !x.is_finite()) {
+        let count = if most > axes { format!("{axes} to {most}") } else { axes.to_string() };
+        eprintln!("strand-fake-robot: --start needs {count} finite angles (degrees; mm for a linear external axis)");
         return ExitCode::from(2);
     }
     if matches!(cli.protocol, Protocol::Bcap | Protocol::Meca | Protocol::Ur) {

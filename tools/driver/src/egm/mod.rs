@@ -4,16 +4,28 @@
 //! sends an `EgmRobot` — header (`seqno`, `tm` in ms, `mtype` DATA), the measured joints in
 //! `feedBack` (degrees), motor, motion-control (MCI) and RAPID states — and the sensor answers with an
 //! `EgmSensor`: its own header (`seqno` counting its replies, `mtype` CORRECTION) and the absolute
-//! joint targets in `planned.joints` (degrees; a 7th axis in `planned.externalJoints`).
+//! joint targets in `planned.joints` (degrees).
 //!
 //! The rules follow abb_libegm: a packet counts only if it is DATA with the feedback joints and the
 //! states; the robot follows corrections only with motors on, `MCI_RUNNING` and RAPID running (or
 //! undefined, a RobotWare quirk after restart). Before that the answer repeats the measured joints,
 //! so the robot starts from where it is. A new EGM session (RAPID runs `EGMRunJoint` again) restarts
 //! `seqno` at 0: that is a new epoch of the driver's sequence, not an out-of-order packet.
-//! External axes (`externalJoints`) are degrees when rotary and millimetres when linear (a track):
-//! the URDF joint's type says which (`set_linear_axes`). The six robot axes are rotary; a URDF whose
-//! first six joints include a prismatic one is refused.
+//!
+//! External axes (a positioner's or a track's, the cell's joints after the arm's six, in chain
+//! order): cell joint 6 + k is `externalJoints[k]`, read from `EgmRobot.feedBack.externalJoints`
+//! (the actual axes) and answered in `EgmSensor.planned.externalJoints` (the absolute targets).
+//! In abb_libegm's `proto/egm.proto` both are `optional EgmJoints externalJoints = 3` (of
+//! `EgmFeedBack` — `joints = 1`, `cartesian = 2`, `time = 4` — and of `EgmPlanned`, the same
+//! numbers), `EgmSensor.planned` is field 2, and the schema's comment on its
+//! `EgmExternalJoints` says the values are "in degrees for rotating axis, in mm for linear axis";
+//! the URDF joint's type says which ([`RobotProtocol::set_linear_axes`]). Only the cell's external axes are
+//! read (abb_libegm allows six, `DEFAULT_NUMBER_OF_EXTERNAL_JOINTS`; values the robot sends beyond
+//! the cell's are ignored), and a packet with fewer is refused naming them. The six robot axes are
+//! rotary; a URDF whose first six joints include a prismatic one is refused. Unsure, not confirmed
+//! from a public source: whether RAPID's `EGMRunJoint` must name the external axes, and whether a
+//! controller sends `externalJoints` for axes outside the EGM motion group (the notes:
+//! `docs/protocols/external-axes.md`).
 
 pub mod proto;
 
@@ -48,12 +60,21 @@ pub struct Egm {
     last_tm: u32,
     /// Axes that are linear (mm on the wire, m here); kept across sessions.
     linear: [bool; MAX_JOINTS],
+    /// The cell's external axes (`externalJoints[0..]`, after the six robot axes); kept across
+    /// sessions.
+    external: usize,
 }
 
 impl Egm {
-    /// A connection that has not seen its first packet.
+    /// A connection that has not seen its first packet, for an arm without external axes (the
+    /// driver sets the cell's with [`RobotProtocol::set_linear_axes`]).
     pub fn new() -> Egm {
         Egm::default()
+    }
+
+    /// The external axes the packets must carry and the answers carry (`externalJoints`).
+    pub fn external_axes(&self) -> usize {
+        self.external
     }
 }
 
@@ -79,6 +100,8 @@ impl RobotProtocol for Egm {
         if earlier >> 32 != later >> 32 { 1 } else { later.saturating_sub(earlier) }
     }
 
+    /// The cell's joints: the six robot axes (rotary), then its external axes, rotary (degrees on
+    /// the wire) or linear (mm).
     fn set_linear_axes(&mut self, linear: &[bool]) -> Result<(), String> {
         if let Some(k) = linear.iter().take(ROBOT_AXES).position(|l| *l) {
             return Err(format!(
@@ -91,6 +114,7 @@ impl RobotProtocol for Egm {
         }
         self.linear = [false; MAX_JOINTS];
         self.linear[..linear.len()].copy_from_slice(linear);
+        self.external = linear.len().saturating_sub(ROBOT_AXES);
         Ok(())
     }
 
@@ -110,9 +134,16 @@ impl RobotProtocol for Egm {
             return Err(PacketError::Truncated(format!("feedBack.joints has {} values, not {ROBOT_AXES}", feedback.joints.len())));
         }
         let external = robot.feed_back.as_ref().and_then(|f| f.external_joints.as_ref()).map_or(&[][..], |e| &e.joints[..]);
-        if ROBOT_AXES + external.len() > MAX_JOINTS {
-            return Err(PacketError::BadValue(format!("{} external axes", external.len())));
+        if external.len() < self.external {
+            return Err(PacketError::Truncated(format!(
+                "feedBack.externalJoints has {} values; the cell has {} external axes (joints {}..{})",
+                external.len(),
+                self.external,
+                ROBOT_AXES + 1,
+                ROBOT_AXES + self.external
+            )));
         }
+        let external = &external[..self.external];
         let mut axes = [0.0; MAX_JOINTS];
         for (k, v) in feedback.joints.iter().chain(external).enumerate() {
             if !v.is_finite() {
@@ -138,16 +169,18 @@ impl RobotProtocol for Egm {
         let tm = header.tm.unwrap_or(0);
         self.first_tm.get_or_insert(tm);
         self.last_tm = tm;
-        Ok(RobotPacket { seq: self.epoch + u64::from(seqno), axes, dof: ROBOT_AXES + external.len(), following })
+        Ok(RobotPacket { seq: self.epoch + u64::from(seqno), axes, dof: ROBOT_AXES + self.external, following })
     }
 
     fn reset(&mut self) {
-        *self = Egm { linear: self.linear, ..Egm::default() };
+        *self = Egm { linear: self.linear, external: self.external, ..Egm::default() };
     }
 
+    /// The absolute targets: `planned.joints` (the six robot axes, degrees) and, for the cell's
+    /// external axes, `planned.externalJoints` (degrees, or mm for a linear axis).
     fn write(&mut self, axes: &[f64], out: &mut Vec<u8>) {
         out.clear();
-        let n = axes.len();
+        let n = axes.len().min(ROBOT_AXES + self.external);
         let wire = |from: usize, to: usize| (from..to).map(|k| to_wire(axes[k], self.linear[k])).collect::<Vec<f64>>();
         let robot = wire(0, n.min(ROBOT_AXES));
         let external = if n > ROBOT_AXES { Some(EgmJoints { joints: wire(ROBOT_AXES, n) }) } else { None };
@@ -193,6 +226,44 @@ mod tests {
         assert!((j[0] - 10.0).abs() < 1e-12 && (j[1] + 30.0).abs() < 1e-12, "{j:?}");
     }
 
+    /// A rotary table as the 7th axis: `feedBack.externalJoints[0]` in degrees, rad inside, and the
+    /// answer's `planned.externalJoints[0]` the absolute target in degrees; the encoded fields are
+    /// the schema's numbers (feedBack 2 → externalJoints 3; planned 2 → externalJoints 3).
+    #[test]
+    fn a_rotary_external_axis_is_read_and_answered_in_external_joints() {
+        let mut egm = Egm::new();
+        let m = robot_message(1, 4, &[0.0, -30.0, 30.0, 0.0, 60.0, 0.0, 42.5, 7.0], true);
+        // Not the cell's: an arm alone reads none of them.
+        assert_eq!(egm.read(&m.encode_to_vec()).unwrap().dof, 6);
+        egm.set_linear_axes(&[false; 7]).unwrap();
+        assert_eq!(egm.external_axes(), 1);
+        let p = egm.read(&m.encode_to_vec()).unwrap();
+        assert_eq!(p.dof, 7, "one external axis: the robot's second value is not the cell's");
+        assert_eq!(p.axes[6], 42.5f64.to_radians());
+        assert_eq!(p.axes[7], 0.0);
+        let mut target = p.axes;
+        target[6] = (-90.25f64).to_radians();
+        let mut out = Vec::new();
+        egm.write(&target[..7], &mut out);
+        let planned = EgmSensor::decode(&out[..]).unwrap().planned.unwrap();
+        assert_eq!(planned.external_joints.unwrap().joints, vec![-90.25]);
+        assert!((planned.joints.unwrap().joints[2] - 30.0).abs() < 1e-12);
+        // The wire itself: EgmSensor field 2 (planned), in it field 3 (externalJoints), in it
+        // field 1 (joints, a double, fixed64: tag 0x09).
+        let wire = (-90.25f64).to_le_bytes();
+        let inner = [&[0x09u8][..], &wire[..]].concat();
+        let external = [&[0x1a, inner.len() as u8][..], &inner[..]].concat();
+        assert!(out.windows(external.len()).any(|w| w == external.as_slice()), "{out:x?}");
+        // A packet without the cell's external axis is refused, naming it.
+        let arm_only = robot_message(2, 8, &[0.0, -30.0, 30.0, 0.0, 60.0, 0.0], true);
+        match egm.read(&arm_only.encode_to_vec()) {
+            Err(PacketError::Truncated(why)) => {
+                assert!(why.contains("externalJoints has 0 values") && why.contains("joints 7..7"), "{why}")
+            }
+            other => panic!("{other:?}"),
+        }
+    }
+
     /// A track as the 7th axis: millimetres on the wire, metres in the driver; a rotary external
     /// axis stays in degrees; a prismatic joint among the six robot axes is refused.
     #[test]
@@ -201,12 +272,14 @@ mod tests {
         let e = egm.set_linear_axes(&[false, true, false, false, false, false, false]).unwrap_err();
         assert!(e.contains("joint 2 is prismatic"), "{e}");
         let m = robot_message(1, 4, &[0.0, -30.0, 30.0, 0.0, 60.0, 0.0, 1250.0], true);
+        egm.set_linear_axes(&[false; 7]).unwrap();
         let rotary = egm.read(&m.encode_to_vec()).unwrap();
-        assert!((rotary.axes[6] - 1250f64.to_radians()).abs() < 1e-12);
+        assert_eq!(rotary.axes[6], 1250f64.to_radians());
         egm.set_linear_axes(&[false, false, false, false, false, false, true]).unwrap();
         let p = egm.read(&m.encode_to_vec()).unwrap();
         assert_eq!(p.dof, 7);
-        assert!((p.axes[6] - 1.25).abs() < 1e-15 && (p.axes[1] + 30f64.to_radians()).abs() < 1e-15);
+        assert_eq!(p.axes[6], 1.25);
+        assert!((p.axes[1] + 30f64.to_radians()).abs() < 1e-15);
         let mut target = p.axes;
         target[6] = 0.5;
         let mut out = Vec::new();
@@ -216,7 +289,7 @@ mod tests {
         assert!((planned.joints.unwrap().joints[1] + 30.0).abs() < 1e-12);
         // A new EGM session keeps the axes' kinds.
         egm.reset();
-        assert!((egm.read(&m.encode_to_vec()).unwrap().axes[6] - 1.25).abs() < 1e-15);
+        assert_eq!(egm.read(&m.encode_to_vec()).unwrap().axes[6], 1.25);
     }
 
     #[test]

@@ -1,10 +1,13 @@
 //! An ABB IRC5 with EGM in joint mode, as far as the wire shows it: every cycle an `EgmRobot` —
 //! header (`seqno` counting from 0, `tm` in ms, `MSGTYPE_DATA`), the actual joints in `feedBack`
-//! (degrees), motors on, the motion-control state (`MCI_STOPPED` for the first `stopped_cycles`,
-//! as while `EGMRunJoint` ramps in, then `MCI_RUNNING`) and RAPID running; the answer is an
-//! `EgmSensor` with the absolute joint targets in `planned.joints` (degrees). Like the controller it
-//! takes the newest answer, in time if it arrives during the cycle. Corrections are applied only
-//! while `MCI_RUNNING`, as the controller does.
+//! (degrees; its external axes, the axes after the six, in `feedBack.externalJoints`, degrees or
+//! mm), motors on, the motion-control state (`MCI_STOPPED` for the first `stopped_cycles`, as while
+//! `EGMRunJoint` ramps in, then `MCI_RUNNING`) and RAPID running; the answer is an `EgmSensor` with
+//! the absolute joint targets in `planned.joints` (degrees) and, for its external axes,
+//! `planned.externalJoints` (the schema's `EgmExternalJoints`: degrees for a rotating axis, mm for
+//! a linear one). Like the controller it takes the newest answer, in time if it arrives during the
+//! cycle. Corrections are applied only while `MCI_RUNNING`, as the controller does; an answer
+//! without a target for each of its axes is no answer.
 
 use prost::Message;
 
@@ -53,12 +56,16 @@ impl FakeProtocol for FakeEgm {
             return Err(Some(k.saturating_sub(1)));
         }
         self.last_seqno = Some(seqno);
-        let joints = sensor.planned.and_then(|p| p.joints).ok_or(None)?.joints;
-        if joints.len() < axes.len().min(6) || joints.iter().any(|j| !j.is_finite()) {
+        let planned = sensor.planned.ok_or(None)?;
+        let joints = planned.joints.ok_or(None)?.joints;
+        let external = planned.external_joints.map_or(Vec::new(), |e| e.joints);
+        let (robot_axes, external_axes) = axes.split_at_mut(axes.len().min(crate::egm::ROBOT_AXES));
+        if joints.len() < robot_axes.len() || external.len() < external_axes.len() || joints.iter().chain(&external).any(|j| !j.is_finite())
+        {
             return Err(None);
         }
         if k >= self.stopped_cycles {
-            for (a, j) in axes.iter_mut().zip(joints) {
+            for (a, j) in robot_axes.iter_mut().zip(joints).chain(external_axes.iter_mut().zip(external)) {
                 *a = j;
             }
         }
@@ -82,5 +89,41 @@ pub(crate) fn robot_message(seqno: u32, tm: u32, joints_deg: &[f64], following: 
         mci_convergence_met: Some(true),
         rapid_exec_state: Some(EgmRapidCtrlExecState { state: RapidCtrlExecStateType::RapidRunning as i32 }),
         ..Default::default()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::egm::proto::{EgmHeader, EgmJoints, EgmPlanned};
+
+    fn answer(seqno: u32, joints: &[f64], external: Option<&[f64]>) -> Vec<u8> {
+        EgmSensor {
+            header: Some(EgmHeader { seqno: Some(seqno), tm: Some(0), mtype: Some(MessageType::MsgtypeCorrection as i32) }),
+            planned: Some(EgmPlanned {
+                joints: Some(EgmJoints { joints: joints.to_vec() }),
+                external_joints: external.map(|e| EgmJoints { joints: e.to_vec() }),
+                ..Default::default()
+            }),
+            speed_ref: None,
+        }
+        .encode_to_vec()
+    }
+
+    /// A controller with a table as its 7th axis sends it in `feedBack.externalJoints` and follows
+    /// `planned.externalJoints`; an answer without it is no answer.
+    #[test]
+    fn the_external_axes_are_sent_and_followed() {
+        let mut fake = FakeEgm::new(0, 4);
+        let mut out = Vec::new();
+        fake.packet(0, &[0.0, -30.0, 30.0, 0.0, 60.0, 0.0, 12.5], &mut out);
+        let m = EgmRobot::decode(&out[..]).unwrap();
+        assert_eq!(m.feed_back.unwrap().external_joints.unwrap().joints, vec![12.5]);
+        let mut axes = vec![0.0; 7];
+        fake.answer(0, &answer(0, &[1.0, 2.0, 3.0, 4.0, 5.0, 6.0], Some(&[-45.0])), &mut axes).unwrap();
+        assert_eq!(axes, [1.0, 2.0, 3.0, 4.0, 5.0, 6.0, -45.0]);
+        assert_eq!(fake.answer(1, &answer(1, &[1.0; 6], None), &mut axes), Err(None));
+        assert_eq!(fake.answer(1, &answer(2, &[1.0; 6], Some(&[f64::NAN])), &mut axes), Err(None));
+        assert_eq!(axes[6], -45.0);
     }
 }
