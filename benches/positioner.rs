@@ -13,11 +13,11 @@ use strand_ipc::{self as ipc, segment_flags};
 
 const DOWN: [f64; 4] = [0.0, 0.0, 1.0, 0.0];
 
-/// A travel, then `turns` turns of the helix around the table's axis (0.5, 0) m, 5° a line: with
+/// A travel, then `turns` turns of the helix around the table's axis (0.7, 0) m, 5° a line: with
 /// `carried`, the points on the part at home and the table's angle turning each back beside the
 /// table; without, the nozzle going round in W.
 fn helix(carried: bool, turns: usize) -> Vec<ipc::Segment> {
-    let point = |a: f64, z: f64| [0.5 + 0.03 * (std::f64::consts::PI + a).cos(), 0.03 * (std::f64::consts::PI + a).sin(), 0.2503 + z];
+    let point = |a: f64, z: f64| [0.7 + 0.03 * (std::f64::consts::PI + a).cos(), 0.03 * (std::f64::consts::PI + a).sin(), 0.2503 + z];
     let segment = |seq: u64, end: [f64; 3], table: f64, filament: f64| ipc::Segment {
         seq,
         kind: ipc::SegmentKind::Line as u32,

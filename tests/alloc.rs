@@ -191,10 +191,10 @@ fn controller_steps_with_a_turning_table_allocate_nothing() {
     use strand_ipc::{Command, segment_flags};
     let cfg = strand::config::Config::load(&strand_testkit::root().join("config/cells/kr6-turntable.toml")).unwrap();
     let mut cell = Cell::new(&cfg, &cfg.service.initial_joints);
-    let point = |a: f64| [0.5 - 0.03 * a.cos(), -0.03 * a.sin(), 0.2503];
+    let point = |a: f64| [0.7 - 0.03 * a.cos(), -0.03 * a.sin(), 0.2503];
     let segment =
         |seq: u64, end: [f64; 3], table: f64, filament: f64| strand_testkit::line_with_axes(seq, end, [table, 0.0], 0.02, filament);
-    let mut job = vec![segment(1, [0.47, 0.0, 0.2553], 0.3, 0.0), segment(2, point(0.0), 0.3, 0.0)];
+    let mut job = vec![segment(1, [0.67, 0.0, 0.2553], 0.3, 0.0), segment(2, point(0.0), 0.3, 0.0)];
     for k in 1..=18 {
         let a = (k as f64 * 5.0).to_radians();
         job.push(segment(job.len() as u64 + 1, point(a), 0.3 - a, 1e-4));

@@ -183,3 +183,31 @@ fn the_predicted_time_does_not_hang_on_micro_radians_of_the_start_posture() {
     let (lo, hi) = times.iter().fold((f64::INFINITY, 0.0f64), |(lo, hi), t| (lo.min(*t), hi.max(*t)));
     assert!(hi - lo <= 0.01, "predicted times {times:?} s");
 }
+
+/// The turntable cell's helix cylinder (600 mm across, its far side 1.0 m from the arm's base) is
+/// a part only a turning table can print: with the table (`cells/kr6-turntable`) the check is
+/// clean and the nozzle never leaves its spot beside the table; the same part without it (the C
+/// words dropped, the same bed on the fixed KR 6) is out of reach by nearly 0.1 m.
+#[test]
+fn the_helix_cylinder_is_a_part_only_a_turning_table_can_print() {
+    let file = root().join("tests/data/gcode/turntable/helix_cylinder.gcode");
+    let table = Config::load(&root().join("config/cells/kr6-turntable.toml")).unwrap();
+    let (all, _) = strand_job::load_segments_with(&file, &table.bed_transform().unwrap(), table.gcode_options()).unwrap();
+    assert!(all.iter().skip(2).all(|(s, _)| s.axes.is_some()), "every segment after the travels carries the table");
+    let (segments, layers) = wire_job(&all);
+    let name = file.display().to_string();
+    let with_table = check_job(&CheckJob { file: &name, segments: &segments, layers: &layers }, &table, None, None).unwrap();
+    assert!(with_table.clean, "{}", with_table.summary());
+    let b = &with_table.bbox_world;
+    // (To the chords' 11 µm sag and their corners' blends, as the part turns under the nozzle.)
+    assert!(b.max[0] - b.min[0] < 0.1e-3 && b.max[1] - b.min[1] < 0.1e-3, "the nozzle moved in W: {b:?}");
+
+    let text = std::fs::read_to_string(&file).unwrap();
+    let without: String = text.lines().map(|l| l.split(' ').filter(|w| !w.starts_with('C')).collect::<Vec<_>>().join(" ") + "\n").collect();
+    let mut fixed = config("kr6r900");
+    fixed.bed = table.bed.clone();
+    let r = check_text(&without, &fixed);
+    assert!(!r.clean, "{}", r.summary());
+    let reach = r.problems.iter().filter(|p| p.kind == ProblemKind::Unreachable).map(|p| p.worst).fold(0.0, f64::max);
+    assert!(reach > 0.09, "out of reach by {reach} m");
+}

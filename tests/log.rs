@@ -167,6 +167,16 @@ fn every_record_type_round_trips_bit_for_bit() {
         assert_eq!(flat(&back), flat(&st));
         let js = ipc::JointState { dof: 7, position: [f(), f(), f(), f(), f(), f(), f(), f()], ..Default::default() };
         assert_eq!(flat(&decode::<ipc::JointState>(&bytes(&js)).unwrap()), flat(&js));
+        // A tick carries its segments' external axes after the base command, bit for bit.
+        let mut t = Tick::default();
+        t.input.push_segment(&ipc::Segment { axes: [f(), f()], ..seg });
+        t.input.push_segment(&ipc::Segment { seq: 18, axes: [f(), f()], ..seg });
+        let back: Tick = decode(&bytes(&t)).unwrap();
+        assert_eq!(back.input.segment_count, 2);
+        for (a, b) in back.input.segments().iter().zip(t.input.segments()) {
+            assert_eq!(a.axes.map(f64::to_bits), b.axes.map(f64::to_bits));
+        }
+        assert_eq!(bytes(&back), bytes(&t));
     }
     // Whole ticks from a real run: each decodes to the same bytes and the same fields.
     let (path, ticks) = eventful_log();

@@ -16,7 +16,7 @@ use strand_ipc::{self as ipc, Command, JobOutcome, RejectReason, RunState, segme
 use strand_testkit::root;
 
 /// The table's axis in W (m) and the plate's top (cells/kr6-turntable.toml, robots/kr6-turntable.urdf).
-const AXIS: [f64; 2] = [0.5, 0.0];
+const AXIS: [f64; 2] = [0.7, 0.0];
 const PLATE_Z: f64 = 0.25;
 const RADIUS: f64 = 0.03;
 const LAYER: f64 = 0.3e-3;

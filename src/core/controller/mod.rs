@@ -306,7 +306,7 @@ impl Controller {
             (f.translation.vector, UnitQuaternion::from_rotation_matrix(&f.rotation))
         };
         out.diagnostics.tcp_command_world = base.base_to_world(&p_cmd_b, &q_cmd_b).0;
-        self.watch_tcp_error(input, &base, &mut out);
+        self.watch_tcp_error(input, &base, (&p_cmd_b, &q_cmd_b), &mut out);
         self.fill_outputs(input, &mut out);
         for k in 0..self.transition_count as usize {
             let (from, to) = self.transitions[k];
@@ -916,7 +916,13 @@ impl Controller {
     /// while the path runs, the commanded TCP against the path target and (with a joint state fresh
     /// this tick) the measured TCP against the recent path, both through the estimated base pose.
     /// A trip latches `TcpErrorLimit` in the same tick, so this tick's extruder command is already off.
-    fn watch_tcp_error(&mut self, input: &TickInput, base: &BaseState, out: &mut TickOutput) {
+    fn watch_tcp_error(
+        &mut self,
+        input: &TickInput,
+        base: &BaseState,
+        (p_cmd_b, q_cmd_b): (&Vector3<f64>, &UnitQuaternion<f64>),
+        out: &mut TickOutput,
+    ) {
         let following = matches!(self.state, RunState::Running | RunState::Pausing | RunState::Paused | RunState::Stopping)
             && !self.settling
             && !self.stop_by_brake
@@ -930,19 +936,22 @@ impl Controller {
         // axes, so a table or track that falls behind its command shows as what it does to the
         // bead. Without, in W as the diagnostics have them.
         let arm = self.joints.arm();
-        let on_part = |q: &JointVector| -> Vector3<f64> {
-            let f = self.model.forward_kinematics(q);
-            let (mut p, r) = (f.translation.vector, UnitQuaternion::from_rotation_matrix(&f.rotation));
+        // The TCP (p, r in B) at joints `q` on the part.
+        let on_part = |p: &Vector3<f64>, r: &UnitQuaternion<f64>, q: &JointVector| -> Vector3<f64> {
+            let mut p = *p;
             if let Some(positioner) = &self.positioner {
                 let axes = std::array::from_fn(|i| if arm + i < self.joints.dof() { q[arm + i] } else { 0.0 });
-                p = positioner.to_home(&p, &r, &axes).0;
+                p = positioner.to_home(&p, r, &axes).0;
             }
-            base.base_to_world(&p, &r).0
+            base.base_to_world(&p, r).0
         };
-        let measured = (self.last_state_ns == Some(input.time_ns)).then(|| on_part(&self.q_measured));
+        let measured = (self.last_state_ns == Some(input.time_ns)).then(|| {
+            let f = self.model.forward_kinematics(&self.q_measured);
+            on_part(&f.translation.vector, &UnitQuaternion::from_rotation_matrix(&f.rotation), &self.q_measured)
+        });
         let d = &out.diagnostics;
         let (target, commanded) = match (&self.positioner, self.last_sample) {
-            (Some(_), Some(sample)) => (sample.position, on_part(&self.command.q)),
+            (Some(_), Some(sample)) => (sample.position, on_part(p_cmd_b, q_cmd_b, &self.command.q)),
             _ => (d.tcp_target_world, d.tcp_command_world),
         };
         let (error, trips) = self.following.observe(input.time_ns, &target, &commanded, measured.as_ref());

@@ -22,8 +22,9 @@ pub static FILES: &[(&str, &[u8])] = &[
 pub const DEMO_BOX: &str = "tests/data/gcode/slic3r/box35.gcode";
 /// The demo's default job for a tracked base: the 200 mm 1D truss.
 pub const DEMO_TRUSS: &str = "tests/data/gcode/truss/truss_200mm.gcode";
-/// The demo's default job for a cell with a rotary table (`cells/kr6-turntable`): a 60 mm
-/// cylinder printed as one helix, the table turning under a nearly still arm.
+/// The demo's default job for a cell with a rotary table (`cells/kr6-turntable`): a 600 mm
+/// cylinder printed as one helix, the table turning under a nearly still arm (its far side is out
+/// of the arm's reach).
 pub const DEMO_HELIX: &str = "tests/data/gcode/turntable/helix_cylinder.gcode";
 
 /// A folder under which every path of [`FILES`] exists: the working directory when it has them (the

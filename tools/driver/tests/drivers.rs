@@ -435,7 +435,7 @@ fn turntable_config(dir: &Path, protocol: &str, extra: &str) -> PathBuf {
     p
 }
 
-/// The table's job: the nozzle writes 60° of a 30 mm circle about the table's axis (at (0.5, 0)
+/// The table's job: the nozzle writes 60° of a 30 mm circle about the table's axis (at (0.7, 0)
 /// m in W, its plate's top 0.25 m up) while the table turns the other way, 0 → 60°, so that the
 /// nozzle hardly moves in W: a travel to the circle's start with the table at 0, then six chords
 /// of 10°, each ending with the table at k·10° (`segment_flags::AXES`). Points in the work frame
@@ -443,7 +443,7 @@ fn turntable_config(dir: &Path, protocol: &str, extra: &str) -> PathBuf {
 fn turntable_job() -> (Vec<strand_ipc::Segment>, f64) {
     use strand_ipc::segment_flags;
     use strand_testkit::line_with_axes;
-    let (centre, r, z) = ([0.5, 0.0], 0.03, 0.26);
+    let (centre, r, z) = ([0.7, 0.0], 0.03, 0.26);
     let point = |phi: f64| [centre[0] + r * phi.cos(), centre[1] + r * phi.sin(), z];
     let mut job = vec![line_with_axes(1, point(0.0), [0.0, 0.0], 0.05, 0.0)];
     for k in 1..=6u64 {

@@ -1,6 +1,7 @@
 #!/usr/bin/env python3
-"""Writes helix_cylinder.gcode: a 60 mm cylinder printed as one helix (spiral vase) on the
-rotary table of cells/kr6-turntable, the table turning under a nearly still arm.
+"""Writes helix_cylinder.gcode: a 600 mm cylinder printed as one helix (spiral vase) on the
+rotary table of cells/kr6-turntable, the table turning under a nearly still arm. Its far side is
+1.0 m from the arm's base, beyond the KR 6 R900's reach: only a turning table can print it.
 
 The points are on the part as it stands with the table at 0 (bed coordinates, mm; the table's axis
 at bed (125, 125)). Each point p(phi) of the helix is paired with the table angle C = -(phi - phi0)
@@ -11,15 +12,15 @@ robot), so the nozzle stays there and only climbs. The feed is the nozzle's spee
 """
 import math
 
-RADIUS = 30.0          # mm
+RADIUS = 300.0         # mm
 CENTRE = (125.0, 125.0)
 LAYER = 0.3            # mm per turn
-TURNS = 10
-STEP_DEG = 5.0         # one line per 5 degrees of turn (chord sag 0.03 mm)
+TURNS = 4
+STEP_DEG = 1.0         # one line per degree of turn (5.2 mm chords, 0.011 mm sag)
 WIDTH = 0.5            # mm bead width
 FILAMENT = 1.75        # mm
-FEED = 20.0            # mm/s over the part
-PHI0 = 180.0           # deg: where the nozzle stays (beside the table, facing the robot)
+FEED = 40.0            # mm/s over the part
+PHI0 = 180.0           # deg: where the nozzle stays (the side facing the robot, 0.4 m from its base)
 
 e_per_mm = WIDTH * LAYER / (math.pi * (FILAMENT / 2) ** 2)
 
@@ -29,7 +30,7 @@ def point(phi_deg, z):
     return CENTRE[0] + RADIUS * math.cos(a), CENTRE[1] + RADIUS * math.sin(a), z
 
 
-print("; helix_cylinder.gcode: a 60 mm cylinder as one helix on a rotary table (tests/data/gcode/turntable/make_helix.py)")
+print("; helix_cylinder.gcode: a 600 mm cylinder as one helix on a rotary table (tests/data/gcode/turntable/make_helix.py)")
 print(f"; radius {RADIUS} mm, {TURNS} turns of {LAYER} mm, {FEED} mm/s over the part; C turns the table (degrees)")
 print("G21 ; mm")
 print("G90 ; absolute XYZ and C")
