@@ -566,19 +566,6 @@ proptest! {
             0..80,
         )
     ) {
-        let mut text = String::new();
-        for (i, (letter, value, style)) in words.iter().enumerate() {
-            let letter = *letter as char;
-            match style {
-                0 => text.push_str(&format!("{letter}{value:.3} ")),
-                1 => text.push_str(&format!("{letter}{} ", (*value as i64 % 5).abs())),
-                2 => text.push_str(&format!("{letter}{value}")),
-                _ => text.push('\n'),
-            }
-            if i % 7 == 6 {
-                text.push('\n');
-            }
-        }
-        run_to_end(text.into_bytes());
+        run_to_end(strand_testkit::gcode_from_words(&words));
     }
 }

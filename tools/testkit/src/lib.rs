@@ -136,3 +136,23 @@ pub fn credit_batch(
     }
     batch
 }
+
+/// A G-code-like program from random words, for the parsers' property tests: each (letter, value,
+/// style) writes `L<value>` with three decimals (style 0), `L<small integer>` (1), `L<value>` with
+/// no separator (2) or a line break (3); a line break every seventh word besides.
+pub fn gcode_from_words(words: &[(u8, f64, u8)]) -> Vec<u8> {
+    let mut text = String::new();
+    for (i, (letter, value, style)) in words.iter().enumerate() {
+        let letter = *letter as char;
+        match style {
+            0 => text.push_str(&format!("{letter}{value:.3} ")),
+            1 => text.push_str(&format!("{letter}{} ", (*value as i64 % 5).abs())),
+            2 => text.push_str(&format!("{letter}{value}")),
+            _ => text.push('\n'),
+        }
+        if i % 7 == 6 {
+            text.push('\n');
+        }
+    }
+    text.into_bytes()
+}
