@@ -75,6 +75,12 @@ pub struct DriverConfig {
     /// the first sender, and no other after it. The driver connects (b-CAP, Meca500): the
     /// controller's address (`IP` with the protocol's port, or `IP:PORT`); empty: 127.0.0.1.
     pub robot: String,
+    /// EGM: where the driver listens (`IP:PORT`) for the channel of the cell's external axes when
+    /// the controller runs them as a mechanical unit of their own (MultiMove: a positioner in its
+    /// own motion task, with its own EGM instance and UDP device); the robot's channel then
+    /// carries its six axes only. Empty (the default): the external axes come in the robot's own
+    /// channel, as `externalJoints`.
+    pub external_axes_bind: String,
     /// Longest wait for the service's command after a robot packet arrives (s); then the driver
     /// answers with a hold (the last target, braked within the acceleration limits). At most
     /// 0.75 of the robot's cycle (the driver checks it against `[controller] rate_hz`).
@@ -135,6 +141,7 @@ impl Default for DriverConfig {
             protocol: DriverProtocol::Egm,
             bind: String::new(),
             robot: String::new(),
+            external_axes_bind: String::new(),
             reply_deadline: 0.002,
             max_late_cycles: 3,
             recover_cycles: 25,
@@ -167,6 +174,27 @@ impl DriverConfig {
         self.bind.parse().map_err(|_| InvalidSetting::new("driver", format!("[driver] bind = {:?}: not an IP:PORT address", self.bind)))
     }
 
+    /// The external axes' own channel (`external_axes_bind`), if they have one.
+    pub fn unit_address(&self) -> Result<Option<SocketAddr>, InvalidSetting> {
+        if self.external_axes_bind.is_empty() {
+            return Ok(None);
+        }
+        let addr = self.external_axes_bind.parse::<SocketAddr>().map_err(|_| {
+            InvalidSetting::new("driver", format!("[driver] external_axes_bind = {:?}: not an IP:PORT address", self.external_axes_bind))
+        })?;
+        let robot = self.bind_address()?;
+        if addr == robot && addr.port() != 0 {
+            return Err(InvalidSetting::new(
+                "driver",
+                format!(
+                    "[driver] external_axes_bind = {:?} is the robot's channel (bind): the unit needs a port of its own",
+                    self.external_axes_bind
+                ),
+            ));
+        }
+        Ok(Some(addr))
+    }
+
     /// The controller to connect to (the driver sends first): `robot`, with the protocol's port if
     /// it names none, or 127.0.0.1 with the protocol's port.
     pub fn robot_address(&self) -> Result<SocketAddr, InvalidSetting> {
@@ -184,6 +212,13 @@ impl DriverConfig {
     pub fn validate(&self, dof: usize) -> Result<(), InvalidSetting> {
         let bad = |m: String| Err(InvalidSetting::new("driver", m));
         self.bind_address()?;
+        if self.unit_address()?.is_some() && self.protocol != DriverProtocol::Egm {
+            return bad(format!(
+                "[driver] external_axes_bind = {:?}: a channel of their own for the external axes is EGM's (MultiMove); {} carries them with the robot's",
+                self.external_axes_bind,
+                self.protocol.name()
+            ));
+        }
         // The sender to accept: an address, or an IP with any port (the driver parses it again).
         if !self.robot.is_empty() && self.robot.parse::<SocketAddr>().is_err() && self.robot.parse::<IpAddr>().is_err() {
             return bad(format!("[driver] robot = {:?}: not an IP or IP:PORT address", self.robot));

@@ -4,9 +4,11 @@
 //! period), and answered with the service's JointCommand for that state — or a hold, if the
 //! command is not there by the reply deadline. A fault latched by the session is told to the
 //! service as an emergency stop. Ctrl-C (or SIGTERM) holds the robot and keeps answering until it
-//! is at rest, then exits.
+//! is at rest, then exits. External axes on a channel of their own (EGM MultiMove,
+//! `[driver] external_axes_bind`) have a socket of their own beside the robot's ([`UnitLink`]).
 
 use std::net::{SocketAddr, UdpSocket};
+use std::os::fd::AsRawFd;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
 
@@ -17,6 +19,7 @@ use strand_ipc::{Command, Control, JointCommand, JointState, ServiceNames};
 
 use crate::protocol::{Channel, Clock, RobotProtocol};
 use crate::session::{Counters, DriverState, Due, ReplyKind, Session, Transition};
+use crate::unit_link::{UnitCounters, UnitLink, readable};
 
 /// How the bridge runs.
 #[derive(Clone, Debug)]
@@ -30,6 +33,9 @@ pub struct BridgeOptions {
     pub period: f64,
     /// Stop after this many packets (0: never; for tests and benchmarks).
     pub max_packets: u64,
+    /// Where the external axes' own channel listens (`[driver] external_axes_bind`), when the
+    /// protocol carries them on one ([`RobotProtocol::split_unit_channel`]).
+    pub unit_bind: Option<SocketAddr>,
 }
 
 /// Packets taken from the socket at most, per robot packet, to find the newest.
@@ -47,6 +53,8 @@ pub struct BridgeReport {
     pub latency: Histogram,
     /// The state at the end.
     pub final_state: String,
+    /// The external axes' own channel, if they have one.
+    pub unit: Option<UnitCounters>,
 }
 
 /// A bridge failure before it could run.
@@ -83,6 +91,16 @@ pub fn run<P: RobotProtocol>(session: &mut Session<P>, opts: &BridgeOptions, sto
         &format!("strand-{name}"),
         ClientRoles { driver: true, feeder: true, ..Default::default() },
     )?;
+    let mut unit = match opts.unit_bind {
+        Some(bind) if session.protocol_mut().unit_channel().is_some() => {
+            let deadline_ns = (session.rules().reply_deadline * 1e9) as u64;
+            let link = UnitLink::bind(bind, deadline_ns).map_err(|source| BridgeError::Socket { address: bind, source })?;
+            let at = link.local_addr().map_err(|source| BridgeError::Socket { address: bind, source })?;
+            eprintln!("strand-{name}: the external axes' own channel on {at}");
+            Some(link)
+        }
+        _ => None,
+    };
     eprintln!("strand-{name}: listening on {local}, service {}", opts.prefix);
     let mut buf = vec![0u8; 65536];
     let mut spare = vec![0u8; 65536];
@@ -108,6 +126,21 @@ pub fn run<P: RobotProtocol>(session: &mut Session<P>, opts: &BridgeOptions, sto
             }
             // Every accepted packet is answered in its own pass of this loop, by its deadline.
             Due::Reply | Due::Nothing => {}
+        }
+        if let Some(u) = &mut unit {
+            // Both channels at once: the unit's packets are taken as they come, and one whose
+            // robot packet does not come is answered at its deadline.
+            let now = monotonic_ns();
+            let wait = u.due_at().map_or(100_000_000, |due| due.saturating_sub(now)).min(100_000_000);
+            let mut ready = [false; 2];
+            readable(&[socket.as_raw_fd(), u.fd()], wait, &mut ready);
+            if ready[1] {
+                u.take_packets(session, monotonic_ns());
+            }
+            u.answer_if_due(session, monotonic_ns());
+            if !ready[0] {
+                continue;
+            }
         }
         let (n, from) = match socket.recv_from(&mut buf) {
             Ok(x) => x,
@@ -147,6 +180,10 @@ pub fn run<P: RobotProtocol>(session: &mut Session<P>, opts: &BridgeOptions, sto
             let _ = socket.set_nonblocking(false);
         }
         let received = monotonic_ns();
+        if let Some(u) = &mut unit {
+            // The unit's packet of this cycle, for the axes the service is told.
+            u.catch_up(session, received, period_ns, period_ns.min((session.rules().reply_deadline * 1e9) as u64) / 4);
+        }
         let (seq, q, transition) = match session.on_packet_at(received, &buf[..n], from) {
             Ok(x) => x,
             Err(dropped) => {
@@ -202,6 +239,10 @@ pub fn run<P: RobotProtocol>(session: &mut Session<P>, opts: &BridgeOptions, sto
             answer(&socket, &reply, from, received, period_ns, &mut latency, session);
             r
         };
+        if let Some(u) = &mut unit {
+            // The unit's share of the same answer.
+            u.answer(session, true);
+        }
         if let Some(t) = transition {
             let why = if t.to == DriverState::HeldAfterFault {
                 format!(
@@ -243,7 +284,13 @@ pub fn run<P: RobotProtocol>(session: &mut Session<P>, opts: &BridgeOptions, sto
             break;
         }
     }
-    Ok(BridgeReport { counters: session.counters, stale, latency, final_state: format!("{:?}", session.state()) })
+    Ok(BridgeReport {
+        counters: session.counters,
+        stale,
+        latency,
+        final_state: format!("{:?}", session.state()),
+        unit: unit.map(|u| u.counters),
+    })
 }
 
 /// The JointState for an accepted packet: the measured joints stamped on receipt, with what the

@@ -17,8 +17,10 @@
 //!
 //! A cell's external axes (a positioner under the part, a track under the robot: `[positioner]`
 //! or `[track]` in the robot file) follow the arm's joints in every joint array, on the service's
-//! side and the robot's ([`CellJoints`]): RSI carries them as E1..E6, EGM in `externalJoints`; the
-//! other protocols drive an arm alone and refuse such a cell at start.
+//! side and the robot's ([`CellJoints`]): RSI carries them as E1..E6, EGM in `externalJoints` —
+//! of the robot's channel, or of their own when the controller runs them as a mechanical unit
+//! apart (MultiMove; [`unit_link`], `[driver] external_axes_bind`); the other protocols drive an
+//! arm alone and refuse such a cell at start.
 
 pub mod bcap;
 pub mod bridge;
@@ -28,6 +30,7 @@ pub mod fri;
 pub mod meca;
 pub mod paced;
 pub mod rsi;
+pub mod unit_link;
 pub mod ur;
 
 pub use strand_robot::{axes, guard, protocol, session};
@@ -208,6 +211,15 @@ pub fn driver_config(cfg: &Config, protocol: DriverProtocol) -> Result<DriverCon
         });
     }
     d.validate(mapped).map_err(|source| SetupError::Setting { file: file.clone(), source })?;
+    if !d.external_axes_bind.is_empty() && cell.external() == 0 {
+        return Err(SetupError::Section {
+            file,
+            why: format!(
+                "[driver] external_axes_bind = {:?}, but the robot file has no external axes ([positioner] or [track]) to stream on a channel of their own",
+                d.external_axes_bind
+            ),
+        });
+    }
     // The answer must leave inside the robot's cycle, with room for the answer itself.
     let period = 1.0 / cfg.controller.rate_hz;
     if d.reply_deadline > 0.75 * period {
@@ -273,6 +285,15 @@ pub fn session<P: RobotProtocol>(cfg: &Config, d: &DriverConfig, mut protocol: P
     let cell = CellJoints::of(cfg)?;
     let linear: Vec<bool> = cell.joints.iter().map(|j| j.linear).collect();
     protocol.set_linear_axes(&linear).map_err(|why| SetupError::Robot { file: cfg.file.display().to_string(), protocol: P::NAME, why })?;
+    let unit = d.unit_address().map_err(|source| SetupError::Setting { file: cfg.file.display().to_string(), source })?;
+    if unit.is_some() {
+        // The external axes on a channel of their own (EGM MultiMove).
+        protocol.split_unit_channel(cell.arm).map_err(|why| SetupError::Robot {
+            file: cfg.file.display().to_string(),
+            protocol: P::NAME,
+            why,
+        })?;
+    }
     protocol.set_period(1.0 / cfg.controller.rate_hz);
     let bounds = cell.joints.iter().map(|j| j.limits).collect();
     let guard = ReplyGuard::new(bounds, 1.0 / cfg.controller.rate_hz);

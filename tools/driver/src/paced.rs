@@ -324,7 +324,7 @@ pub fn run<P: RobotProtocol, L: DriverLink>(
         eprintln!("strand-{name}: the stream ended: {why}");
         estop(&ports, &mut control_seq);
     }
-    let report = BridgeReport { counters: session.counters, stale: 0, latency, final_state: format!("{:?}", session.state()) };
+    let report = BridgeReport { counters: session.counters, stale: 0, latency, final_state: format!("{:?}", session.state()), unit: None };
     Ok((report, Ended { end, release_failed }))
 }
 

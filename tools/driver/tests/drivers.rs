@@ -32,7 +32,7 @@ use strand::config::Config;
 use strand_driver::fake::egm::FakeEgm;
 use strand_driver::fake::fri::{FakeFri, FriOptions, FriWatch};
 use strand_driver::fake::rsi::FakeRsi;
-use strand_driver::fake::{FakeOptions, FakeProtocol, FakeReport, run};
+use strand_driver::fake::{FakeChannel, FakeOptions, FakeProtocol, FakeReport, run, run_channels};
 
 fn free_udp_port() -> u16 {
     UdpSocket::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port()
@@ -61,6 +61,8 @@ struct Cell {
     fake: Option<std::thread::JoinHandle<FakeReport>>,
     /// The fake Sunrise cabinet's FRI session (FRI only).
     fri: Option<FriWatch>,
+    /// Mutes the external axes' own EGM channel (a MultiMove cell only).
+    unit_mute: Option<Arc<AtomicBool>>,
 }
 
 /// Settings every process of a cell takes: FRI's iiwa runs at 1 ms in its config; the tests run
@@ -78,6 +80,16 @@ impl Cell {
     /// A cell of the config `config` writes into the cell's folder (or names). The fake robot
     /// starts at `[service] initial_joints`, its external axes (if the robot file has some) at 0.
     fn start_with(protocol: &str, name: &str, config: impl FnOnce(&Path) -> PathBuf) -> Cell {
+        Cell::start_cell(protocol, name, config, false)
+    }
+
+    /// An EGM cell whose external axes are a mechanical unit of their own (MultiMove): the fake
+    /// controller streams them on a second channel, to the driver's `[driver] external_axes_bind`.
+    fn start_multimove(name: &str, config: impl FnOnce(&Path) -> PathBuf) -> Cell {
+        Cell::start_cell("egm", name, config, true)
+    }
+
+    fn start_cell(protocol: &str, name: &str, config: impl FnOnce(&Path) -> PathBuf, multimove: bool) -> Cell {
         let one = ONE_CELL.lock().unwrap_or_else(|e| e.into_inner());
         let dir = strand_testkit::temp_dir("driver", name);
         let config = config(&dir);
@@ -106,6 +118,10 @@ impl Cell {
             driver.args(["--set", "driver.reply_deadline=0.002", "--set", "driver.max_late_cycles=3"]);
         }
         driver.args(&settings);
+        let unit_port = free_udp_port();
+        if multimove {
+            driver.args(["--set", &format!("driver.external_axes_bind=\"127.0.0.1:{unit_port}\"")]);
+        }
         let driver = Reaped(
             driver
                 .args(["--prefix", &prefix, "--rt", DRIVER_RT, "--bind", &format!("127.0.0.1:{port}"), "--config"])
@@ -137,6 +153,8 @@ impl Cell {
         }
         let protocol = protocol.to_string();
         wait_for(&dir.join("driver.log"), "listening on", Duration::from_secs(20));
+        let unit_mute = multimove.then(|| Arc::new(AtomicBool::new(false)));
+        let mute = unit_mute.clone();
         let fake = std::thread::spawn(move || {
             let mut p: Box<dyn FakeProtocol> = match (protocol.as_str(), fri) {
                 (_, Some(fri)) => Box::new(fri),
@@ -153,10 +171,23 @@ impl Cell {
                 give_up_after: 0,
                 rt_priority: Some(90),
             };
-            run(p.as_mut(), &opts, &stop).unwrap()
+            match mute {
+                Some(mute) => {
+                    let mut unit = FakeEgm::unit(25, 4);
+                    unit.mute = mute;
+                    let unit_axes = 6..opts.start_deg.len();
+                    let unit_driver = SocketAddr::from(([127, 0, 0, 1], unit_port));
+                    let mut channels = [
+                        FakeChannel { protocol: p.as_mut(), driver: opts.driver, axes: 0..6 },
+                        FakeChannel { protocol: &mut unit, driver: unit_driver, axes: unit_axes },
+                    ];
+                    run_channels(&mut channels, &opts, &stop).unwrap()
+                }
+                None => run(p.as_mut(), &opts, &stop).unwrap(),
+            }
         });
         wait_for(&dir.join("driver.log"), "Holding", Duration::from_secs(20));
-        Cell { _one: one, dir, config, prefix, service, driver, stop_fake, fake: Some(fake), fri: fri_watch }
+        Cell { _one: one, dir, config, prefix, service, driver, stop_fake, fake: Some(fake), fri: fri_watch, unit_mute }
     }
 
     fn feed(&self, job: &Path) -> Command {
@@ -457,7 +488,7 @@ fn turntable_job() -> (Vec<strand_ipc::Segment>, f64) {
 }
 
 /// Streams `job` to the service within the credit window its Status announces, sends Start after
-/// the first batch, and waits (at most `within`) for the job to end; its last Status.
+/// the first batch, and waits (at most `within`) for the job to end, or to fault; its last Status.
 fn stream_job(prefix: &str, job: &[strand_ipc::Segment], within: Duration) -> strand_ipc::Status {
     use strand_ipc::ports::{ClientPorts, ClientRoles};
     use strand_ipc::{Control, JobOutcome, RunState, ServiceNames};
@@ -478,7 +509,7 @@ fn stream_job(prefix: &str, job: &[strand_ipc::Segment], within: Duration) -> st
         last = Some(status);
         if next == job.len() && started {
             if status.job_outcome != JobOutcome::InProgress as u32
-                && status.run_state == RunState::Idle as u32
+                && (status.run_state == RunState::Idle as u32 || status.fault != 0)
                 && status.segments_accepted > 0
             {
                 return status;
@@ -514,9 +545,16 @@ fn stream_job(prefix: &str, job: &[strand_ipc::Segment], within: Duration) -> st
 /// put it, every axis keeps its limits, and the driver never faulted.
 fn a_turntable_job_streams_through(protocol: &str) {
     let cell = Cell::start_with(protocol, &format!("turntable-{protocol}"), |dir| turntable_config(dir, protocol, ""));
-    let (job, table) = turntable_job();
+    let (job, _) = turntable_job();
     let status = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| stream_job(&cell.prefix, &job, Duration::from_secs(60))))
         .unwrap_or_else(|_| panic!("{protocol}: the turntable job did not end\n{}", cell.logs()));
+    the_turntable_job_ended_well(cell, protocol, status);
+}
+
+/// The turntable job's checks (see [`a_turntable_job_streams_through`]), once it ended with
+/// `status`: the fake's report and the driver's stats.
+fn the_turntable_job_ended_well(cell: Cell, protocol: &str, status: strand_ipc::Status) -> (FakeReport, serde_json::Value) {
+    let table = turntable_job().1;
     let logs = cell.logs();
     assert_eq!(status.job_outcome, strand_ipc::JobOutcome::Finished as u32, "{protocol}: {status:?}\n{logs}");
     assert_eq!(status.fault, 0, "{status:?}");
@@ -549,6 +587,7 @@ fn a_turntable_job_streams_through(protocol: &str) {
         assert!(v[k] <= vl * 1.001, "{protocol}: axis {} at {:.1} deg/s, limit {vl:.1}", k + 1, v[k]);
         assert!(a[k] <= al * 1.001, "{protocol}: axis {} at {:.1} deg/s², limit {al:.1}", k + 1, a[k]);
     }
+    (report, stats)
 }
 
 #[test]
@@ -567,6 +606,83 @@ fn a_turntable_job_streams_through_strand_egm_to_an_abb_with_an_external_joint_a
         return;
     }
     a_turntable_job_streams_through("egm");
+}
+
+/// The same cell over EGM with the table a mechanical unit of its own (ABB MultiMove: a positioner
+/// in its own motion task, its own EGM channel to `[driver] external_axes_bind`): strand-egm
+/// merges the unit's `externalJoints` into the robot's state and answers each channel with its
+/// share of the one command; the job ends as over one channel, the table at 60°.
+#[test]
+fn a_turntable_job_streams_through_strand_egm_to_a_multimove_abb_with_the_table_on_its_own_channel() {
+    if !cells_run_here("a_turntable_job_streams_through_strand_egm_to_a_multimove_abb_with_the_table_on_its_own_channel") {
+        return;
+    }
+    let cell = Cell::start_multimove("turntable-multimove", |dir| turntable_config(dir, "egm", ""));
+    let (job, _) = turntable_job();
+    let status = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| stream_job(&cell.prefix, &job, Duration::from_secs(60))))
+        .unwrap_or_else(|_| panic!("multimove: the turntable job did not end\n{}", cell.logs()));
+    let (report, stats) = the_turntable_job_ended_well(cell, "egm multimove", status);
+    let unit = &stats["unit"];
+    let count = |k: &str| unit[k].as_u64().unwrap_or_else(|| panic!("unit.{k}: {stats}"));
+    assert_eq!((count("malformed"), count("foreign"), count("out_of_order")), (0, 0, 0), "{stats}");
+    // Every unit packet is answered with the robot's answer of its cycle (but for what the
+    // machine's noise takes), and the fake's table channel is answered in time as often.
+    let packets = count("packets");
+    assert!(packets + 2 >= report.cycles, "{packets} unit packets in {} cycles: {stats}", report.cycles);
+    assert!(count("answered_with_robot") as f64 >= in_time_needed() * packets as f64, "{stats}");
+    assert!(report.channel_in_time[1] as f64 >= in_time_needed() * packets as f64, "{:?} {stats}", report.channel_in_time);
+}
+
+/// The MultiMove cell's table falls silent mid-job for 0.3 s (its motion task stopped): from the
+/// second robot cycle without it the arm is answered with where it is (it stands: the table
+/// under the nozzle does not turn) and the service is not clocked, so it faults
+/// `JointStateLost` after `joint_state_timeout` (0.05 s) and the job ends faulted; the driver
+/// itself holds and does not fault, and follows again when the table streams again.
+#[test]
+fn a_multimove_table_that_falls_silent_mid_job_stands_the_arm_and_faults_the_job() {
+    if !cells_run_here("a_multimove_table_that_falls_silent_mid_job_stands_the_arm_and_faults_the_job") {
+        return;
+    }
+    use strand_ipc::ports::{ClientPorts, ClientRoles};
+    let cell = Cell::start_multimove("turntable-silent", |dir| turntable_config(dir, "egm", ""));
+    let (job, _) = turntable_job();
+    let (prefix, mute) = (cell.prefix.clone(), cell.unit_mute.clone().unwrap());
+    let silence = std::thread::spawn(move || {
+        let monitor = ClientRoles { monitor: true, ..Default::default() };
+        let ports = ClientPorts::open(&strand_ipc::ServiceNames::new(&prefix), "unit-silence", monitor).unwrap();
+        let end = Instant::now() + Duration::from_secs(60);
+        while Instant::now() < end && ports.latest_status().is_none_or(|s| s.executing_seq < 3) {
+            std::thread::sleep(Duration::from_millis(1));
+        }
+        mute.store(true, Ordering::Relaxed);
+        std::thread::sleep(Duration::from_millis(300));
+        mute.store(false, Ordering::Relaxed);
+    });
+    let status = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| stream_job(&cell.prefix, &job, Duration::from_secs(60))))
+        .unwrap_or_else(|_| panic!("multimove: the turntable job did not end\n{}", cell.logs()));
+    silence.join().unwrap();
+    let logs = cell.logs();
+    assert_eq!(status.job_outcome, strand_ipc::JobOutcome::Faulted as u32, "{status:?}\n{logs}");
+    assert_eq!(status.fault, strand_ipc::FaultCode::JointStateLost as u32, "{status:?}\n{logs}");
+    std::thread::sleep(Duration::from_millis(200));
+    let (report, stats, log) = cell.finish();
+    assert_eq!(stats["counters"]["faults"], 0, "the driver held the robot and did not fault: {stats}\n{log}");
+    // The silence is the longest run of cycles the table's channel sent nothing (not fresh).
+    let (mut run, mut longest) = ((0, 0), (0, 0));
+    for (k, fresh) in report.fresh.iter().enumerate() {
+        run = if *fresh { (k + 1, k + 1) } else { (run.0, k + 1) };
+        if run.1 - run.0 > longest.1 - longest.0 {
+            longest = run;
+        }
+    }
+    assert!(longest.1 - longest.0 >= 50, "a silence of 0.3 s is about 75 cycles: {longest:?}");
+    // From the third cycle of it on (two for the driver to see it, one in flight) the arm stands.
+    let moved = (0..6)
+        .map(|j| (longest.0 + 3..longest.1).map(|k| (report.axes[k][j] - report.axes[longest.0 + 3][j]).abs()).fold(0.0, f64::max))
+        .fold(0.0, f64::max);
+    eprintln!("the table silent over cycles {longest:?}: the arm moved {moved:.2e}° from its third; driver: {stats}");
+    assert!(moved < 1e-6, "the arm moved {moved}° while its table was silent (cycles {longest:?})");
+    assert!(stats["unit"]["packets"].as_u64().unwrap() > 0, "{stats}");
 }
 
 /// A cell with a positioner: RSI and EGM carry its axis after the arm's six (and the per-joint
@@ -614,4 +730,39 @@ fn a_cell_with_a_turntable_is_carried_by_rsi_and_egm_and_refused_by_the_others()
         assert_eq!(out.status.code(), Some(2), "strand-{protocol}: {stderr}");
         assert!(stderr.contains(said) && stderr.contains("[positioner]"), "strand-{protocol}: {stderr}");
     }
+}
+
+/// `[driver] external_axes_bind` (the external axes on a channel of their own): EGM with a cell
+/// that has external axes takes it; RSI, an arm without external axes, and the robot's own port
+/// are refused, each naming the key.
+#[test]
+fn external_axes_on_a_channel_of_their_own_are_egms_and_need_external_axes() {
+    use strand::config::driver::DriverProtocol;
+    let dir = strand_testkit::temp_dir("driver", "unit-setup");
+    let unit = "external_axes_bind = \"127.0.0.1:6511\"";
+    let cfg = Config::load(&turntable_config(&dir, "egm", unit)).unwrap();
+    let d = strand_driver::driver_config(&cfg, DriverProtocol::Egm).unwrap();
+    assert_eq!(d.unit_address().unwrap(), Some("127.0.0.1:6511".parse().unwrap()));
+    let mut session = strand_driver::session(&cfg, &d, strand_driver::egm::Egm::new()).unwrap();
+    assert_eq!(session.dof(), 7);
+    use strand_driver::protocol::RobotProtocol;
+    assert!(session.protocol_mut().unit_channel().is_some(), "the table on its own channel");
+    // Refused when the config loads, or when the driver checks it against the cell.
+    let refused = |path: &Path, p: DriverProtocol| match Config::load(path) {
+        Err(e) => e.to_string(),
+        Ok(cfg) => strand_driver::driver_config(&cfg, p).unwrap_err().to_string(),
+    };
+    let e = refused(&turntable_config(&dir, "rsi", unit), DriverProtocol::Rsi);
+    assert!(e.contains("external_axes_bind") && e.contains("EGM's (MultiMove)"), "{e}");
+    let same = "bind = \"127.0.0.1:6510\"\nexternal_axes_bind = \"127.0.0.1:6510\"";
+    let e = refused(&turntable_config(&dir, "egm", same), DriverProtocol::Egm);
+    assert!(e.contains("external_axes_bind") && e.contains("a port of its own"), "{e}");
+    let arm = dir.join("irb140-unit.toml");
+    let text = std::fs::read_to_string(root().join("config/irb140.toml")).unwrap();
+    assert!(text.contains("[driver]"), "irb140's config has a [driver] section");
+    let robot = root().join("config/robots/irb140.toml").canonicalize().unwrap();
+    let text = text.replace("robot = \"robots/irb140.toml\"", &format!("robot = {:?}", robot.display().to_string()));
+    std::fs::write(&arm, text.replace("[driver]", &format!("[driver]\n{unit}"))).unwrap();
+    let e = refused(&arm, DriverProtocol::Egm);
+    assert!(e.contains("external_axes_bind") && e.contains("no external axes"), "{e}");
 }

@@ -147,4 +147,40 @@ pub trait RobotProtocol {
     /// clocks the cycle it answers the newest packet read; an empty `out` sends nothing (FRI
     /// after its session ended).
     fn write(&mut self, axes: &[f64], out: &mut Vec<u8>);
+
+    /// Takes the cell's external axes (the joints after `arm`) off the robot's channel onto a
+    /// channel of their own ([`UnitChannel`]): the controller runs them as a mechanical unit of
+    /// another motion task (ABB MultiMove: a positioner with its own EGM instance and UDP
+    /// device). Called once, after [`RobotProtocol::set_linear_axes`]. Refused by default: the
+    /// protocol carries every joint in one channel.
+    fn split_unit_channel(&mut self, arm: usize) -> Result<(), String> {
+        let _ = arm;
+        Err(format!("{} carries every joint in the robot's channel: no channel of their own for the external axes", Self::NAME))
+    }
+
+    /// The external axes' own channel, once [`RobotProtocol::split_unit_channel`] made one.
+    fn unit_channel(&mut self) -> Option<&mut dyn UnitChannel> {
+        None
+    }
+}
+
+/// The channel of a mechanical unit that streams apart from the robot (ABB MultiMove: a positioner
+/// in its own motion task has its own EGM channel on its own UDP port) though one command drives
+/// both. The robot's channel keeps the cycle: the driver feeds this channel's packets to it as
+/// they come, the robot channel's [`RobotProtocol::read`] merges the unit's newest measured axes
+/// into the robot's packet (not following while the unit is silent or not following), and its
+/// [`RobotProtocol::write`] keeps the unit's share of the command for [`UnitChannel::unit_write`].
+pub trait UnitChannel {
+    /// Reads one of the unit's packets: its measured axes and state, for the robot's next read.
+    /// False: a packet older than one already taken (out of order, a duplicate), dropped.
+    fn unit_read(&mut self, packet: &[u8]) -> Result<bool, PacketError>;
+
+    /// Writes into `out` (cleared first) the answer to the unit's newest packet: its share of the
+    /// last command written to the robot, or — until the robot follows, and after the unit was
+    /// silent — where the unit is.
+    fn unit_write(&mut self, out: &mut Vec<u8>);
+
+    /// Whether the unit's newest packet came within the robot's last two cycles (counted in the
+    /// robot's packets, not in time, so that a replay decides the same).
+    fn unit_fresh(&self) -> bool;
 }

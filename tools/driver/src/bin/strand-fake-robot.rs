@@ -16,7 +16,7 @@ use clap::{Parser, ValueEnum};
 use strand_driver::fake::egm::FakeEgm;
 use strand_driver::fake::fri::{FakeFri, FriOptions};
 use strand_driver::fake::rsi::FakeRsi;
-use strand_driver::fake::{FakeOptions, FakeProtocol, run};
+use strand_driver::fake::{FakeChannel, FakeOptions, FakeProtocol, run, run_channels};
 
 #[derive(Clone, Copy, ValueEnum)]
 enum Protocol {
@@ -41,6 +41,11 @@ struct Cli {
     /// The driver's address (IP:PORT): EGM, RSI and FRI, where the robot sends first.
     #[arg(long, required_if_eq_any = [("protocol", "egm"), ("protocol", "rsi"), ("protocol", "fri")])]
     driver: Option<SocketAddr>,
+    /// EGM: the driver's address for the external axes' own channel (`[driver] external_axes_bind`):
+    /// the fake is then a MultiMove controller whose axes after the six are a mechanical unit in a
+    /// motion task of its own, streaming EGM from a second socket (`feedBack.externalJoints` only).
+    #[arg(long, requires = "driver")]
+    unit_driver: Option<SocketAddr>,
     /// Where to listen for the driver (IP:PORT): b-CAP (5007 on an RC8), the Meca500's control
     /// port (10000; its monitoring port is the next one), UR's RTDE port (30004; the script port
     /// is the next one).
@@ -229,7 +234,22 @@ fn main() -> ExitCode {
         give_up_after: cli.give_up_after,
         rt_priority: cli.rt,
     };
-    let report = match run(protocol.as_mut(), &opts, &STOP) {
+    let run = match cli.unit_driver {
+        Some(unit_driver) => {
+            if !matches!(cli.protocol, Protocol::Egm) || cli.start.len() <= 6 {
+                eprintln!("strand-fake-robot: --unit-driver: an EGM controller with external axes (--start with more than six values)");
+                return ExitCode::from(2);
+            }
+            let mut unit = FakeEgm::unit(cli.stopped_cycles, period_ms as u32);
+            let mut channels = [
+                FakeChannel { protocol: protocol.as_mut(), driver, axes: 0..6 },
+                FakeChannel { protocol: &mut unit, driver: unit_driver, axes: 6..cli.start.len() },
+            ];
+            run_channels(&mut channels, &opts, &STOP)
+        }
+        None => run(protocol.as_mut(), &opts, &STOP),
+    };
+    let report = match run {
         Ok(r) => r,
         Err(e) => {
             eprintln!("strand-fake-robot: {e}");

@@ -26,13 +26,19 @@
 //! from a public source: whether RAPID's `EGMRunJoint` must name the external axes, and whether a
 //! controller sends `externalJoints` for axes outside the EGM motion group (the notes:
 //! `docs/protocols/external-axes.md`).
+//!
+//! Where the controller runs the external axes as a mechanical unit of their own (MultiMove: a
+//! positioner in its own motion task, with its own EGM instance and UDP device), they come over a
+//! second channel ([`unit`], `[driver] external_axes_bind`): the robot's packets then carry the
+//! six axes only, and the unit's axes are merged into them from the unit's newest packet.
 
 pub mod proto;
+pub mod unit;
 
 use prost::Message;
 use strand_ipc::MAX_JOINTS;
 
-use crate::protocol::{Channel, Clock, PacketError, RobotPacket, RobotProtocol};
+use crate::protocol::{Channel, Clock, PacketError, RobotPacket, RobotProtocol, UnitChannel};
 use proto::egm_header::MessageType;
 use proto::egm_mci_state::MciStateType;
 use proto::egm_motor_state::MotorStateType;
@@ -63,6 +69,9 @@ pub struct Egm {
     /// The cell's external axes (`externalJoints[0..]`, after the six robot axes); kept across
     /// sessions.
     external: usize,
+    /// The external axes' own channel, when they are a mechanical unit of their own; kept across
+    /// sessions.
+    unit: Option<unit::Unit>,
 }
 
 impl Egm {
@@ -76,6 +85,27 @@ impl Egm {
     pub fn external_axes(&self) -> usize {
         self.external
     }
+}
+
+/// What every EGM channel reads first: the `EgmRobot`, its `seqno`, and whether the controller
+/// follows corrections (motors on, `MCI_RUNNING`, RAPID running or undefined — a RobotWare quirk
+/// after a restart). `whose` begins the errors' text (empty for the robot's channel).
+fn decode_robot(packet: &[u8], whose: &str) -> Result<(EgmRobot, u32, bool), PacketError> {
+    let robot = EgmRobot::decode(packet).map_err(|e| PacketError::Malformed(format!("{whose}EgmRobot: {e}")))?;
+    let header = robot.header.as_ref().ok_or_else(|| PacketError::Truncated(format!("{whose}no header")))?;
+    if header.mtype() != MessageType::MsgtypeData {
+        return Err(PacketError::Malformed(format!("{whose}mtype {:?}, not MSGTYPE_DATA", header.mtype())));
+    }
+    let seqno = header.seqno.ok_or_else(|| PacketError::Truncated(format!("{whose}no header.seqno")))?;
+    let (motors, mci, rapid) = (
+        robot.motor_state.as_ref().ok_or_else(|| PacketError::Truncated(format!("{whose}no motorState")))?.state(),
+        robot.mci_state.as_ref().ok_or_else(|| PacketError::Truncated(format!("{whose}no mciState")))?.state(),
+        robot.rapid_exec_state.as_ref().map_or(RapidCtrlExecStateType::RapidUndefined, |r| r.state()),
+    );
+    let following = motors == MotorStateType::MotorsOn
+        && mci == MciStateType::MciRunning
+        && matches!(rapid, RapidCtrlExecStateType::RapidRunning | RapidCtrlExecStateType::RapidUndefined);
+    Ok((robot, seqno, following))
 }
 
 /// An axis value on the wire (degrees, or mm when linear) in the driver's units (rad, or m).
@@ -122,19 +152,16 @@ impl RobotProtocol for Egm {
         if packet.len() > Self::MAX_PACKET {
             return Err(PacketError::Oversized(packet.len()));
         }
-        let robot = EgmRobot::decode(packet).map_err(|e| PacketError::Malformed(format!("EgmRobot: {e}")))?;
-        let header = robot.header.as_ref().ok_or_else(|| PacketError::Truncated("no header".into()))?;
-        if header.mtype() != MessageType::MsgtypeData {
-            return Err(PacketError::Malformed(format!("mtype {:?}, not MSGTYPE_DATA", header.mtype())));
-        }
-        let seqno = header.seqno.ok_or_else(|| PacketError::Truncated("no header.seqno".into()))?;
+        let (robot, seqno, mut following) = decode_robot(packet, "")?;
         let feedback =
             robot.feed_back.as_ref().and_then(|f| f.joints.as_ref()).ok_or_else(|| PacketError::Truncated("no feedBack.joints".into()))?;
         if feedback.joints.len() != ROBOT_AXES {
             return Err(PacketError::Truncated(format!("feedBack.joints has {} values, not {ROBOT_AXES}", feedback.joints.len())));
         }
+        // In the robot's own channel, or (a unit of their own) merged in from the unit's.
+        let in_robot_channel = if self.unit.is_some() { 0 } else { self.external };
         let external = robot.feed_back.as_ref().and_then(|f| f.external_joints.as_ref()).map_or(&[][..], |e| &e.joints[..]);
-        if external.len() < self.external {
+        if external.len() < in_robot_channel {
             return Err(PacketError::Truncated(format!(
                 "feedBack.externalJoints has {} values; the cell has {} external axes (joints {}..{})",
                 external.len(),
@@ -143,7 +170,7 @@ impl RobotProtocol for Egm {
                 ROBOT_AXES + self.external
             )));
         }
-        let external = &external[..self.external];
+        let external = &external[..in_robot_channel];
         let mut axes = [0.0; MAX_JOINTS];
         for (k, v) in feedback.joints.iter().chain(external).enumerate() {
             if !v.is_finite() {
@@ -151,14 +178,9 @@ impl RobotProtocol for Egm {
             }
             axes[k] = from_wire(*v, self.linear[k]);
         }
-        let (motors, mci, rapid) = (
-            robot.motor_state.as_ref().ok_or_else(|| PacketError::Truncated("no motorState".into()))?.state(),
-            robot.mci_state.as_ref().ok_or_else(|| PacketError::Truncated("no mciState".into()))?.state(),
-            robot.rapid_exec_state.as_ref().map_or(RapidCtrlExecStateType::RapidUndefined, |r| r.state()),
-        );
-        let following = motors == MotorStateType::MotorsOn
-            && mci == MciStateType::MciRunning
-            && matches!(rapid, RapidCtrlExecStateType::RapidRunning | RapidCtrlExecStateType::RapidUndefined);
+        if let Some(unit) = &mut self.unit {
+            following &= unit.merge_into(&mut axes, ROBOT_AXES)?;
+        }
         if let Some(last) = self.last_seqno
             && seqno < last
             && (seqno == 0 || last - seqno > NEW_SESSION_GAP)
@@ -166,14 +188,18 @@ impl RobotProtocol for Egm {
             self.epoch += 1 << 32;
         }
         self.last_seqno = Some(seqno);
-        let tm = header.tm.unwrap_or(0);
+        let tm = robot.header.as_ref().and_then(|h| h.tm).unwrap_or(0);
         self.first_tm.get_or_insert(tm);
         self.last_tm = tm;
         Ok(RobotPacket { seq: self.epoch + u64::from(seqno), axes, dof: ROBOT_AXES + self.external, following })
     }
 
     fn reset(&mut self) {
-        *self = Egm { linear: self.linear, external: self.external, ..Egm::default() };
+        let mut unit = self.unit.take();
+        if let Some(u) = &mut unit {
+            u.robot_reset();
+        }
+        *self = Egm { linear: self.linear, external: self.external, unit, ..Egm::default() };
     }
 
     /// The absolute targets: `planned.joints` (the six robot axes, degrees) and, for the cell's
@@ -183,7 +209,15 @@ impl RobotProtocol for Egm {
         let n = axes.len().min(ROBOT_AXES + self.external);
         let wire = |from: usize, to: usize| (from..to).map(|k| to_wire(axes[k], self.linear[k])).collect::<Vec<f64>>();
         let robot = wire(0, n.min(ROBOT_AXES));
-        let external = if n > ROBOT_AXES { Some(EgmJoints { joints: wire(ROBOT_AXES, n) }) } else { None };
+        let external = match &mut self.unit {
+            // The unit's share goes over its own channel.
+            Some(unit) => {
+                unit.command(&axes[ROBOT_AXES.min(n)..n]);
+                None
+            }
+            None if n > ROBOT_AXES => Some(EgmJoints { joints: wire(ROBOT_AXES, n) }),
+            None => None,
+        };
         let sensor = EgmSensor {
             header: Some(EgmHeader {
                 seqno: Some(self.replies),
@@ -196,6 +230,41 @@ impl RobotProtocol for Egm {
         self.replies = self.replies.wrapping_add(1);
         // Encoding into a Vec cannot fail (it grows).
         let _ = sensor.encode(out);
+    }
+
+    /// The external axes (all of them: the cell has one chain) on a channel of their own.
+    fn split_unit_channel(&mut self, arm: usize) -> Result<(), String> {
+        if arm != ROBOT_AXES {
+            return Err(format!("the arm has {arm} joints; EGM's robot channel carries {ROBOT_AXES}"));
+        }
+        if self.external == 0 {
+            return Err(
+                "the cell has no external axes (a [positioner] or [track] in the robot file) to put on a channel of their own".into()
+            );
+        }
+        self.unit = Some(unit::Unit::new(&self.linear[ROBOT_AXES..ROBOT_AXES + self.external]));
+        Ok(())
+    }
+
+    fn unit_channel(&mut self) -> Option<&mut dyn UnitChannel> {
+        self.unit.as_mut().map(|u| u as &mut dyn UnitChannel)
+    }
+}
+
+impl UnitChannel for unit::Unit {
+    fn unit_read(&mut self, packet: &[u8]) -> Result<bool, PacketError> {
+        if packet.len() > Egm::MAX_PACKET {
+            return Err(PacketError::Oversized(packet.len()));
+        }
+        self.read(packet)
+    }
+
+    fn unit_write(&mut self, out: &mut Vec<u8>) {
+        self.write(out);
+    }
+
+    fn unit_fresh(&self) -> bool {
+        self.fresh()
     }
 }
 

@@ -101,6 +101,8 @@ pub struct FakeReport {
     /// late answer, as a controller with HOLDON does — the axes then step when answers resume).
     #[serde(skip)]
     pub fresh: Vec<bool>,
+    /// Per channel ([`run_channels`]): the cycles it sent and got its answer in time.
+    pub channel_in_time: Vec<u64>,
 }
 
 impl std::fmt::Debug for FakeReport {
@@ -209,35 +211,69 @@ pub(crate) fn every(t0: u64, step_ns: u64, stopped: impl Fn() -> bool, mut step:
     }
 }
 
-/// Runs the fake controller until `opts.cycles`, `stop`, or it gives up.
+/// One channel of a fake controller: the interface it speaks, the driver's address it sends to,
+/// and the controller's axes it carries. A controller streams one channel per robot; ABB's
+/// MultiMove streams one EGM channel per motion task (a robot, and a positioner in a task of its
+/// own), every channel on the same controller cycle.
+pub struct FakeChannel<'a> {
+    /// The interface.
+    pub protocol: &'a mut dyn FakeProtocol,
+    /// The driver's address for this channel.
+    pub driver: SocketAddr,
+    /// The controller's axes it carries (indices into `FakeOptions::start_deg`).
+    pub axes: std::ops::Range<usize>,
+}
+
+/// Runs the fake controller until `opts.cycles`, `stop`, or it gives up: one channel to
+/// `opts.driver` carrying every axis.
 pub fn run(protocol: &mut dyn FakeProtocol, opts: &FakeOptions, stop: &AtomicBool) -> std::io::Result<FakeReport> {
-    let socket = UdpSocket::bind(opts.bind)?;
-    socket.set_nonblocking(true)?;
+    let axes = 0..opts.start_deg.len();
+    run_channels(&mut [FakeChannel { protocol, driver: opts.driver, axes }], opts, stop)
+}
+
+/// Runs the fake controller with several channels (`opts.driver` unused): each sends its packet
+/// every cycle (none when its protocol writes none: a channel that stopped) from a socket of its
+/// own on `opts.bind`'s address, and a cycle is answered in time when every channel that sent got
+/// its answer before the next cycle (`FakeReport::channel_in_time` counts them apart).
+pub fn run_channels(channels: &mut [FakeChannel<'_>], opts: &FakeOptions, stop: &AtomicBool) -> std::io::Result<FakeReport> {
+    let n = channels.len();
+    assert!((1..=4).contains(&n), "a fake controller streams 1 to 4 channels");
+    let mut sockets = Vec::with_capacity(n);
+    for k in 0..n {
+        // The first channel binds `opts.bind`; the others any port on its address.
+        let bind = if k == 0 { opts.bind } else { SocketAddr::new(opts.bind.ip(), 0) };
+        let socket = UdpSocket::bind(bind)?;
+        socket.set_nonblocking(true)?;
+        sockets.push(socket);
+    }
+    let fds: Vec<std::os::fd::RawFd> = sockets.iter().map(std::os::fd::AsRawFd::as_raw_fd).collect();
     real_time(opts.rt_priority);
     let period_ns = (opts.period * 1e9).round() as u64;
     let mut actual = opts.start_deg.clone();
     let mut target = opts.start_deg.clone();
     let mut commanded = opts.start_deg.clone();
     let alpha = if opts.lag > 0.0 { 1.0 - (-opts.period / opts.lag).exp() } else { 1.0 };
-    let mut report = FakeReport::default();
+    let mut report = FakeReport { channel_in_time: vec![0; n], ..FakeReport::default() };
     let mut out = Vec::with_capacity(1024);
     let mut buf = vec![0u8; 65536];
     let mut silent = 0u64;
+    // Per channel: whether it sent this cycle, and the answers it took.
+    let mut sent = vec![false; n];
+    let mut answers = vec![0u32; n];
+    let all_answered = |answers: &[u32], sent: &[bool]| sent.iter().any(|s| *s) && sent.iter().zip(answers).all(|(s, a)| !*s || *a > 0);
     let t0 = monotonic_ns() + period_ns;
     let mut k = 0u64;
     sleep_until(t0);
     report.fresh.push(true);
     report.axes.push(actual.clone());
-    protocol.packet(0, &actual, &mut out);
-    let mut sent_at = monotonic_ns();
-    send(&socket, &out, opts.driver)?;
+    let mut sent_at = send_cycle(channels, &sockets, 0, &actual, &mut out, &mut sent)?;
     report.cycles = 1;
     while !stop.load(Ordering::Relaxed) && (opts.cycles == 0 || k + 1 < opts.cycles) {
         // Take answers as they come until the next cycle starts: the first that answers packet
         // k is in time (its round trip recorded); answers to older packets are late.
         let next = t0 + (k + 1) * period_ns;
+        answers.iter_mut().for_each(|a| *a = 0);
         let mut answered = false;
-        let mut answers = 0u32;
         loop {
             let now = monotonic_ns();
             if now + 20_000 >= next {
@@ -245,33 +281,44 @@ pub fn run(protocol: &mut dyn FakeProtocol, opts: &FakeOptions, stop: &AtomicBoo
             }
             // ppoll, not SO_RCVTIMEO: a socket's receive timeout counts in scheduler ticks (4 ms at
             // HZ=250), a whole cycle; ppoll sleeps on a high-resolution timer.
-            if !readable(&socket, next - now - 20_000) {
+            let mut ready = [false; 4];
+            if !crate::unit_link::readable(&fds, next - now - 20_000, &mut ready[..n]) {
                 break;
             }
-            match socket.recv_from(&mut buf) {
-                Ok((n, _)) => match protocol.answer(k, &buf[..n], &mut commanded) {
-                    Ok(()) => {
-                        // The newest answer counts (a controller takes the latest); two in one
-                        // cycle mean the first was the last cycle's, late.
-                        answers += 1;
-                        if !answered {
-                            report.round_trip.record(monotonic_ns() - sent_at);
-                        }
-                        answered = true;
-                        target.clone_from(&commanded);
+            for (c, channel) in channels.iter_mut().enumerate().filter(|(c, _)| ready[*c]) {
+                loop {
+                    match sockets[c].recv_from(&mut buf) {
+                        Ok((len, _)) => match channel.protocol.answer(k, &buf[..len], &mut commanded[channel.axes.clone()]) {
+                            Ok(()) => {
+                                // The newest answer counts (a controller takes the latest); two in
+                                // one cycle mean the first was the last cycle's, late.
+                                answers[c] += 1;
+                                target[channel.axes.clone()].clone_from_slice(&commanded[channel.axes.clone()]);
+                            }
+                            Err(Some(_)) => report.late += 1,
+                            Err(None) => report.garbage += 1,
+                        },
+                        Err(e) if matches!(e.kind(), std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut) => break,
+                        Err(e) if matches!(e.kind(), std::io::ErrorKind::ConnectionRefused | std::io::ErrorKind::Interrupted) => {}
+                        Err(e) => return Err(e),
                     }
-                    Err(Some(_)) => report.late += 1,
-                    Err(None) => report.garbage += 1,
-                },
-                Err(e) if matches!(e.kind(), std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut) => break,
-                Err(e) if matches!(e.kind(), std::io::ErrorKind::ConnectionRefused | std::io::ErrorKind::Interrupted) => {}
-                Err(e) => return Err(e),
+                }
+            }
+            if !answered && all_answered(&answers, &sent) {
+                answered = true;
+                report.round_trip.record(monotonic_ns() - sent_at);
             }
         }
-        if answers > 1 {
-            report.late += u64::from(answers - 1);
+        for (c, a) in answers.iter().enumerate() {
+            if *a > 1 {
+                report.late += u64::from(a - 1);
+            }
+            if sent[c] && *a > 0 {
+                report.channel_in_time[c] += 1;
+            }
         }
-        report.fresh.push(answered && answers == 1);
+        // Fresh: every channel's target came from its answer this cycle (a silent channel's did not).
+        report.fresh.push(answered && sent.iter().all(|s| *s) && answers.iter().all(|a| *a <= 1));
         if answered {
             report.in_time += 1;
             silent = 0;
@@ -290,24 +337,26 @@ pub fn run(protocol: &mut dyn FakeProtocol, opts: &FakeOptions, stop: &AtomicBoo
         report.axes.push(actual.clone());
         k += 1;
         sleep_until(next);
-        protocol.packet(k, &actual, &mut out);
-        sent_at = monotonic_ns();
-        send(&socket, &out, opts.driver)?;
+        sent_at = send_cycle(channels, &sockets, k, &actual, &mut out, &mut sent)?;
         report.cycles += 1;
     }
-    // The last packet's answer, if it comes within a cycle.
+    // The last packet's answers, if they come within a cycle.
     let end = monotonic_ns() + period_ns;
-    let mut last = false;
-    while !last && monotonic_ns() < end {
-        if !readable(&socket, end.saturating_sub(monotonic_ns())) {
+    answers.iter_mut().for_each(|a| *a = 0);
+    while monotonic_ns() < end && !all_answered(&answers, &sent) {
+        let mut ready = [false; 4];
+        if !crate::unit_link::readable(&fds, end.saturating_sub(monotonic_ns()), &mut ready[..n]) {
             break;
         }
-        match socket.recv_from(&mut buf) {
-            Ok((n, _)) => last = protocol.answer(k, &buf[..n], &mut commanded).is_ok(),
-            Err(_) => break,
+        for (c, channel) in channels.iter_mut().enumerate().filter(|(c, _)| ready[*c]) {
+            if let Ok((len, _)) = sockets[c].recv_from(&mut buf)
+                && channel.protocol.answer(k, &buf[..len], &mut commanded[channel.axes.clone()]).is_ok()
+            {
+                answers[c] += 1;
+            }
         }
     }
-    if last {
+    if all_answered(&answers, &sent) {
         report.in_time += 1;
     } else {
         report.missing += 1;
@@ -315,14 +364,24 @@ pub fn run(protocol: &mut dyn FakeProtocol, opts: &FakeOptions, stop: &AtomicBoo
     Ok(report)
 }
 
-/// Whether `socket` has a datagram within `timeout_ns` (ppoll on a high-resolution timer).
-fn readable(socket: &UdpSocket, timeout_ns: u64) -> bool {
-    use std::os::fd::AsRawFd;
-    let mut fd = libc::pollfd { fd: socket.as_raw_fd(), events: libc::POLLIN, revents: 0 };
-    let ts = libc::timespec { tv_sec: (timeout_ns / 1_000_000_000) as libc::time_t, tv_nsec: (timeout_ns % 1_000_000_000) as libc::c_long };
-    // SAFETY: one valid pollfd, a valid timespec, no signal mask.
-    let n = unsafe { libc::ppoll(&mut fd, 1, &ts, std::ptr::null()) };
-    n > 0 && fd.revents & libc::POLLIN != 0
+/// Sends every channel's packet of cycle `k` (a channel whose protocol writes none sends none:
+/// `sent` says which did); when the last left (ns).
+fn send_cycle(
+    channels: &mut [FakeChannel<'_>],
+    sockets: &[UdpSocket],
+    k: u64,
+    actual: &[f64],
+    out: &mut Vec<u8>,
+    sent: &mut [bool],
+) -> std::io::Result<u64> {
+    for (c, channel) in channels.iter_mut().enumerate() {
+        channel.protocol.packet(k, &actual[channel.axes.clone()], out);
+        sent[c] = !out.is_empty();
+        if sent[c] {
+            send(&sockets[c], out, channel.driver)?;
+        }
+    }
+    Ok(monotonic_ns())
 }
 
 fn send(socket: &UdpSocket, packet: &[u8], to: SocketAddr) -> std::io::Result<()> {

@@ -71,6 +71,7 @@ pub(crate) fn main_for<P: RobotProtocol>(protocol: DriverProtocol, make: fn() ->
             prefix: cli.prefix.clone().unwrap_or_else(|| cfg.service.prefix.clone()),
             period: 1.0 / cfg.controller.rate_hz,
             max_packets: 0,
+            unit_bind: d.unit_address().map_err(|e| e.to_string())?,
         };
         if !opts.bind.ip().is_loopback() {
             eprintln!("strand-{name}: note: listening on {}, not the loopback address ([driver] bind)", opts.bind);
@@ -135,12 +136,27 @@ fn finish(name: &str, report: &BridgeReport, stats: Option<&std::path::Path>, en
         l.percentile(99.0) as f64 * 1e-3,
         l.max() as f64 * 1e-3
     );
+    if let Some(u) = &report.unit {
+        eprintln!(
+            "strand-{name}: the external axes' own channel: {} packets, {} answered with the robot's answer, {} alone (no robot packet by the deadline), {} superseded; dropped {} foreign, {} malformed, {} out of order; {} robot packets waited for the unit's ({} in vain)",
+            u.packets,
+            u.answered_with_robot,
+            u.answered_alone,
+            u.superseded,
+            u.foreign,
+            u.malformed,
+            u.out_of_order,
+            u.waited,
+            u.wait_missed
+        );
+    }
     if let Some(p) = stats {
         let json = serde_json::json!({
             "protocol": name,
             "counters": c,
             "stale": report.stale,
             "final_state": report.final_state,
+            "unit": report.unit,
             "robot_ended": ended,
             "latency": {
                 "samples": l.count(),
