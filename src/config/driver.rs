@@ -130,6 +130,22 @@ pub struct DriverConfig {
     pub analog_scale: f64,
     /// UR: see `analog_scale` (a ratio, 0..1).
     pub analog_offset: f64,
+    /// RSI: the RECEIVE tag (`Element.Attribute` or `Element`) of the ETHERNET object that carries
+    /// the extruder's speed as an analog value in volts, in the same packet as `AK` (the RSI
+    /// context maps it to `$ANOUT[n]`); empty (the default): none.
+    pub extruder_tag: String,
+    /// RSI: the RECEIVE tag of the extruder's enable (1 while extruding, else 0; mapped to
+    /// `$OUT[n]`); empty: none.
+    pub extruder_enable_tag: String,
+    /// RSI: volts per mm³/s of volumetric flow (`ExtruderCommand::volumetric_rate`) on
+    /// `extruder_tag` (V·s/mm³).
+    pub extruder_volts_per_flow: f64,
+    /// RSI: volts at no flow (V); a held robot and a retraction send it (clamped).
+    pub extruder_volts_offset: f64,
+    /// RSI: the lowest volts sent on `extruder_tag` (V).
+    pub extruder_volts_min: f64,
+    /// RSI: the highest volts sent on `extruder_tag` (V).
+    pub extruder_volts_max: f64,
     /// UR: the read timeout every message announces to the program (s, 0.002 to 0.2): a driver
     /// silent longer (stopped, hung, the link lost) makes it stop the arm (`stopj`) and end.
     pub read_timeout: f64,
@@ -160,6 +176,12 @@ impl Default for DriverConfig {
             analog_output: -1,
             analog_scale: 0.0,
             analog_offset: 0.0,
+            extruder_tag: String::new(),
+            extruder_enable_tag: String::new(),
+            extruder_volts_per_flow: 0.0,
+            extruder_volts_offset: 0.0,
+            extruder_volts_min: 0.0,
+            extruder_volts_max: 10.0,
             read_timeout: 0.02,
         }
     }
@@ -285,7 +307,39 @@ impl DriverConfig {
                 self.analog_scale, self.analog_offset
             ));
         }
+        if (!self.extruder_tag.is_empty() || !self.extruder_enable_tag.is_empty()) && self.protocol != DriverProtocol::Rsi {
+            return bad(format!(
+                "[driver] extruder_tag / extruder_enable_tag: RSI's outputs; {} carries the extruder otherwise (UR: analog_output)",
+                self.protocol.name()
+            ));
+        }
+        if self.extruder_tag.is_empty() && !self.extruder_enable_tag.is_empty() {
+            return bad("[driver] extruder_enable_tag without extruder_tag: the enable goes with the analog value".to_string());
+        }
+        let volts = [self.extruder_volts_per_flow, self.extruder_volts_offset, self.extruder_volts_min, self.extruder_volts_max];
+        if volts.iter().any(|v| !v.is_finite())
+            || self.extruder_volts_per_flow < 0.0
+            || self.extruder_volts_min >= self.extruder_volts_max
+            || !(-10.0..=10.0).contains(&self.extruder_volts_min)
+            || !(-10.0..=10.0).contains(&self.extruder_volts_max)
+        {
+            return bad(format!(
+                "[driver] extruder_volts_per_flow = {}, extruder_volts_offset = {}, extruder_volts_min = {}, extruder_volts_max = {}: finite, the gain ≥ 0 V·s/mm³, min < max within ±10 V (KUKA's analog outputs)",
+                self.extruder_volts_per_flow, self.extruder_volts_offset, self.extruder_volts_min, self.extruder_volts_max
+            ));
+        }
         self.robot_address()?;
         Ok(())
+    }
+
+    /// The extruder's outputs in the robot's packet (`extruder_tag`, RSI), if any.
+    pub fn extruder_output(&self) -> Option<(String, String, [f64; 4])> {
+        (!self.extruder_tag.is_empty()).then(|| {
+            (
+                self.extruder_tag.clone(),
+                self.extruder_enable_tag.clone(),
+                [self.extruder_volts_per_flow, self.extruder_volts_offset, self.extruder_volts_min, self.extruder_volts_max],
+            )
+        })
     }
 }

@@ -89,7 +89,7 @@ pub fn run<P: RobotProtocol>(session: &mut Session<P>, opts: &BridgeOptions, sto
     let ports = ClientPorts::open(
         &ServiceNames::new(&opts.prefix),
         &format!("strand-{name}"),
-        ClientRoles { driver: true, feeder: true, ..Default::default() },
+        ClientRoles { driver: true, feeder: true, monitor: session.protocol_mut().wants_extruder(), ..Default::default() },
     )?;
     let mut unit = match opts.unit_bind {
         Some(bind) if session.protocol_mut().unit_channel().is_some() => {
@@ -235,6 +235,27 @@ pub fn run<P: RobotProtocol>(session: &mut Session<P>, opts: &BridgeOptions, sto
             let _ = ports.send_joint_state(&state);
             last_state_seq = seq;
             let command = wait_command(&ports, seq, session.dof(), session.reply_deadline().unwrap_or(received));
+            if session.protocol_mut().wants_extruder() {
+                // The extruder's command of the same tick: the service publishes it just after the
+                // joints' (microseconds); waited for up to 0.1 ms within the deadline, else the
+                // newest there is (the last tick's).
+                let tick = command.as_ref().map(|c| c.tick);
+                let until = (monotonic_ns() + 100_000).min(session.reply_deadline().unwrap_or(0));
+                let mut newest = None;
+                loop {
+                    while let Ok(Some(e)) = ports.receive_extruder_command() {
+                        newest = Some(e);
+                    }
+                    let current = tick.is_none_or(|t| newest.is_some_and(|e: strand_ipc::ExtruderCommand| e.tick >= t));
+                    if current || monotonic_ns() >= until {
+                        break;
+                    }
+                    std::thread::sleep(Duration::from_micros(5));
+                }
+                if newest.is_some() {
+                    session.protocol_mut().set_extruder(newest.as_ref());
+                }
+            }
             let r = session.reply(command.as_ref(), &mut reply);
             answer(&socket, &reply, from, received, period_ns, &mut latency, session);
             r

@@ -294,6 +294,15 @@ pub fn session<P: RobotProtocol>(cfg: &Config, d: &DriverConfig, mut protocol: P
             why,
         })?;
     }
+    if let Some((tag, enable_tag, [volts_per_flow, volts_offset, volts_min, volts_max])) = d.extruder_output() {
+        // The extruder's command in the robot's packet (RSI: analog and digital outputs).
+        let output = protocol::ExtruderOutput { tag, enable_tag, volts_per_flow, volts_offset, volts_min, volts_max };
+        protocol.set_extruder_output(output).map_err(|why| SetupError::Robot {
+            file: cfg.file.display().to_string(),
+            protocol: P::NAME,
+            why,
+        })?;
+    }
     protocol.set_period(1.0 / cfg.controller.rate_hz);
     let bounds = cell.joints.iter().map(|j| j.limits).collect();
     let guard = ReplyGuard::new(bounds, 1.0 / cfg.controller.rate_hz);

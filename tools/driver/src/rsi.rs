@@ -41,12 +41,19 @@
 //! axis's `EIPos` wraps (read here as the controller sends it), and KR C2's linear axes, which a
 //! ros-industrial user saw in mm·180/π (kuka_experimental issue #100; KR C4 and KSS 8 use mm).
 //! The notes, with the robot's side: `docs/protocols/external-axes.md`.
+//!
+//! The extruder ([`RobotProtocol::set_extruder_output`], `[driver] extruder_tag`): the answer also
+//! carries the extruder's command as RECEIVE tags of the ETHERNET object — an analog value in
+//! volts from the volumetric flow and a 0/1 enable — in the same packet as `AK`, which the RSI
+//! context maps to `$ANOUT[n]` and `$OUT[n]` (`config/drivers/rsi/`). A tag `Element.Attribute`
+//! is written `<Element Attribute="…" />` (two tags of one element share it), a tag `Element`
+//! `<Element>…</Element>`: the two forms of RSI's tags, as in `AK.A1` and `IPOC`.
 
 use quick_xml::Reader;
 use quick_xml::events::{BytesStart, Event};
 use strand_ipc::MAX_JOINTS;
 
-use crate::protocol::{Channel, Clock, PacketError, RobotPacket, RobotProtocol};
+use crate::protocol::{Channel, Clock, ExtruderOutput, PacketError, RobotPacket, RobotProtocol};
 
 /// Axes RSI streams for the robot arm (A1..A6).
 pub const AXES: usize = 6;
@@ -65,6 +72,37 @@ pub struct Rsi {
     external: usize,
     /// Which of the cell's axes are linear (mm on the wire, m here); only external ones can be.
     linear: [bool; MAX_JOINTS],
+    /// The extruder's outputs, and their values for the next answer (V, enable).
+    extruder: Option<(ExtruderOutput, Tag, Option<Tag>)>,
+    extruder_signal: (f64, bool),
+}
+
+/// An RSI RECEIVE tag: `Element.Attribute` or `Element`.
+#[derive(Clone, Debug, PartialEq)]
+struct Tag {
+    element: String,
+    attribute: Option<String>,
+}
+
+impl Tag {
+    /// Parses `text`, refusing what RSI's XML cannot name and strand's own elements.
+    fn parse(text: &str, key: &str) -> Result<Tag, String> {
+        let name_ok =
+            |n: &str| n.chars().next().is_some_and(|c| c.is_ascii_alphabetic()) && n.chars().all(|c| c.is_ascii_alphanumeric() || c == '_');
+        let (element, attribute) = match text.split_once('.') {
+            Some((e, a)) => (e, Some(a)),
+            None => (text, None),
+        };
+        if !name_ok(element) || attribute.is_some_and(|a| !name_ok(a)) {
+            return Err(format!(
+                "[driver] {key} = {text:?}: an RSI tag is Element.Attribute or Element (letters, digits, _), e.g. \"Extruder.Volt\""
+            ));
+        }
+        if ["AK", "EK", "IPOC", "Sen"].contains(&element) {
+            return Err(format!("[driver] {key} = {text:?}: <{element}> is strand-rsi's own element; name another"));
+        }
+        Ok(Tag { element: element.to_string(), attribute: attribute.map(str::to_string) })
+    }
 }
 
 impl Rsi {
@@ -128,6 +166,15 @@ impl Read {
             _ => Ok(()),
         }
     }
+}
+
+/// Writes `value` under `tag`: `<Element Attribute="value" />` or `<Element>value</Element>`.
+fn write_tag(out: &mut Vec<u8>, tag: &Tag, value: std::fmt::Arguments) {
+    use std::io::Write;
+    let _ = match &tag.attribute {
+        Some(a) => write!(out, "<{} {a}=\"{value}\" />", tag.element),
+        None => write!(out, "<{0}>{value}</{0}>", tag.element),
+    };
 }
 
 /// An axis on the wire (degrees, or mm when linear) in the driver's units (rad, or m).
@@ -264,6 +311,34 @@ impl RobotProtocol for Rsi {
 
     fn reset(&mut self) {
         self.reference = None;
+        self.extruder_signal = (0.0, false);
+    }
+
+    fn set_extruder_output(&mut self, output: ExtruderOutput) -> Result<(), String> {
+        let tag = Tag::parse(&output.tag, "extruder_tag")?;
+        let enable = if output.enable_tag.is_empty() { None } else { Some(Tag::parse(&output.enable_tag, "extruder_enable_tag")?) };
+        if enable.as_ref() == Some(&tag) {
+            return Err(format!("[driver] extruder_enable_tag = {:?} is extruder_tag too: each needs its own", output.enable_tag));
+        }
+        if enable.as_ref().is_some_and(|e| e.element == tag.element && (e.attribute.is_none() || tag.attribute.is_none())) {
+            return Err(format!(
+                "[driver] extruder_tag = {:?} and extruder_enable_tag = {:?}: one element holds both only as attributes (Element.A and Element.B)",
+                output.tag, output.enable_tag
+            ));
+        }
+        self.extruder_signal = output.signal(None);
+        self.extruder = Some((output, tag, enable));
+        Ok(())
+    }
+
+    fn wants_extruder(&self) -> bool {
+        self.extruder.is_some()
+    }
+
+    fn set_extruder(&mut self, command: Option<&strand_ipc::ExtruderCommand>) {
+        if let Some((output, _, _)) = &self.extruder {
+            self.extruder_signal = output.signal(command);
+        }
     }
 
     /// The corrections `AK` (the arm's, degrees) and `EK` (the external axes', degrees or mm),
@@ -291,6 +366,28 @@ impl RobotProtocol for Rsi {
                 let _ = write!(out, " E{}=\"{:.6}\"", i + 1, to_wire(axes[k] - reference[k], self.linear[k]));
             }
             out.extend_from_slice(b" />");
+        }
+        if let Some((_, tag, enable)) = &self.extruder {
+            // Volts to 6 decimals (µV), the enable as 0 or 1.
+            let (volts, on) = self.extruder_signal;
+            match (enable, &tag.attribute) {
+                // Two attributes of one element: one element.
+                (Some(e), Some(a)) if e.element == tag.element => {
+                    let _ = write!(
+                        out,
+                        "<{} {a}=\"{volts:.6}\" {}=\"{}\" />",
+                        tag.element,
+                        e.attribute.as_deref().unwrap_or_default(),
+                        u8::from(on)
+                    );
+                }
+                _ => {
+                    write_tag(out, tag, format_args!("{volts:.6}"));
+                    if let Some(e) = enable {
+                        write_tag(out, e, format_args!("{}", u8::from(on)));
+                    }
+                }
+            }
         }
         let _ = write!(out, "<IPOC>{}</IPOC></Sen>", self.ipoc);
     }
@@ -426,5 +523,71 @@ mod tests {
         assert!(matches!(rsi.read(&vec![b' '; 5000]), Err(PacketError::Oversized(5000))));
         assert!(matches!(rsi.read(SAMPLE.replace("Rob", "Sen").as_bytes()), Err(PacketError::Malformed(_))));
         assert!(rsi.reference().is_none(), "no bad packet sets the reference");
+    }
+
+    fn output(tag: &str, enable: &str) -> ExtruderOutput {
+        ExtruderOutput {
+            tag: tag.into(),
+            enable_tag: enable.into(),
+            volts_per_flow: 0.5,
+            volts_offset: 0.25,
+            volts_min: 0.0,
+            volts_max: 10.0,
+        }
+    }
+
+    fn extruding(mm3_s: f64) -> strand_ipc::ExtruderCommand {
+        strand_ipc::ExtruderCommand { volumetric_rate: mm3_s * 1e-9, flags: strand_ipc::extruder_flags::EXTRUDING, ..Default::default() }
+    }
+
+    /// The extruder's command rides in the answer after `AK`: volts = offset + gain × mm³/s,
+    /// clamped, and the enable while extruding; two attributes of one element share it, other
+    /// tags are elements of their own; a hold (None) sends the offset, disabled.
+    #[test]
+    fn the_extruders_command_rides_in_the_answer_as_rsi_tags() {
+        let mut rsi = Rsi::new();
+        rsi.set_extruder_output(output("Extruder.Volt", "Extruder.On")).unwrap();
+        assert!(rsi.wants_extruder());
+        rsi.read(SAMPLE.as_bytes()).unwrap();
+        let mut out = Vec::new();
+        rsi.set_extruder(Some(&extruding(7.5)));
+        rsi.write(&[0.0; 6], &mut out);
+        let text = String::from_utf8(out.clone()).unwrap();
+        assert!(text.contains("/><Extruder Volt=\"4.000000\" On=\"1\" /><IPOC>4208146</IPOC></Sen>"), "{text}");
+        rsi.set_extruder(Some(&extruding(1000.0)));
+        rsi.write(&[0.0; 6], &mut out);
+        assert!(String::from_utf8_lossy(&out).contains("Volt=\"10.000000\" On=\"1\""), "clamped to 10 V");
+        let mut retract = extruding(-3.0);
+        retract.flags = strand_ipc::extruder_flags::RETRACTED;
+        rsi.set_extruder(Some(&retract));
+        rsi.write(&[0.0; 6], &mut out);
+        assert!(String::from_utf8_lossy(&out).contains("Volt=\"0.000000\" On=\"0\""), "a retraction clamps to the minimum, disabled");
+        rsi.set_extruder(None);
+        rsi.write(&[0.0; 6], &mut out);
+        assert!(String::from_utf8_lossy(&out).contains("Volt=\"0.250000\" On=\"0\""), "a hold: the offset, disabled");
+        // Other spellings: an element's text, two elements.
+        let mut rsi = Rsi::new();
+        rsi.set_extruder_output(output("AnOut", "DigOut.O1")).unwrap();
+        rsi.read(SAMPLE.as_bytes()).unwrap();
+        rsi.set_extruder(Some(&extruding(2.0)));
+        rsi.write(&[0.0; 6], &mut out);
+        let text = String::from_utf8(out).unwrap();
+        assert!(text.contains("<AnOut>1.250000</AnOut><DigOut O1=\"1\" /><IPOC>"), "{text}");
+    }
+
+    #[test]
+    fn extruder_tags_rsi_cannot_name_are_refused_naming_the_key() {
+        for (tag, enable, said) in [
+            ("", "", "extruder_tag = \"\""),
+            ("1Volt", "", "extruder_tag"),
+            ("Ex.Volt.x", "", "extruder_tag"),
+            ("AK.A7", "", "strand-rsi's own element"),
+            ("Extruder.Volt", "IPOC", "strand-rsi's own element"),
+            ("Extruder.Volt", "Extruder.Volt", "each needs its own"),
+            ("Extruder", "Extruder.On", "only as attributes"),
+        ] {
+            let e = Rsi::new().set_extruder_output(output(tag, enable)).unwrap_err();
+            assert!(e.contains(said), "{tag:?} {enable:?}: {e}");
+        }
     }
 }

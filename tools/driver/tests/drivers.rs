@@ -19,8 +19,8 @@
 use std::net::{SocketAddr, UdpSocket};
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
-use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 mod common;
@@ -31,7 +31,7 @@ use strand_testkit::{Reaped, bin, root};
 use strand::config::Config;
 use strand_driver::fake::egm::FakeEgm;
 use strand_driver::fake::fri::{FakeFri, FriOptions, FriWatch};
-use strand_driver::fake::rsi::FakeRsi;
+use strand_driver::fake::rsi::{FakeRsi, OutputValues};
 use strand_driver::fake::{FakeChannel, FakeOptions, FakeProtocol, FakeReport, run, run_channels};
 
 fn free_udp_port() -> u16 {
@@ -63,7 +63,22 @@ struct Cell {
     fri: Option<FriWatch>,
     /// Mutes the external axes' own EGM channel (a MultiMove cell only).
     unit_mute: Option<Arc<AtomicBool>>,
+    /// RSI: the extruder's tags the fake KR C4 received per cycle (`RSI_EXTRUDER_TAGS`), and the
+    /// service's extruder commands (tick, volumetric m³/s, flags) as a monitor saw them.
+    rsi_extruder: Option<(ExtruderTags, ExtruderCommands, std::thread::JoinHandle<()>)>,
 }
+
+/// What the fake KR C4 received per cycle on its output tags.
+type ExtruderTags = Arc<Mutex<Vec<OutputValues>>>;
+
+/// The service's extruder commands a monitor saw: tick, volumetric flow (m³/s), flags.
+type ExtruderCommands = Arc<Mutex<Vec<(u64, f64, u32)>>>;
+
+/// Every RSI cell carries the extruder's command in its answers, on these tags (the analog volts
+/// and the enable), scaled as here: V = 0.1 + 0.5 × mm³/s.
+const RSI_EXTRUDER_TAGS: [&str; 2] = ["Extruder.Volt", "Extruder.On"];
+const RSI_VOLTS_PER_FLOW: f64 = 0.5;
+const RSI_VOLTS_OFFSET: f64 = 0.1;
 
 /// Settings every process of a cell takes: FRI's iiwa runs at 1 ms in its config; the tests run
 /// every robot at the 4 ms cycle (a 4 ms FRI send period), as the other drivers'.
@@ -118,6 +133,12 @@ impl Cell {
             driver.args(["--set", "driver.reply_deadline=0.002", "--set", "driver.max_late_cycles=3"]);
         }
         driver.args(&settings);
+        if protocol == "rsi" {
+            driver.args(["--set", &format!("driver.extruder_tag=\"{}\"", RSI_EXTRUDER_TAGS[0])]);
+            driver.args(["--set", &format!("driver.extruder_enable_tag=\"{}\"", RSI_EXTRUDER_TAGS[1])]);
+            driver.args(["--set", &format!("driver.extruder_volts_per_flow={RSI_VOLTS_PER_FLOW}")]);
+            driver.args(["--set", &format!("driver.extruder_volts_offset={RSI_VOLTS_OFFSET}")]);
+        }
         let unit_port = free_udp_port();
         if multimove {
             driver.args(["--set", &format!("driver.external_axes_bind=\"127.0.0.1:{unit_port}\"")]);
@@ -155,11 +176,31 @@ impl Cell {
         wait_for(&dir.join("driver.log"), "listening on", Duration::from_secs(20));
         let unit_mute = multimove.then(|| Arc::new(AtomicBool::new(false)));
         let mute = unit_mute.clone();
+        let mut rsi_extruder = None;
+        let mut rsi = (protocol == "rsi").then(|| {
+            let mut fake = FakeRsi::new(&start_deg, 4);
+            fake.outputs = RSI_EXTRUDER_TAGS.iter().map(|t| t.to_string()).collect();
+            let commands = Arc::new(Mutex::new(Vec::new()));
+            let (record, stop, prefix) = (commands.clone(), stop_fake.clone(), prefix.clone());
+            let monitor = std::thread::spawn(move || {
+                use strand_ipc::ports::{ClientPorts, ClientRoles};
+                let roles = ClientRoles { monitor: true, ..Default::default() };
+                let Ok(ports) = ClientPorts::open(&strand_ipc::ServiceNames::new(&prefix), "extruder-monitor", roles) else { return };
+                while !stop.load(Ordering::Relaxed) {
+                    while let Ok(Some(e)) = ports.receive_extruder_command() {
+                        record.lock().unwrap().push((e.tick, e.volumetric_rate, e.flags));
+                    }
+                    std::thread::sleep(Duration::from_micros(500));
+                }
+            });
+            rsi_extruder = Some((fake.received.clone(), commands, monitor));
+            fake
+        });
         let fake = std::thread::spawn(move || {
             let mut p: Box<dyn FakeProtocol> = match (protocol.as_str(), fri) {
                 (_, Some(fri)) => Box::new(fri),
                 ("egm", _) => Box::new(FakeEgm::new(25, 4)),
-                _ => Box::new(FakeRsi::new(&start_deg, 4)),
+                _ => Box::new(rsi.take().unwrap_or_else(|| FakeRsi::new(&start_deg, 4))),
             };
             let opts = FakeOptions {
                 driver: SocketAddr::from(([127, 0, 0, 1], port)),
@@ -187,7 +228,7 @@ impl Cell {
             }
         });
         wait_for(&dir.join("driver.log"), "Holding", Duration::from_secs(20));
-        Cell { _one: one, dir, config, prefix, service, driver, stop_fake, fake: Some(fake), fri: fri_watch, unit_mute }
+        Cell { _one: one, dir, config, prefix, service, driver, stop_fake, fake: Some(fake), fri: fri_watch, unit_mute, rsi_extruder }
     }
 
     fn feed(&self, job: &Path) -> Command {
@@ -209,7 +250,28 @@ impl Cell {
     }
 
     /// Stops the fake and the driver; the fake's report and the driver's stats.
-    fn finish(mut self) -> (FakeReport, serde_json::Value, String) {
+    fn finish(self) -> (FakeReport, serde_json::Value, String) {
+        self.finish_with_extruder().0
+    }
+
+    /// [`Cell::finish`], and for RSI what the fake received on the extruder's tags and the
+    /// service's extruder commands.
+    #[allow(clippy::type_complexity)]
+    fn finish_with_extruder(
+        mut self,
+    ) -> ((FakeReport, serde_json::Value, String), Option<(Vec<(u64, Vec<Option<f64>>)>, Vec<(u64, f64, u32)>)>) {
+        let extruder = self.rsi_extruder.take();
+        let finished = self.finish_cell();
+        let extruder = extruder.map(|(received, commands, monitor)| {
+            let _ = monitor.join();
+            let received = received.lock().unwrap().clone();
+            let commands = commands.lock().unwrap().clone();
+            (received, commands)
+        });
+        (finished, extruder)
+    }
+
+    fn finish_cell(&mut self) -> (FakeReport, serde_json::Value, String) {
         self.stop_fake.store(true, Ordering::Relaxed);
         let report = self.fake.take().unwrap().join().unwrap();
         self.driver.signal(libc::SIGTERM);
@@ -271,7 +333,10 @@ fn a_job_streams_through(protocol: &str, robot: &str) {
     let config = cell.config.clone();
     let feed_said = std::fs::read_to_string(&feed_log).unwrap_or_default();
     let fri = cell.fri.clone();
-    let (report, stats, log) = cell.finish();
+    let ((report, stats, log), extruder) = cell.finish_with_extruder();
+    if let Some((received, commands)) = extruder {
+        the_extruder_rides_with_the_joints(&received, &commands);
+    }
     if let Some(fri) = fri {
         // The cabinet never aborted the overlay (no jump, no NaN, the link good), and the job ran
         // in COMMANDING_ACTIVE.
@@ -303,6 +368,59 @@ fn a_job_streams_through(protocol: &str, robot: &str) {
     // It moved: the job is squares or the box's first layer.
     let moved = report.axes.first().unwrap().iter().zip(report.axes.last().unwrap()).any(|(a, b)| (a - b).abs() > 1.0);
     assert!(moved, "the robot moved to the job and back");
+}
+
+/// RSI's extruder outputs (`[driver] extruder_tag`, `extruder_enable_tag`): the volts and the
+/// enable the fake KR C4 received each cycle are the service's extruder command of that cycle's
+/// tick, or of the tick before (the command goes out with the joints' answer; when it is not
+/// published yet the last one is): V = offset + gain × mm³/s, enabled while extruding. The cycle ↔
+/// tick offset is found from the first cycles (the service's first tick came some cycles after the
+/// fake's first packet) and followed through the run.
+fn the_extruder_rides_with_the_joints(received: &[OutputValues], commands: &[(u64, f64, u32)]) {
+    use std::collections::HashMap;
+    let by_tick: HashMap<u64, (f64, bool)> = commands
+        .iter()
+        .map(|(tick, vol, flags)| {
+            let flow = vol * 1e9;
+            let volts = (RSI_VOLTS_OFFSET + RSI_VOLTS_PER_FLOW * flow).clamp(0.0, 10.0);
+            (*tick, (volts, flags & strand_ipc::extruder_flags::EXTRUDING != 0 && flow > 0.0))
+        })
+        .collect();
+    // Does cycle `k`'s answer carry the command of tick k − offset (lag 0) or of the tick before
+    // (lag 1)? None: the monitor did not see that tick.
+    let carries = |(k, v): &OutputValues, offset: i64| -> Option<Option<i64>> {
+        let tick = *k as i64 - offset;
+        by_tick.get(&(tick as u64))?;
+        let (Some(volts), Some(on)) = (v[0], v[1]) else { return Some(None) };
+        Some([0, 1].into_iter().find(|lag| {
+            by_tick.get(&((tick - lag) as u64)).is_some_and(|(want, want_on)| (volts - want).abs() < 2e-6 && (on == 1.0) == *want_on)
+        }))
+    };
+    // The offset most of the first 500 cycles agree on, then followed through the run: a cycle
+    // the service took together with the next (two states in one wake, the driver's answer late)
+    // moves it by one; such moves are counted.
+    let start = &received[..received.len().min(500)];
+    let mut offset = (0..200).max_by_key(|o| start.iter().filter(|r| matches!(carries(r, *o), Some(Some(_)))).count()).unwrap();
+    let (mut judged, mut within_one, mut same, mut moves) = (0usize, 0usize, 0usize, 0usize);
+    for r in received {
+        let Some(lag) = carries(r, offset) else { continue };
+        judged += 1;
+        let lag = lag.or_else(|| {
+            let moved = [offset - 1, offset + 1, offset - 2, offset + 2].into_iter().find(|o| matches!(carries(r, *o), Some(Some(_))))?;
+            offset = moved;
+            moves += 1;
+            carries(r, moved).flatten()
+        });
+        within_one += usize::from(lag.is_some());
+        same += usize::from(lag == Some(0));
+    }
+    let extruding = received.iter().filter(|(_, v)| v[1] == Some(1.0) && v[0].is_some_and(|volts| volts > RSI_VOLTS_OFFSET + 0.1)).count();
+    eprintln!(
+        "rsi extruder outputs: {judged} cycles judged: {within_one} carried the command of their tick or the one before, {same} of their own tick; the cycle ↔ tick offset moved {moves} times; {extruding} extruding"
+    );
+    assert!(judged > 1000 && extruding > 100, "{judged} cycles judged, {extruding} extruding");
+    assert!(within_one as f64 >= in_time_needed() * judged as f64, "{within_one} of {judged} cycles carried their tick's extruder command");
+    assert!(moves as f64 <= (1.0 - in_time_needed()) * judged as f64, "the offset moved {moves} times in {judged} cycles");
 }
 
 #[test]

@@ -162,6 +162,56 @@ pub trait RobotProtocol {
     fn unit_channel(&mut self) -> Option<&mut dyn UnitChannel> {
         None
     }
+
+    /// Puts the extruder's command into every answer as the robot's own outputs (KUKA RSI: an
+    /// analog output for the drive's speed and a digital one to enable it, wired on the controller
+    /// to `$ANOUT`/`$OUT`), in the same packet as the joints. Called once, before the first
+    /// packet. Refused by default: the protocol has no outputs for it.
+    fn set_extruder_output(&mut self, output: ExtruderOutput) -> Result<(), String> {
+        let _ = output;
+        Err(format!("{} carries no extruder output in the robot's packet", Self::NAME))
+    }
+
+    /// Whether the answers carry the extruder's command ([`RobotProtocol::set_extruder_output`]).
+    fn wants_extruder(&self) -> bool {
+        false
+    }
+
+    /// The extruder's command for the next answer: the service's newest, or None to stop the
+    /// extruder (the answer holds the robot).
+    fn set_extruder(&mut self, command: Option<&strand_wire::ExtruderCommand>) {
+        let _ = command;
+    }
+}
+
+/// How an extruder's command goes out as a robot's own outputs: an analog value (volts) from the
+/// volumetric flow, and a digital enable while material is deposited.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ExtruderOutput {
+    /// The protocol's name of the analog value (RSI: a RECEIVE tag, `Element.Attribute` or
+    /// `Element`).
+    pub tag: String,
+    /// The protocol's name of the enable (1 while extruding, else 0); empty: none.
+    pub enable_tag: String,
+    /// Volts per mm³/s of volumetric flow (V·s/mm³).
+    pub volts_per_flow: f64,
+    /// Volts at no flow (V).
+    pub volts_offset: f64,
+    /// The lowest and highest volts sent (V).
+    pub volts_min: f64,
+    /// See `volts_min` (V).
+    pub volts_max: f64,
+}
+
+impl ExtruderOutput {
+    /// The analog value (V) and the enable for `command` (None: stopped: the offset, clamped, and
+    /// disabled). A retraction (negative flow) clamps to `volts_min`.
+    pub fn signal(&self, command: Option<&strand_wire::ExtruderCommand>) -> (f64, bool) {
+        let flow = command.map_or(0.0, |c| c.volumetric_rate * 1e9);
+        let flow = if flow.is_finite() { flow } else { 0.0 };
+        let on = command.is_some_and(|c| c.flags & strand_wire::extruder_flags::EXTRUDING != 0) && flow > 0.0;
+        ((self.volts_offset + self.volts_per_flow * flow).clamp(self.volts_min, self.volts_max), on)
+    }
 }
 
 /// The channel of a mechanical unit that streams apart from the robot (ABB MultiMove: a positioner

@@ -388,6 +388,8 @@ impl<P: RobotProtocol> Session<P> {
         };
         let q = self.hold_or_measured(&packet);
         let axes = self.map.axes_from_joints(&q[..self.map.dof()]);
+        // A held robot deposits nothing.
+        self.protocol.set_extruder(None);
         self.protocol.write(&axes[..packet.dof], out);
         self.counters.held += 1;
         self.counters.replies += 1;
@@ -659,6 +661,11 @@ impl<P: RobotProtocol> Session<P> {
             self.counters.clamped += 1;
         }
         let axes = self.map.axes_from_joints(&q[..self.map.dof()]);
+        if kind == ReplyKind::Hold {
+            // A held robot deposits nothing (a late command keeps the extruder's last value, as
+            // the robot keeps its last target).
+            self.protocol.set_extruder(None);
+        }
         self.protocol.write(&axes[..packet.dof], out);
         self.counters.replies += 1;
         self.reply_due = None;

@@ -9,6 +9,13 @@
 //! axes (the same correction, through an AXISCORREXT object: degrees or mm from the start), and
 //! the same `IPOC`. Written from KUKA's public external-control SDK's description of the external
 //! axes (`rsi_ext_axis_ethernet.xml`: `DEF_EIPos` sent, `EK.E1` received), not from the driver.
+//!
+//! RECEIVE tags beyond `AK`/`EK` ([`FakeRsi::outputs`]: an analog and a digital output, as a cell
+//! wires the extruder): as the ETHERNET object reads them, `Element.Attribute` is an attribute
+//! and `Element` an element's text, each a number; the values of every answer taken in time are
+//! recorded with the cycle, as the controller would set `$ANOUT`/`$OUT` from them.
+
+use std::sync::{Arc, Mutex};
 
 use quick_xml::Reader;
 use quick_xml::events::Event;
@@ -34,14 +41,30 @@ pub struct FakeRsi {
     pub external_axes: usize,
     /// Answers that came after their cycle so far (the controller's `Delay`).
     pub delay: u64,
+    /// Extra RECEIVE tags (`Element.Attribute` or `Element`) whose values it records.
+    pub outputs: Vec<String>,
+    /// Per answer taken in time: its cycle and the values of `outputs` (None: absent or not a
+    /// number).
+    pub received: Arc<Mutex<Vec<OutputValues>>>,
 }
+
+/// One answer's output tags: its cycle, and each tag's value (None: absent or not a number).
+pub type OutputValues = (u64, Vec<Option<f64>>);
 
 impl FakeRsi {
     /// A controller whose RSI starts at `start_deg` (A1..A6, then one value per external axis,
     /// E1.., at most six), cycling every `period_ms`.
     pub fn new(start_deg: &[f64], period_ms: u64) -> FakeRsi {
         let external_axes = start_deg.len().saturating_sub(ARM).min(MAX_EXTERNAL);
-        FakeRsi { ipoc0: 1_000_000, period_ms, start_deg: start_deg.to_vec(), external_axes, delay: 0 }
+        FakeRsi {
+            ipoc0: 1_000_000,
+            period_ms,
+            start_deg: start_deg.to_vec(),
+            external_axes,
+            delay: 0,
+            outputs: Vec::new(),
+            received: Arc::default(),
+        }
     }
 }
 
@@ -81,6 +104,10 @@ impl FakeProtocol for FakeRsi {
     fn answer(&mut self, k: u64, bytes: &[u8], axes: &mut [f64]) -> Result<(), Option<u64>> {
         let mut reader = Reader::from_reader(bytes);
         let (mut sen, mut ak, mut ek, mut ipoc, mut in_ipoc) = (false, [None::<f64>; 6], [None::<f64>; 6], None::<u64>, false);
+        let mut values = vec![None::<f64>; self.outputs.len()];
+        // The element whose text is an `outputs` tag's value, while inside it.
+        let mut in_output: Option<usize> = None;
+        let number = |v: &[u8]| std::str::from_utf8(v).ok().and_then(|s| s.trim().parse::<f64>().ok());
         loop {
             match reader.read_event() {
                 Ok(Event::Start(e)) if e.name().as_ref() == b"Sen" => {
@@ -89,10 +116,29 @@ impl FakeProtocol for FakeRsi {
                 Ok(Event::Start(e)) if e.name().as_ref() == b"IPOC" => in_ipoc = true,
                 Ok(Event::Start(e) | Event::Empty(e)) if e.name().as_ref() == b"AK" => attributes(&e, b'A', &mut ak),
                 Ok(Event::Start(e) | Event::Empty(e)) if e.name().as_ref() == b"EK" => attributes(&e, b'E', &mut ek),
+                Ok(ref event @ (Event::Start(ref e) | Event::Empty(ref e))) => {
+                    for (i, tag) in self.outputs.iter().enumerate() {
+                        match tag.split_once('.') {
+                            Some((element, attribute)) if e.name().as_ref() == element.as_bytes() => {
+                                if let Some(a) = e.attributes().flatten().find(|a| a.key.as_ref() == attribute.as_bytes()) {
+                                    values[i] = number(&a.value);
+                                }
+                            }
+                            None if e.name().as_ref() == tag.as_bytes() && matches!(event, Event::Start(_)) => in_output = Some(i),
+                            _ => {}
+                        }
+                    }
+                }
                 Ok(Event::Text(t)) if in_ipoc => {
                     ipoc = std::str::from_utf8(&t).ok().and_then(|s| s.trim().parse().ok());
                     in_ipoc = false;
                 }
+                Ok(Event::Text(t)) if in_output.is_some() => {
+                    if let Some(i) = in_output.take() {
+                        values[i] = number(&t);
+                    }
+                }
+                Ok(Event::End(_)) => in_output = None,
                 Ok(Event::Eof) => break,
                 Err(_) => return Err(None),
                 Ok(_) => {}
@@ -114,6 +160,9 @@ impl FakeProtocol for FakeRsi {
             if let (Some(a), Some(start)) = (axes.get_mut(i), self.start_deg.get(i)) {
                 *a = start + c.unwrap_or(0.0);
             }
+        }
+        if !self.outputs.is_empty() {
+            self.received.lock().unwrap_or_else(|e| e.into_inner()).push((k, values));
         }
         Ok(())
     }
@@ -147,5 +196,20 @@ mod tests {
         let mut axes = vec![0.0; 6];
         arm.answer(0, without.as_bytes(), &mut axes).unwrap();
         assert_eq!(axes[0], 1.5);
+    }
+
+    /// Output tags as the ETHERNET object reads them: an attribute, or an element's text.
+    #[test]
+    fn output_tags_are_recorded_per_answer() {
+        let mut fake = FakeRsi::new(&[0.0; 6], 4);
+        fake.outputs = vec!["Extruder.Volt".into(), "Extruder.On".into(), "Flow".into()];
+        let mut axes = vec![0.0; 6];
+        let ak = "<AK A1=\"0\" A2=\"0\" A3=\"0\" A4=\"0\" A5=\"0\" A6=\"0\" />";
+        let answer = format!("<Sen Type=\"ImFree\">{ak}<Extruder Volt=\"2.5\" On=\"1\" /><Flow>7.25</Flow><IPOC>1000000</IPOC></Sen>");
+        fake.answer(0, answer.as_bytes(), &mut axes).unwrap();
+        let without = format!("<Sen Type=\"ImFree\">{ak}<IPOC>1000004</IPOC></Sen>");
+        fake.answer(1, without.as_bytes(), &mut axes).unwrap();
+        let received = fake.received.lock().unwrap().clone();
+        assert_eq!(received, vec![(0, vec![Some(2.5), Some(1.0), Some(7.25)]), (1, vec![None, None, None])]);
     }
 }
