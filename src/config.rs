@@ -12,6 +12,7 @@ pub mod check;
 pub mod driver;
 pub mod locate;
 pub mod log;
+pub mod tracker;
 pub mod view;
 
 use std::path::{Path, PathBuf};
@@ -34,6 +35,7 @@ use strand_core::{Carries, Controller, Positioner};
 use strand_job::bed::BedConfig;
 use strand_job::bed::BedTransform;
 use strand_job::gcode::GcodeOptions;
+use tracker::TrackerConfig;
 use view::ViewConfig;
 
 /// A configuration problem, naming the file and what in it is wrong.
@@ -326,6 +328,8 @@ pub struct Config {
     pub check: CheckConfig,
     /// The robot driver bridge (`strand-egm`, `strand-rsi`), if the robot has one.
     pub driver: Option<DriverConfig>,
+    /// The OptiTrack NatNet client (`strand-natnet`), if the base is tracked by Motive.
+    pub tracker: Option<TrackerConfig>,
     /// The live view and the log's scene channels.
     pub view: ViewConfig,
 }
@@ -356,6 +360,8 @@ struct ConfigFile<R> {
     check: CheckConfig,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     driver: Option<DriverConfig>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    tracker: Option<TrackerConfig>,
     #[serde(default)]
     view: ViewConfig,
 }
@@ -376,6 +382,9 @@ impl<R> ConfigFile<R> {
             // The per-joint lists are checked against the robot by the driver, which loads it.
             d.validate(d.axis_sign.len().max(d.axis_offset.len())).map_err(|m| ConfigError::new(path, m.to_string()))?;
         }
+        if let Some(t) = &self.tracker {
+            t.validate().map_err(|m| ConfigError::new(path, m.to_string()))?;
+        }
         BedTransform::new(&self.bed).map_err(|m| ConfigError::new(path, m.message))?;
         Ok(())
     }
@@ -395,6 +404,7 @@ impl<R> ConfigFile<R> {
             log: self.log,
             check: self.check,
             driver: self.driver,
+            tracker: self.tracker,
             view: self.view,
         }
     }
@@ -477,6 +487,7 @@ impl Config {
             log: self.log.clone(),
             check: self.check.clone(),
             driver: self.driver.clone(),
+            tracker: self.tracker.clone(),
             view: self.view.clone(),
         };
         toml::to_string(&file).expect("every config value is representable in TOML")

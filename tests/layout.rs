@@ -296,7 +296,7 @@ fn no_crate_has_an_import_loop() {
 }
 
 /// The tools' crates: one job each, a binary (or two) over a library.
-const TOOL_CRATES: [&str; 6] = ["feed", "replay", "kin", "plan", "sim", "bench"];
+const TOOL_CRATES: [&str; 7] = ["feed", "replay", "kin", "plan", "sim", "bench", "natnet"];
 
 /// A tool crate's mains: `src/main.rs` and everything under `src/bin/`.
 fn tool_mains() -> Vec<PathBuf> {
@@ -373,6 +373,7 @@ fn library_code_returns_typed_errors() {
         "tools/sim/src",
         "tools/bench/src",
         "tools/driver/src",
+        "tools/natnet/src",
     ] {
         rust_files(&root().join(dir), &mut files);
     }

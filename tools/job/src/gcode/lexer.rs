@@ -221,7 +221,7 @@ impl Lexer {
     }
 
     /// True if the first code word read so far is an M-code (`N10 M486 AShape-Box`).
-    fn starts_with_m_code(&self) -> bool {
+    pub(super) fn starts_with_m_code(&self) -> bool {
         self.words.iter().find(|w| w.letter != b'N').is_some_and(|w| w.letter == b'M')
     }
 
@@ -269,7 +269,7 @@ impl Lexer {
             self.words.push(Word { letter, value: Value::Text, column });
             return Ok(end);
         }
-        if self.is_bare(i + 1, j) {
+        if self.is_bare(j) {
             if matches!(letter, b'G' | b'M' | b'N') {
                 return Err(Fault::new(column, format!("{} without a number", letter as char)));
             }
@@ -281,12 +281,13 @@ impl Lexer {
         Ok(end)
     }
 
-    /// True if the letter just before `after` has no value: the line or a comment follows, or a
-    /// blank and then another word's letter (`X Y`). `Xabc` and `X-` are malformed numbers instead.
-    fn is_bare(&self, after: usize, next: usize) -> bool {
+    /// True if a word's letter followed by `next` has no value: the line or a comment follows, or
+    /// another word's letter, with or without a blank before it (`X Y`, packed `XY`: a letter
+    /// always starts a word). `X-` and `X.` are malformed numbers instead.
+    fn is_bare(&self, next: usize) -> bool {
         match self.chars.get(next) {
             None | Some(';' | '(' | '*') => true,
-            Some(c) => c.is_ascii_alphabetic() && next > after,
+            Some(c) => c.is_ascii_alphabetic(),
         }
     }
 
@@ -326,12 +327,8 @@ impl Lexer {
         if digits == 0 || self.chars.get(j) == Some(&'.') {
             return Err(self.malformed(letter, column));
         }
-        if let Some(e @ ('e' | 'E')) = self.chars.get(j) {
-            let token = self.rest_of_token(column);
-            let message =
-                format!("{letter}{token}: '{e}' right after a number: exponents are not G-code, and an E word needs a space before it");
-            return Err(Fault::new(column, message));
-        }
+        // A letter right after the number starts the next word (`X120.5E22.97`: X, then E), as
+        // every firmware reads a packed line: G-code has no exponents.
         let value: f64 = self.number.parse().map_err(|_| self.malformed(letter, column))?;
         if !value.is_finite() {
             return Err(Fault::new(column, format!("number out of range after {letter}")));

@@ -60,10 +60,12 @@
 //!   arc itself); Marlin's `P` counts *extra* circles, but slicers do not write it. Planes follow
 //!   LinuxCNC: G17 is XY about +z, G18 is ZX about +y, G19 is YZ about +x; `G3` turns counter-clockwise
 //!   about the plane's axis, so [`Segment::normal`] is the axis for `G3` and its negative for `G2`.
-//! - **Numbers** have no exponent (RS274/NGC and Marlin agree): an `e`/`E` directly after a number is
-//!   an error, since `X1e5` is either scientific notation or a missing space before an `E` word, and
-//!   guessing wrong extrudes 5 mm. Values that overflow (`X` with 400 digits) are errors, as are `#`
-//!   parameters, `[...]` expressions and `O` words.
+//! - **A letter always starts a word**, with or without a blank before it: packed lines
+//!   (`N3G1X120.5Y121.77005E22.97101F2400*83`, as space-stripping senders and post-processors write
+//!   them) read as every firmware reads them — Marlin stops a number at `E`/`e` so as not to read an
+//!   exponent, Klipper splits a command at every letter, and RS274/NGC has no exponents. So numbers
+//!   have no exponent: `X1e5` is `X1 E5`. Values that overflow (`X` with 400 digits) are errors, as
+//!   are `#` parameters, `[...]` expressions and `O` words.
 //! - **Positions** (targets, `G92` offsets, arc centres and radii, extruder positions) beyond
 //!   ±[`MAX_COORDINATE`] (10⁶ m) after unit conversion are errors, so no later sum or square can
 //!   overflow; so are rotary words and rotary positions beyond ±[`MAX_ANGLE`] (10⁶ degrees); every
@@ -469,8 +471,18 @@ impl<R: BufRead> Parser<R> {
         if self.lexer.words.is_empty() {
             return Ok(());
         }
-        self.block.fill(&self.lexer.words)?;
-        let unread = lexed.unread.take();
+        let unread = match self.block.fill(&self.lexer.words) {
+            Ok(()) => lexed.unread.take(),
+            // A firmware reads an M-code's parameters its own way (Bambu's `M624 AQAAAAAAAAA=`,
+            // packed, is A, Q, A, …): a repeated letter there sets the rest of the line aside, as
+            // an unreadable word does, and matters only if the line's code is one acted on.
+            Err(fault) if self.lexer.lenient && self.lexer.starts_with_m_code() => {
+                let cut = self.lexer.words.iter().position(|w| w.column >= fault.column).unwrap_or(self.lexer.words.len());
+                self.block.fill(&self.lexer.words[..cut])?;
+                Some(fault)
+            }
+            Err(fault) => return Err(fault),
+        };
         self.interpreter.execute(&mut self.block, line, unread, &mut self.queue)
     }
 

@@ -55,10 +55,12 @@ pub(crate) fn print_table(r: &Report, wall: f64, log: &Path, log_bytes: u64, sim
     if let Some(b) = &r.reach_m {
         rows.push(("arm's reach (base → nozzle)".into(), mm(b)));
     }
+    // Not a bead error: the hot end's melt lags the extruder's command at every start and stop
+    // (the bead row below is what a print is judged by), so say what it measures.
     rows.push((
-        "flow error".into(),
+        "hot-end lag (melt vs command)".into(),
         format!(
-            "mean {:.1} %, p99 {:.1} % of the mean flow {:.2} mm³/s; deposited {:.1} % of commanded",
+            "|melt − commanded melt| while extruding, the hot end's lag at starts and stops (the bead below judges the print): mean {:.1} %, p99 {:.1} % of the mean flow {:.2} mm³/s; deposited {:.1} % of commanded",
             100.0 * r.flow_error_m3s.mean / r.flow_mean_m3s.max(1e-30),
             100.0 * r.flow_error_m3s.p99 / r.flow_mean_m3s.max(1e-30),
             r.flow_mean_m3s * 1e9,

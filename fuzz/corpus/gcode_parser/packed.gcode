@@ -1,0 +1,10 @@
+; packed words, as space-stripping senders write them: a letter always starts a word
+M82
+G92E0
+N1G1X10Y0F1200*124
+G1X120.5Y121.77005E22.97101F2400
+g1x130e23.5
+N2G1X140E24.0*58
+G28XY
+G1X1e5F60
+G2X150Y10I5J5E25F1800
