@@ -216,9 +216,12 @@ fn override_percentages_out_of_range_are_errors_naming_the_column() {
         assert_eq!(err.column, column, "{program}: {err}");
         assert!(err.message.contains("out of range [1, 1000]"), "{program}: {err}");
     }
+    // A letter always starts a word: `Sfast` is S, F, A, S, T, and S comes twice.
     let err = error("M220 Sfast");
+    assert_eq!((err.line, err.column), (1, 9), "{err}");
+    assert!(err.message.contains("word S given twice"), "{err}");
+    let err = error("M220 S");
     assert_eq!((err.line, err.column), (1, 6), "{err}");
-    assert!(err.message.contains("malformed number after S"), "{err}");
     let err = error("G1 X1 M220 S50");
     assert!(err.message.contains("M220 must be alone on its line"), "{err}");
 }
@@ -367,7 +370,9 @@ fn free_text_and_unacted_codes_are_reported_never_errors() {
     // F beside an M-code is its parameter in firmware G-code: no feed was set.
     assert!(error("M620.1 E F523\nG1 X1\n").message.contains("no feed rate"));
     // In RS274/NGC, unreadable words stay errors, and F on any line is the feed.
-    assert!(error_with("M486 AShape-Box\n", rs274()).message.contains("malformed number after A"));
+    // (A letter always starts a word: `AShape-Box` is A, S, H, A, P, then E with "-Box".)
+    let e = error_with("M486 AShape-Box\n", rs274());
+    assert!(e.message.contains("malformed number after E"), "{e}");
     assert_eq!(parse_with("F600 M3 S1000\nG1 X1\n", rs274()).segments[0].segment.feed, 0.01);
 }
 
