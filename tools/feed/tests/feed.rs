@@ -123,7 +123,7 @@ fn ctrl_c_is_a_controlled_stop() {
 fn a_bad_program_is_refused_naming_file_and_line() {
     let dir = temp_dir("feed", "bad");
     let p = dir.join("bad.gcode");
-    std::fs::write(&p, "G21\nG90\nG1 X10 Y10 F1800\nG1 X1e999 Y0\n").unwrap();
+    std::fs::write(&p, "G21\nG90\nG1 X10 Y10 F1800\nG1 X1.2.3 Y0\n").unwrap();
     let out = feed("strand/nobody", &p, &[]).output().unwrap();
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert_eq!(out.status.code(), Some(2), "{stderr}");
