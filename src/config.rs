@@ -460,6 +460,7 @@ impl Config {
                 .map_err(|e: toml::de::Error| ConfigError::new(path, format!("with --set: {}", e.to_string().trim_end())))?
         };
         let mut raw = raw;
+        raw.base.fold_mount().map_err(|m| ConfigError::new(path, m.to_string()))?;
         raw.base.plan = read_base_plan(path, &raw.base)?;
         raw.validate(path)?;
         let robot_path = path.parent().unwrap_or(Path::new(".")).join(&raw.robot);
@@ -496,8 +497,9 @@ impl Config {
     /// Reads an [`effective_toml`](Config::effective_toml) text with the URDF it used. `origin`
     /// names where the text came from (the log file) in errors.
     pub fn from_effective(origin: &Path, text: &str, urdf_text: &str) -> Result<Self, ConfigError> {
-        let raw: ConfigFile<RobotConfig> =
+        let mut raw: ConfigFile<RobotConfig> =
             toml::from_str(text).map_err(|e| ConfigError::new(origin, format!("effective config: {}", e.to_string().trim_end())))?;
+        raw.base.fold_mount().map_err(|m| ConfigError::new(origin, m.to_string()))?;
         raw.validate(origin)?;
         let mut robot = raw.robot.clone();
         robot.file = origin.join("robot");

@@ -4,6 +4,7 @@
 //! DESIGN.md. Every crate names the core's items by one path, `strand_core::…` (this crate does not
 //! re-export it). Units are SI inside (m, rad, s); quaternions are (w, x, y, z).
 
+pub mod calibrate;
 pub mod check;
 pub mod config;
 pub mod ctl;

@@ -93,12 +93,80 @@ enum Command {
         #[command(subcommand)]
         verb: CtlCommand,
     },
+    /// Calibrate the cell from touched points: the tool, the bed frame, the tracked base, the
+    /// extruder. The joints come from --snapshots FILE or, without it, from the live JointState on
+    /// each Enter. Exit 0: an answer; 3: the touches cannot determine it (the reason on stderr);
+    /// 2: bad input or config; 1: no service for a live reading.
+    Calibrate {
+        #[command(subcommand)]
+        verb: CalibrateCommand,
+    },
     /// Load and validate a configuration and the robot it names; print what it describes.
     CheckConfig {
         /// The service configuration: a file, or a NAME (`iiwa7`, `free-flyer`) found like the
         /// default (default.toml: $STRAND_CONFIG_DIR, ./config, <prefix>/share/strand/config, then
         /// the built-in copy).
         config: Option<PathBuf>,
+    },
+}
+
+/// What every `calibrate` verb takes.
+#[derive(clap::Args)]
+struct CalibrateArgs {
+    /// The service configuration (a file or a NAME, found like `run`'s).
+    #[arg(long)]
+    config: Option<PathBuf>,
+    /// Joint snapshots, one per line: joint angles in rad in chain order, comma-separated, `#`
+    /// comments allowed (`base`: the pairs file, see the README). Without it: live, one per Enter.
+    #[arg(long, value_name = "FILE")]
+    snapshots: Option<PathBuf>,
+    /// One JSON object on stdout instead of the text.
+    #[arg(long)]
+    json: bool,
+    /// Write the answer into this config, keeping its comments (`tool`: into the robot file it names).
+    #[arg(long, value_name = "CONFIG")]
+    write: Option<PathBuf>,
+    /// The service prefix for a live reading (default: the config's `[service] prefix`).
+    #[arg(long)]
+    prefix: Option<String>,
+}
+
+#[derive(Subcommand)]
+enum CalibrateCommand {
+    /// `[tool] xyz` from the nozzle tip on one fixed point from 4 or more orientations.
+    Tool {
+        #[command(flatten)]
+        args: CalibrateArgs,
+        /// Also find the nozzle axis (`[tool] rpy`) from two touches further up the nozzle.
+        #[arg(long)]
+        axis: bool,
+        /// The axis touches' snapshots (with --snapshots; implies --axis).
+        #[arg(long, value_name = "FILE")]
+        axis_snapshots: Option<PathBuf>,
+    },
+    /// `[bed] frame` from 3 touched points (origin, +x, +y side) or more (a least-squares plane).
+    Frame {
+        #[command(flatten)]
+        args: CalibrateArgs,
+    },
+    /// `[base] mount` by hand-eye calibration (AX = XB, Park-Martin) from arm and tracker poses.
+    Base {
+        #[command(flatten)]
+        args: CalibrateArgs,
+    },
+    /// `[extruder] drive_wheel_radius` from a commanded and a measured filament length.
+    Extruder {
+        #[command(flatten)]
+        args: CalibrateArgs,
+        /// Filament length to extrude (mm).
+        #[arg(long, default_value_t = 50.0)]
+        commanded: f64,
+        /// The length that went in (mm); without it the service extrudes --commanded and asks.
+        #[arg(long)]
+        measured: Option<f64>,
+        /// Filament speed of the extrusion (mm/s).
+        #[arg(long, default_value_t = 1.0)]
+        speed: f64,
     },
 }
 
@@ -208,6 +276,7 @@ fn main() -> ExitCode {
             check_job(&file, config.as_deref(), &set, json, png.as_deref(), base_trajectory.as_deref())
         }
         Command::Ctl { prefix, timeout, verb } => ctl(&prefix, timeout, verb.into()),
+        Command::Calibrate { verb } => calibrate(verb),
         Command::CheckConfig { config } => {
             // A closed pipe (`strand check-config | head`) ends it quietly instead of a panic.
             // SAFETY: setting a signal's disposition to the default; no other thread runs yet.
@@ -250,6 +319,36 @@ fn ctl(prefix: &str, timeout: f64, verb: strand::ctl::CtlVerb) -> ExitCode {
                 CtlError::NoService { .. } | CtlError::Port(_) => ExitCode::from(1),
                 _ => ExitCode::from(3),
             }
+        }
+    }
+}
+
+fn calibrate(verb: CalibrateCommand) -> ExitCode {
+    use strand::calibrate::{CalibrateOptions, CalibrateVerb};
+    let (args, verb) = match verb {
+        CalibrateCommand::Tool { args, axis, axis_snapshots } => (args, CalibrateVerb::Tool { axis, axis_snapshots }),
+        CalibrateCommand::Frame { args } => (args, CalibrateVerb::Frame),
+        CalibrateCommand::Base { args } => (args, CalibrateVerb::Base),
+        CalibrateCommand::Extruder { args, commanded, measured, speed } => {
+            (args, CalibrateVerb::Extruder { commanded: commanded * 1e-3, measured: measured.map(|m| m * 1e-3), speed: speed * 1e-3 })
+        }
+    };
+    let config = match locate::service_config(args.config.as_deref()) {
+        Ok(c) => c,
+        Err(e) => {
+            eprintln!("strand calibrate: {e}");
+            return ExitCode::from(2);
+        }
+    };
+    let opts = CalibrateOptions { config, snapshots: args.snapshots, json: args.json, write: args.write, prefix: args.prefix };
+    match strand::calibrate::run(&verb, &opts, &mut std::io::stdin().lock()) {
+        Ok(text) => {
+            print!("{text}");
+            ExitCode::SUCCESS
+        }
+        Err(e) => {
+            eprintln!("strand calibrate: {e}");
+            ExitCode::from(e.exit_code())
         }
     }
 }

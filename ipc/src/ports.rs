@@ -476,6 +476,9 @@ pub struct ClientRoles {
     /// Subscribes to the [`BaseCommand`]: a moving base's controller (the simulator's free flyer,
     /// a mobile platform's bridge).
     pub base: bool,
+    /// Subscribes to joint states and base poses as measured (`strand calibrate`: the arm's joints
+    /// and the tracker's pose at each touch). A driver or a tracker publishes them.
+    pub measurements: bool,
 }
 
 /// The other side of the contract: a feeder, robot driver (or simulator), tracker or monitor, or
@@ -494,6 +497,8 @@ pub struct ClientPorts {
     status: Option<Inbox<Status>>,
     job_progress_out: Option<Outbox<JobProgress>>,
     job_progress_in: Option<Inbox<JobProgress>>,
+    joint_state_in: Option<Inbox<JointState>>,
+    base_pose_in: Option<Inbox<BasePose>>,
     // Last: every port above is dropped before the node.
     _node: Node<Ipc>,
 }
@@ -523,6 +528,16 @@ impl ClientPorts {
             job_progress_out: if feeder { Some(Channel::open(&node, names.job_progress(), JOB_PROGRESS_QOS)?.publisher()?) } else { None },
             job_progress_in: if roles.progress {
                 Some(Channel::open(&node, names.job_progress(), JOB_PROGRESS_QOS)?.subscriber()?)
+            } else {
+                None
+            },
+            joint_state_in: if roles.measurements {
+                Some(Channel::open(&node, names.joint_state(), MEASUREMENT_QOS)?.subscriber()?)
+            } else {
+                None
+            },
+            base_pose_in: if roles.measurements {
+                Some(Channel::open(&node, names.base_pose(), MEASUREMENT_QOS)?.subscriber()?)
             } else {
                 None
             },
@@ -633,6 +648,18 @@ impl ClientPorts {
     /// The newest job progress a feeder published (progress role); `None` if none came.
     pub fn latest_job_progress(&self) -> Option<JobProgress> {
         self.job_progress_in.as_ref().and_then(Inbox::latest)
+    }
+
+    /// Drains the joint state queue and returns the newest (measurements); `None` if nothing was
+    /// queued (or the role is not open, or receiving failed).
+    pub fn latest_joint_state(&self) -> Option<JointState> {
+        self.joint_state_in.as_ref().and_then(Inbox::latest)
+    }
+
+    /// Drains the base pose queue and returns the newest (measurements); `None` if nothing was
+    /// queued (or the role is not open, or receiving failed).
+    pub fn latest_base_pose(&self) -> Option<BasePose> {
+        self.base_pose_in.as_ref().and_then(Inbox::latest)
     }
 
     /// Publishers of the status now (count; monitor): 0 means no controller is running. 0 without

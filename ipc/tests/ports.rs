@@ -29,8 +29,36 @@ fn names(test: &str) -> ServiceNames {
     ServiceNames::new(&format!("strand/test-{}-{}", std::process::id(), test))
 }
 
-const ALL_ROLES: ClientRoles =
-    ClientRoles { feeder: true, driver: true, tracker: true, monitor: true, control: true, progress: true, base: true };
+const ALL_ROLES: ClientRoles = ClientRoles {
+    feeder: true,
+    driver: true,
+    tracker: true,
+    monitor: true,
+    control: true,
+    progress: true,
+    base: true,
+    measurements: false,
+};
+
+#[test]
+fn a_calibration_reads_the_newest_joint_state_and_base_pose() {
+    // `strand calibrate` live: the measurements role subscribes to what the driver and the tracker publish.
+    let n = names("measurements");
+    let reader = ClientPorts::open(&n, "test-calibrate", ClientRoles { measurements: true, ..Default::default() }).unwrap();
+    let driver = ClientPorts::open(&n, "test-driver", ClientRoles { driver: true, tracker: true, ..Default::default() }).unwrap();
+    assert!(reader.latest_joint_state().is_none() && reader.latest_base_pose().is_none());
+    for seq in 1..=3 {
+        assert_eq!(driver.send_joint_state(&joint_state(seq)).unwrap(), 1);
+        let pose = BasePose { seq, stamp_ns: seq, position: [seq as f64, 0.0, 0.0], orientation: [1.0, 0.0, 0.0, 0.0] };
+        assert_eq!(driver.send_base_pose(&pose).unwrap(), 1);
+    }
+    assert_eq!(bytes(&reader.latest_joint_state().unwrap()), bytes(&joint_state(3)));
+    assert_eq!(reader.latest_base_pose().map(|p| (p.seq, p.position[0])), Some((3, 3.0)));
+    assert!(reader.latest_joint_state().is_none(), "drained");
+    // Without the role: nothing, no error.
+    let other = ClientPorts::open(&n, "test-other", ClientRoles { monitor: true, ..Default::default() }).unwrap();
+    assert!(other.latest_joint_state().is_none() && other.latest_base_pose().is_none());
+}
 
 /// The bytes of a wire message (the contract types have no implicit padding).
 fn bytes<T: Copy>(v: &T) -> &[u8] {

@@ -52,6 +52,16 @@ pub enum EstimatorKind {
 /// Samples the moving-average estimator keeps at most.
 pub const MAX_WINDOW: usize = 64;
 
+/// `[base] mount = { xyz, rpy }`: the base frame B's pose in W as one value.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct MountPose {
+    /// The base origin in W (m).
+    pub xyz: [f64; 3],
+    /// The base orientation as roll, pitch, yaw (rad), fixed axes x, y, z.
+    pub rpy: [f64; 3],
+}
+
 /// `[base]`: where the base is and how it is tracked.
 #[derive(Clone, Debug, PartialEq, Deserialize, Serialize)]
 #[serde(deny_unknown_fields, default)]
@@ -62,6 +72,12 @@ pub struct BaseConfig {
     pub mount_xyz: [f64; 3],
     /// Mount orientation as roll, pitch, yaw (rad), fixed axes x, y, z.
     pub mount_rpy: [f64; 3],
+    /// The mount as one pose, `[base] mount = { xyz, rpy }` (m, rad): what `strand calibrate base`
+    /// writes. The same keys as `mount_xyz`/`mount_rpy`, which it replaces (giving both is refused);
+    /// [`BaseConfig::fold_mount`] moves it into them when a config is loaded, so everything else
+    /// reads `mount_xyz`/`mount_rpy` and a log's effective config has those only.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub mount: Option<MountPose>,
     /// Estimator for a tracked base.
     pub estimator: EstimatorKind,
     /// Alpha-beta position gain α (0, 1].
@@ -105,6 +121,7 @@ impl Default for BaseConfig {
             mode: BaseMode::Fixed,
             mount_xyz: [0.0; 3],
             mount_rpy: [0.0; 3],
+            mount: None,
             estimator: EstimatorKind::AlphaBeta,
             // Critically damped (discount 0.7): α = 1 − 0.7², β = (1 − 0.7)².
             alpha: 0.51,
@@ -125,8 +142,33 @@ impl Default for BaseConfig {
 }
 
 impl BaseConfig {
+    /// Moves `mount = { xyz, rpy }` into `mount_xyz`/`mount_rpy` (call once, after parsing);
+    /// refused, naming both forms, when the file gives the pose both ways.
+    pub fn fold_mount(&mut self) -> Result<(), InvalidSetting> {
+        let Some(pose) = self.mount.take() else { return Ok(()) };
+        if self.mount_xyz != [0.0; 3] || self.mount_rpy != [0.0; 3] {
+            return Err(InvalidSetting::new(
+                "base",
+                format!(
+                    "[base] mount replaces mount_xyz and mount_rpy: give one form (mount = {{ xyz = {:?}, rpy = {:?} }}, \
+                     mount_xyz = {:?}, mount_rpy = {:?})",
+                    pose.xyz, pose.rpy, self.mount_xyz, self.mount_rpy
+                ),
+            ));
+        }
+        self.mount_xyz = pose.xyz;
+        self.mount_rpy = pose.rpy;
+        Ok(())
+    }
+
     /// Checks every key; the message names it and its allowed range.
     pub fn validate(&self) -> Result<(), InvalidSetting> {
+        if self.mount.is_some() {
+            return Err(InvalidSetting::new(
+                "base",
+                "[base] mount: not moved into mount_xyz/mount_rpy (BaseConfig::fold_mount)".to_string(),
+            ));
+        }
         for (key, v) in [("mount_xyz", self.mount_xyz), ("mount_rpy", self.mount_rpy)] {
             if v.iter().any(|x| !x.is_finite()) {
                 return Err(InvalidSetting::new("base", format!("[base] {key}: values must be finite")));
@@ -526,6 +568,20 @@ mod tests {
     }
 
     /// A base moving at constant velocity is predicted exactly once the filter has settled.
+    #[test]
+    fn the_mount_as_one_pose_is_the_two_keys_and_not_both() {
+        let pose = MountPose { xyz: [1.0, -0.5, 0.2], rpy: [0.0, 0.1, 1.2] };
+        let mut one = BaseConfig { mount: Some(pose), ..BaseConfig::default() };
+        assert!(one.validate().is_err(), "validated before the fold");
+        one.fold_mount().unwrap();
+        let two = BaseConfig { mount_xyz: pose.xyz, mount_rpy: pose.rpy, ..BaseConfig::default() };
+        assert_eq!(one, two);
+        one.validate().unwrap();
+        let mut both = BaseConfig { mount: Some(pose), mount_xyz: [0.1, 0.0, 0.0], ..BaseConfig::default() };
+        let e = both.fold_mount().unwrap_err().to_string();
+        assert!(e.contains("[base] mount replaces mount_xyz and mount_rpy"), "{e}");
+    }
+
     #[test]
     fn alpha_beta_converges_on_constant_velocity() {
         let mut e = tracked(EstimatorKind::AlphaBeta);

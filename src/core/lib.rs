@@ -28,7 +28,7 @@ mod path;
 mod positioner;
 mod setting;
 
-pub use base::{BaseConfig, BaseEstimator, BaseMode, BaseState, EstimatorKind, MAX_WINDOW, PoseRejection};
+pub use base::{BaseConfig, BaseEstimator, BaseMode, BaseState, EstimatorKind, MAX_WINDOW, MountPose, PoseRejection};
 pub use controller::{
     Controller, ControllerConfig, ControllerError, ControllerSettings, CycleCounters, Event, MAX_BASE_POSES_PER_TICK,
     MAX_CONTROLS_PER_TICK, MAX_EVENTS, MAX_SEGMENTS_PER_TICK, TickDiagnostics, TickInput, TickOutput,

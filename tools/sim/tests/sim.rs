@@ -467,3 +467,41 @@ fn the_sim_takes_the_services_overrides_and_names_a_bad_one() {
     assert_eq!(out.status.code(), Some(2), "{err}");
     assert!(err.contains("[controller] rate_hz = -5"), "{err}");
 }
+
+/// `strand calibrate extruder` without `--measured`: it extrudes the commanded length through a
+/// running service (a one-segment dwell where the arm stands, under the sim), then asks for the
+/// measured length on stdin and rescales the drive wheel.
+#[test]
+fn calibrate_extruder_extrudes_through_the_service_then_asks() {
+    use std::io::Write;
+    let prefix = format!("strand/simtest-calibrate-{}", std::process::id());
+    let (_svc, m) = service_without_robot(&prefix);
+    let _sim = spawn({
+        let mut c = Command::new(bin("strand-sim"));
+        c.args(["--config", "config/default.toml", "--prefix", &prefix]);
+        c
+    });
+    wait_for(&m, 30, "the sim clocking the service", |s| s.tick > 100);
+    let mut child = Command::new(bin("strand"))
+        .args(["calibrate", "extruder", "--config", "config/default.toml", "--prefix", &prefix])
+        .args(["--commanded", "4", "--speed", "4", "--json"])
+        .current_dir(root())
+        .stdin(Stdio::piped())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    // The answer is read only after the extrusion: written now, it waits in the pipe.
+    writeln!(child.stdin.take().unwrap(), "3.92").unwrap();
+    let out = child.wait_with_output().unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "exit {:?}: {err}", out.status.code());
+    assert!(err.contains("extruding 4.0 mm") && err.contains("how many mm went in?"), "{err}");
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert!((json_f64(&v, &["ratio"]) - 0.98).abs() < 1e-12, "{v}");
+    assert!((json_f64(&v, &["drive_wheel_radius"]) - 0.98 * json_f64(&v, &["previous"])).abs() < 1e-12, "{v}");
+    // The service ran the extrusion as a job to its end: finished, no fault, no clamp.
+    let s = wait_for(&m, 10, "the service idle again", |s| s.run_state == RunState::Idle as u32);
+    assert_eq!((s.job_outcome, s.fault, s.clamps), (JobOutcome::Finished as u32, FaultCode::None as u32, 0), "{s:?}");
+    assert_eq!(s.segments_accepted, 1, "{s:?}");
+}
