@@ -5,14 +5,15 @@
 //! [`stream`]; the job check before it, [`check`].
 
 mod keys;
+mod resume;
 mod stream;
 
 pub use keys::{Key, Keys};
+pub use resume::{LogStop, Reentry, ResumePoint};
 pub use stream::{StreamOptions, check, stream};
 
 use std::path::Path;
 
-use nalgebra::Vector3;
 use strand::config::Config;
 use strand_core::{Segment, SegmentFlags, SegmentKind};
 use strand_ipc as ipc;
@@ -191,22 +192,6 @@ impl Job {
     }
 }
 
-/// How `--resume-layer` gets back onto the part.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct LayerResume {
-    /// The layer to start at, as the progress line shows it (the slicer's layer number; by height
-    /// from 0 in a program without layer comments).
-    pub layer: i32,
-    /// Height above the highest point printed before that layer at which the tool travels (m).
-    pub clearance: f64,
-    /// Filament pushed at the layer's start before its first extruding move (m).
-    pub prime: f64,
-    /// Filament speed of the prime (m/s).
-    pub prime_speed: f64,
-    /// Travel speed (m/s).
-    pub travel_feed: f64,
-}
-
 impl Job {
     /// The job opens with a leading travel (a line that moves no filament): the controller's
     /// approach replaces it, and its progress starts at its end.
@@ -214,77 +199,6 @@ impl Job {
         self.segments
             .first()
             .is_some_and(|s| s.kind == ipc::SegmentKind::Line as u32 && s.flags & ipc::segment_flags::EXTRUDE == 0 && s.filament == 0.0)
-    }
-
-    /// Starts the job at the first segment of layer `r.layer`: a travel up to `r.clearance` above
-    /// everything printed before it (over the layer's start point), a travel straight down onto
-    /// it, a prime, then the layer and the rest of the program. The controller's approach takes
-    /// the arm to the first point above the part in joint space, so the tool never crosses the part
-    /// lower than the clearance. Segment numbers stay the program's (the three new ones take the
-    /// numbers just below the layer's first, or the program is renumbered when there are none).
-    pub fn from_layer(mut self, r: &LayerResume) -> Result<Job> {
-        if self.layers.iter().all(|l| l.is_none()) {
-            self.layers = layers_from_heights(&self.segments);
-        }
-        let Some(k) = self.layers.iter().position(|l| *l == Some(r.layer)) else {
-            let known: Vec<i32> = self.layers.iter().flatten().copied().collect();
-            let range = match (known.iter().min(), known.iter().max()) {
-                (Some(a), Some(b)) => format!("layers {a} to {b}"),
-                _ => "no layers".to_string(),
-            };
-            return Err(ToolError::Usage(format!("--resume-layer {}: the program has {range}", r.layer)));
-        };
-        if k == 0 {
-            return Ok(self);
-        }
-        let printed = &self.segments[..k];
-        let start = printed[k - 1].end;
-        let top = printed.iter().filter(|s| s.flags & ipc::segment_flags::EXTRUDE != 0).map(|s| s.end[2]).fold(start[2], f64::max);
-        let safe = [start[0], start[1], top + r.clearance];
-        let orientation = self.segments[k].orientation;
-        let travel = |end: [f64; 3]| ipc::Segment {
-            kind: ipc::SegmentKind::Line as u32,
-            flags: ipc::segment_flags::TRAVEL,
-            end,
-            orientation,
-            feed: r.travel_feed,
-            source_line: self.segments[k].source_line,
-            ..ipc::Segment::default()
-        };
-        let mut lead = vec![travel(safe), travel(start)];
-        if r.prime > 0.0 && r.prime_speed > 0.0 {
-            lead.push(ipc::Segment {
-                kind: ipc::SegmentKind::Dwell as u32,
-                flags: ipc::segment_flags::EXTRUDE,
-                end: start,
-                orientation,
-                filament: r.prime,
-                duration: r.prime / r.prime_speed,
-                source_line: self.segments[k].source_line,
-                ..ipc::Segment::default()
-            });
-        }
-        let layer = self.layers[k];
-        let first_seq = self.segments[k].seq;
-        let shift = (lead.len() as u64 + 1).saturating_sub(first_seq);
-        let mut segments: Vec<ipc::Segment> = lead.to_vec();
-        segments.extend(self.segments[k..].iter().map(|s| ipc::Segment { seq: s.seq + shift, ..*s }));
-        let base = first_seq + shift - lead.len() as u64;
-        for (i, s) in segments.iter_mut().take(lead.len()).enumerate() {
-            s.seq = base + i as u64;
-        }
-        let mut lengths = vec![(Vector3::from(safe) - Vector3::from(start)).norm(), r.clearance.max(safe[2] - start[2])];
-        lengths.resize(lead.len(), 0.0);
-        lengths[0] = 0.0; // from wherever the approach leaves the tool
-        lengths.extend_from_slice(&self.lengths[k..]);
-        let mut layers = vec![layer; lead.len()];
-        layers.extend_from_slice(&self.layers[k..]);
-        // Where a moving base's plan goes on from: the path before the layer (past the leading
-        // travel), less the travel down onto its start (which the controller's progress counts).
-        let before: f64 = self.lengths[..k].iter().skip(usize::from(self.leads_with_travel())).sum();
-        let progress_offset = (self.progress_offset + before - lengths[1]).max(0.0);
-        self.skipped += k;
-        Ok(Job { segments, layers, lengths, skipped: self.skipped, progress_offset, warnings: self.warnings })
     }
 }
 
@@ -410,8 +324,8 @@ mod tests {
         let mut distinct: Vec<i32> = layer_of.iter().flatten().copied().collect();
         distinct.dedup();
         let third = distinct[2];
-        let r = LayerResume { layer: third, clearance: 0.01, prime: 0.001, prime_speed: 0.02, travel_feed: 0.1 };
-        let resumed = whole.clone().from_layer(&r).unwrap();
+        let r = Reentry { clearance: 0.01, prime: 0.001, prime_speed: 0.02, travel_feed: 0.1 };
+        let resumed = whole.clone().from_layer(third, &r).unwrap();
         let k = layer_of.iter().position(|l| *l == Some(third)).unwrap();
         let top =
             whole.segments[..k].iter().filter(|s| s.flags & ipc::segment_flags::EXTRUDE != 0).map(|s| s.end[2]).fold(f64::MIN, f64::max);
@@ -430,7 +344,7 @@ mod tests {
         assert_eq!(resumed.segments.len(), whole.segments.len() - k + 3);
         assert_eq!((resumed.layers.len(), resumed.lengths.len()), (resumed.segments.len(), resumed.segments.len()));
         // A layer the program does not have is an error naming the range.
-        let e = whole.from_layer(&LayerResume { layer: 100_000, ..r }).unwrap_err().to_string();
+        let e = whole.from_layer(100_000, &r).unwrap_err().to_string();
         assert!(e.contains("--resume-layer 100000") && e.contains("layers"), "{e}");
     }
 

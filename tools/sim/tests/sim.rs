@@ -305,16 +305,7 @@ fn exit_code_within(child: &mut Reaped, seconds: u64, m: &ClientPorts) -> Option
 }
 
 fn wait_for(m: &ClientPorts, seconds: u64, what: &str, until: impl Fn(&Status) -> bool) -> Status {
-    let deadline = Instant::now() + Duration::from_secs(seconds);
-    loop {
-        if let Some(s) = m.latest_status()
-            && until(&s)
-        {
-            return s;
-        }
-        assert!(Instant::now() < deadline, "timed out waiting for {what}: {:?}", m.latest_status());
-        let _ = m.wait_status(20_000_000);
-    }
+    strand_testkit::wait_for_status(m, seconds, what, until)
 }
 
 #[test]

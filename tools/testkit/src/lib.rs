@@ -156,3 +156,23 @@ pub fn gcode_from_words(words: &[(u8, f64, u8)]) -> Vec<u8> {
     }
     text.into_bytes()
 }
+
+/// The first Status `until` accepts, waiting on the monitor's port; panics naming `what` and the
+/// last Status after `seconds`.
+pub fn wait_for_status(
+    m: &strand_ipc::ports::ClientPorts,
+    seconds: u64,
+    what: &str,
+    until: impl Fn(&strand_ipc::Status) -> bool,
+) -> strand_ipc::Status {
+    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(seconds);
+    loop {
+        if let Some(s) = m.latest_status()
+            && until(&s)
+        {
+            return s;
+        }
+        assert!(std::time::Instant::now() < deadline, "timed out waiting for {what}: {:?}", m.latest_status());
+        let _ = m.wait_status(20_000_000);
+    }
+}
