@@ -202,9 +202,84 @@ fn every_record_type_round_trips_bit_for_bit() {
     }
 }
 
+/// The eventful log with every channel at every tick (`strand-replay regenerate`).
+fn eventful_log_regenerated() -> (PathBuf, u64) {
+    static ONCE: std::sync::OnceLock<(PathBuf, u64)> = std::sync::OnceLock::new();
+    ONCE.get_or_init(|| {
+        let (path, ticks) = eventful_log();
+        let out = path.with_file_name("run-full-rate.mcap");
+        let r = strand::log::regenerate::regenerate(&[LogFile::open(&path).unwrap()], &out).unwrap();
+        assert_eq!(r.ticks, ticks);
+        (out, ticks)
+    })
+    .clone()
+}
+
+#[test]
+fn the_derived_channels_go_to_the_file_at_their_rate_and_regenerate_at_every_tick() {
+    let (path, ticks) = eventful_log();
+    let log = LogFile::open(&path).unwrap();
+    let rate_hz = log.config().unwrap().controller.rate_hz;
+    let derived_hz = LogConfig::default().derived_rate_hz;
+    let mut counts = std::collections::BTreeMap::<String, u64>::new();
+    let mut state = None;
+    let (mut changes, mut changes_logged) = (0u64, 0u64);
+    let mut status_at = std::collections::BTreeSet::new();
+    let mut tick_at = Vec::new();
+    for m in log.messages() {
+        *counts.entry(m.channel.topic.clone()).or_default() += 1;
+        if m.channel.topic == topics::STATUS {
+            status_at.insert(m.log_time);
+        }
+        if m.channel.topic == topics::TICK {
+            let t: Tick = decode(&m.data).unwrap();
+            let s = &t.output.status;
+            let now = (s.run_state, s.fault, s.job_outcome, s.executing_layer);
+            if state != Some(now) {
+                changes += 1;
+                tick_at.push(m.log_time);
+            }
+            state = Some(now);
+        }
+    }
+    // Every change of state has its /status, at its tick's time.
+    for t in &tick_at {
+        changes_logged += status_at.contains(t) as u64;
+    }
+    assert_eq!(changes_logged, changes, "every change of run state, fault, outcome or layer is in /status");
+    // The replay record every tick; the derived channels at 100 Hz of the 1 kHz ticks.
+    let expected = ticks as f64 * derived_hz / rate_hz;
+    assert_eq!(counts[topics::TICK], ticks);
+    for t in [topics::EXTRUDER, topics::TCP_TARGET, topics::BASE_ESTIMATED, topics::JOINT_COMMAND] {
+        let n = counts[t] as f64;
+        assert!((n - expected).abs() <= 2.0 + 0.01 * expected, "{t}: {n} messages, {expected:.0} expected");
+    }
+    let status = counts[topics::STATUS] as f64;
+    assert!(status >= expected - 2.0 && status <= expected + changes as f64 + 2.0, "/status {status}");
+    // Regenerated: every channel at every tick again, the same replay records.
+    let (full, _) = eventful_log_regenerated();
+    let full = LogFile::open(&full).unwrap();
+    let mut full_counts = std::collections::BTreeMap::<String, u64>::new();
+    for m in full.messages() {
+        *full_counts.entry(m.channel.topic.clone()).or_default() += 1;
+    }
+    for t in [topics::TICK, topics::STATUS, topics::EXTRUDER, topics::TCP_TARGET, topics::BASE_ESTIMATED] {
+        assert_eq!(full_counts[t], ticks, "{t}");
+    }
+    let same = log.channel(topics::TICK).zip(full.channel(topics::TICK)).all(|(a, b)| a.data == b.data && a.log_time == b.log_time);
+    assert!(same, "the replay records and their times are the run's");
+    assert_eq!(verify(&[full]).unwrap(), Verdict::Identical { ticks });
+    let bytes = |p: &Path| std::fs::metadata(p).unwrap().len() as f64;
+    eprintln!(
+        "eventful run, {ticks} ticks: {:.0} kB at {derived_hz} Hz derived, {:.0} kB at every tick",
+        bytes(&path) / 1e3,
+        bytes(&eventful_log_regenerated().0) / 1e3
+    );
+}
+
 #[test]
 fn every_channel_schema_describes_its_bytes_and_channels_agree() {
-    let (path, ticks) = eventful_log();
+    let (path, ticks) = eventful_log_regenerated();
     let log = LogFile::open(&path).unwrap();
     let mut counts = std::collections::BTreeMap::<String, u64>::new();
     let mut schemas = std::collections::BTreeMap::<String, Schema>::new();

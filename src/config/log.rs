@@ -42,6 +42,13 @@ pub struct LogConfig {
     pub rotate_seconds: f64,
     /// `fdatasync` after each chunk (survives a power loss, costs writer time).
     pub fsync: bool,
+    /// Rate (Hz) at which the file gets the channels the replay record (`/strand/tick`, always
+    /// every tick) already holds or derives: `/joint_states`, `/joint_command`, `/tcp/target`,
+    /// `/tcp/actual`, `/base/measured`, `/base/estimated`, `/base/command`, `/extruder`, `/status`
+    /// (`/status` also on every change of run state, fault, job outcome or layer). 0: every tick.
+    /// `strand-replay regenerate` writes them at the full rate again from the replay record; the
+    /// live view is fed every tick either way (it keeps its own `[view] rates`).
+    pub derived_rate_hz: f64,
     /// With the robot clock, a tick whose record finds the queue full waits for a slot instead of
     /// dropping the record: for a simulator that clocks the service faster than real time (the
     /// demo), so the log stays complete. Leave it off on a real robot, where a late command is
@@ -62,6 +69,7 @@ impl Default for LogConfig {
             rotate_bytes: 0,
             rotate_seconds: 0.0,
             fsync: false,
+            derived_rate_hz: 100.0,
             wait_when_full: false,
         }
     }
@@ -89,6 +97,12 @@ impl LogConfig {
             return Err(InvalidSetting::new(
                 "log",
                 format!("[log] rotate_seconds = {}: must be 0 (off) or at least 1 s", self.rotate_seconds),
+            ));
+        }
+        if !(self.derived_rate_hz.is_finite() && self.derived_rate_hz >= 0.0) {
+            return Err(InvalidSetting::new(
+                "log",
+                format!("[log] derived_rate_hz = {}: must be 0 (every tick) or a rate > 0 Hz", self.derived_rate_hz),
             ));
         }
         if self.name.contains(['/', '\\']) {

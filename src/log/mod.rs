@@ -9,6 +9,8 @@
 //!   and never control).
 //! - [`reader`]: reads a log (finished or cut short) back: metadata, attachments, ticks, channels.
 //! - [`recover`]: rewrites a log cut short by a crash into a valid, indexed file.
+//! - [`regenerate`]: rewrites a log with its derived channels at every tick (the service writes them
+//!   at `[log] derived_rate_hz`).
 //! - [`scene`]: what a 3D viewer draws (URDF, `/tf`, path and bead markers), for the log and the
 //!   live view alike.
 
@@ -17,6 +19,7 @@ pub mod dynamic;
 pub mod messages;
 pub mod reader;
 pub mod recover;
+pub mod regenerate;
 pub mod replay;
 pub(crate) mod scene;
 pub mod writer;

@@ -69,6 +69,10 @@ pub struct LogContext {
     pub view: ViewConfig,
     /// Every joint a command carries: the arm's, then a positioner's axes.
     pub joint_names: Vec<String>,
+    /// Unix time minus tick time (ns) for the messages' log times; `None`: the wall clock's offset
+    /// from `CLOCK_MONOTONIC` when the writer starts (a live run). A log rewritten from another
+    /// keeps that one's.
+    pub clock_offset_ns: Option<i128>,
 }
 
 impl LogContext {
@@ -87,6 +91,7 @@ impl LogContext {
                 .chain(cfg.robot.build_positioner().ok().flatten().iter().flat_map(|p| p.model().joints().iter()))
                 .map(|j| j.name.clone())
                 .collect(),
+            clock_offset_ns: None,
         }
     }
 }
@@ -419,12 +424,16 @@ struct WriterThread {
     live: Option<LiveTap>,
     /// The next log time (Unix ns) at which a trail's history may be built for late viewers.
     next_history_ns: u64,
+    /// The next tick time (ns) at which the derived channels go to the file (`[log] derived_rate_hz`).
+    next_derived_ns: u64,
+    /// What the last `/status` written to the file said: run state, fault, job outcome, layer.
+    last_status_written: Option<(u32, u32, u32, u32)>,
 }
 
 impl WriterThread {
     fn new(cfg: LogConfig, ctx: LogContext, first_path: PathBuf, shared: Arc<Shared>) -> Self {
         let joint_names = ctx.joint_names.clone();
-        let clock_offset_ns = unix_now_ns() as i128 - crate::io::clock::monotonic_ns() as i128;
+        let clock_offset_ns = ctx.clock_offset_ns.unwrap_or_else(|| unix_now_ns() as i128 - crate::io::clock::monotonic_ns() as i128);
         WriterThread {
             cfg,
             first_path,
@@ -440,6 +449,8 @@ impl WriterThread {
             scene: Scene::new(&ctx.urdf_text, &ctx.model, &ctx.view),
             live: None,
             next_history_ns: 0,
+            next_derived_ns: 0,
+            last_status_written: None,
             ctx,
         }
     }
@@ -638,11 +649,33 @@ impl WriterThread {
             let header = MessageHeader { channel_id: f.channels[description], sequence: 0, log_time, publish_time: log_time };
             f.mcap.write_to_known_channel(&header, self.scene.robot_description()).map_err(|e| LogError::io(&f.path, e))?;
         }
+        // The derived channels go to the file at `derived_rate_hz` (on the tick's own time, so a
+        // replay of the log decimates the same way); `/status` also whenever its state changes.
+        let derived = self.cfg.derived_rate_hz == 0.0 || t.input.time_ns >= self.next_derived_ns;
+        if derived && self.cfg.derived_rate_hz > 0.0 {
+            let period = (1e9 / self.cfg.derived_rate_hz) as u64;
+            self.next_derived_ns =
+                if t.input.time_ns >= self.next_derived_ns + period { t.input.time_ns } else { self.next_derived_ns } + period;
+        }
+        let st = &t.output.status;
+        let state = (st.run_state, st.fault, st.job_outcome, st.executing_layer);
+        let status_due = derived || self.last_status_written != Some(state);
+        if status_due {
+            self.last_status_written = Some(state);
+        }
+        // Nothing to encode a derived channel for: not due in the file, no live view.
+        let encode_derived = derived || self.live.is_some();
         let (file, live, cdr) = (&mut self.file, &mut self.live, &mut self.cdr);
-        // Every message goes to the file and is offered to the live view (which decimates).
+        // Every message is offered to the live view (which decimates); the file gets the replay
+        // record and the segments always, the derived channels when due.
         let mut put = |channel: Channel, time: u64, bytes: &[u8]| -> Result<(), LogError> {
             let c = channel.index();
-            if let Some(f) = file.as_mut() {
+            let due = match channel {
+                Channel::Tick | Channel::Segments | Channel::Scene(_) => true,
+                Channel::Status => status_due,
+                _ => derived,
+            };
+            if let Some(f) = file.as_mut().filter(|_| due) {
                 f.sequence = f.sequence.wrapping_add(1);
                 let header = MessageHeader { channel_id: f.channels[c], sequence: f.sequence, log_time: time, publish_time: time };
                 f.mcap.write_to_known_channel(&header, bytes).map_err(|e| LogError::io(&f.path, e))?;
@@ -660,8 +693,10 @@ impl WriterThread {
         }
         if let Some(js) = &t.input.joint_state {
             let n = (js.dof as usize).min(dof);
-            ros::joint_state(cdr, stamp(js.stamp_ns), &self.joint_names, &js.position[..n], &js.velocity[..n], &js.effort[..n]);
-            put(Channel::JointStates, log_time, cdr.bytes())?;
+            if encode_derived {
+                ros::joint_state(cdr, stamp(js.stamp_ns), &self.joint_names, &js.position[..n], &js.velocity[..n], &js.effort[..n]);
+                put(Channel::JointStates, log_time, cdr.bytes())?;
+            }
             if n == dof && js.position[..n].iter().all(|v| v.is_finite()) {
                 let mut q = JointVector::zeros();
                 q.as_mut_slice()[..n].copy_from_slice(&js.position[..n]);
@@ -669,37 +704,41 @@ impl WriterThread {
             }
         }
         let o = &t.output;
-        if o.joint_command.valid == 1 {
-            let c = &o.joint_command;
-            ros::joint_state(cdr, log_time, &self.joint_names, &c.position[..dof], &c.velocity[..dof], &[]);
-            put(Channel::JointCommand, log_time, cdr.bytes())?;
+        if encode_derived {
+            if o.joint_command.valid == 1 {
+                let c = &o.joint_command;
+                ros::joint_state(cdr, log_time, &self.joint_names, &c.position[..dof], &c.velocity[..dof], &[]);
+                put(Channel::JointCommand, log_time, cdr.bytes())?;
+            }
+            let d = &o.diagnostics;
+            let quat = |q: &nalgebra::UnitQuaternion<f64>| [q.w, q.i, q.j, q.k];
+            ros::pose_stamped(cdr, log_time, "world", d.tcp_target_world.into(), quat(&d.tcp_target_orientation));
+            put(Channel::TcpTarget, log_time, cdr.bytes())?;
+            if let Some(q) = &self.last_measured {
+                let tcp_b = self.ctx.model.forward_kinematics(q);
+                let rot_b = nalgebra::UnitQuaternion::from_rotation_matrix(&tcp_b.rotation);
+                let (p_w, r_w) = d.base.base_to_world(&tcp_b.translation.vector, &rot_b);
+                ros::pose_stamped(cdr, log_time, "world", p_w.into(), quat(&r_w));
+                put(Channel::TcpActual, log_time, cdr.bytes())?;
+            }
+            for p in t.input.base_poses() {
+                ros::pose_stamped(cdr, stamp(p.stamp_ns), "world", p.position, p.orientation);
+                put(Channel::BaseMeasured, log_time, cdr.bytes())?;
+            }
+            ros::pose_stamped(cdr, log_time, "world", d.base.position.into(), quat(&d.base.orientation));
+            put(Channel::BaseEstimated, log_time, cdr.bytes())?;
+            if o.base_command.valid == 1 {
+                let b = &o.base_command;
+                ros::pose_stamped(cdr, log_time, "world", b.position, b.orientation);
+                put(Channel::BaseCommand, log_time, cdr.bytes())?;
+            }
+            encode(cdr, &o.extruder);
+            put(Channel::Extruder, log_time, cdr.bytes())?;
         }
-        let d = &o.diagnostics;
-        let quat = |q: &nalgebra::UnitQuaternion<f64>| [q.w, q.i, q.j, q.k];
-        ros::pose_stamped(cdr, log_time, "world", d.tcp_target_world.into(), quat(&d.tcp_target_orientation));
-        put(Channel::TcpTarget, log_time, cdr.bytes())?;
-        if let Some(q) = &self.last_measured {
-            let tcp_b = self.ctx.model.forward_kinematics(q);
-            let rot_b = nalgebra::UnitQuaternion::from_rotation_matrix(&tcp_b.rotation);
-            let (p_w, r_w) = d.base.base_to_world(&tcp_b.translation.vector, &rot_b);
-            ros::pose_stamped(cdr, log_time, "world", p_w.into(), quat(&r_w));
-            put(Channel::TcpActual, log_time, cdr.bytes())?;
+        if encode_derived || status_due {
+            encode(cdr, &o.status);
+            put(Channel::Status, log_time, cdr.bytes())?;
         }
-        for p in t.input.base_poses() {
-            ros::pose_stamped(cdr, stamp(p.stamp_ns), "world", p.position, p.orientation);
-            put(Channel::BaseMeasured, log_time, cdr.bytes())?;
-        }
-        ros::pose_stamped(cdr, log_time, "world", d.base.position.into(), quat(&d.base.orientation));
-        put(Channel::BaseEstimated, log_time, cdr.bytes())?;
-        if o.base_command.valid == 1 {
-            let b = &o.base_command;
-            ros::pose_stamped(cdr, log_time, "world", b.position, b.orientation);
-            put(Channel::BaseCommand, log_time, cdr.bytes())?;
-        }
-        encode(cdr, &o.extruder);
-        put(Channel::Extruder, log_time, cdr.bytes())?;
-        encode(cdr, &o.status);
-        put(Channel::Status, log_time, cdr.bytes())?;
         self.scene.tick(t, log_time, self.last_measured.as_ref(), &mut |topic, bytes| put(Channel::Scene(topic), log_time, bytes))?;
         // Viewers that subscribed to a trail since the last time get the whole of it, built at most
         // once a second (requests in between are served together), in a buffer freed after.

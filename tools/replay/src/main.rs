@@ -1,6 +1,7 @@
 //! strand-replay: what a log says. `verify` re-runs every logged tick through `Controller::step`
 //! and checks the outputs to the bit; `info` summarises a run; `export` writes one CSV per channel;
-//! `plot` draws PNGs; `recover` rewrites a log that a crash cut short into a valid, indexed file.
+//! `plot` draws PNGs; `recover` rewrites a log that a crash cut short into a valid, indexed file;
+//! `regenerate` writes a log's derived channels at every tick again.
 
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -70,6 +71,17 @@ enum Command {
         /// One JSON object instead of the TOML lines.
         #[arg(long)]
         json: bool,
+    },
+    /// Rewrite a run's log (its rotated parts in order) into one file with every channel at every
+    /// tick: the service writes the derived channels (`/joint_states`, `/tcp/*`, `/extruder`,
+    /// `/status`...) at `[log] derived_rate_hz`, and they all follow from the replay record.
+    Regenerate {
+        /// The log, or its rotated parts in order.
+        #[arg(required = true)]
+        files: Vec<PathBuf>,
+        /// Output file.
+        #[arg(long, short)]
+        output: PathBuf,
     },
     /// Rewrite a log cut short by a crash into a valid, indexed file (everything in closed chunks).
     Recover {
@@ -186,6 +198,19 @@ fn main() -> ExitCode {
                     ExitCode::SUCCESS
                 }
                 Err(e) => fail(e),
+            }
+        }
+        Command::Regenerate { files, output } => {
+            let logs = match open_all(&files) {
+                Ok(l) => l,
+                Err(e) => return fail(e),
+            };
+            match strand::log::regenerate::regenerate(&logs, &output) {
+                Ok(r) => {
+                    println!("{}: {} ticks, every channel at every tick ({:.1} MB)", output.display(), r.ticks, r.bytes as f64 / 1e6);
+                    ExitCode::SUCCESS
+                }
+                Err(e) => fail(ToolError::Content(e.to_string())),
             }
         }
         Command::Recover { file, output } => {

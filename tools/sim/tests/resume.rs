@@ -104,17 +104,15 @@ fn seam_melt(program: &[(Vector3<f64>, Vector3<f64>)], truths: &[PathBuf], seam:
     let half = 6e-3;
     let n = (2.0 * half / BIN) as usize;
     let mut seam = Seam { bins: vec![0.0; n], blob_crash_m3: 0.0, blob_resume_m3: 0.0 };
-    // The resume begins with the first command to extrude after the nozzle stood at the seam,
-    // commanded nothing, for a second (the service dead, then the new one waiting for the job),
-    // or with the second sim's run (the whole cell restarted).
+    // The resume begins where the tool comes down over the seam from above (the first run passes
+    // it at the layer's height), or with the second sim's run (the whole cell restarted).
     for (run, truth) in truths.iter().enumerate() {
         let rows = read_truth(truth).unwrap();
-        let (mut idle, mut resumed) = (0usize, run > 0);
+        let mut resumed = run > 0;
         for w in rows.windows(2) {
             let (r, dt) = (&w[1], (w[1].time_ns - w[0].time_ns) as f64 * 1e-9);
             let p = Vector3::from(r.tcp);
-            resumed |= r.flow_commanded != 0.0 && idle >= 1000;
-            idle = if r.flow_commanded == 0.0 && (p - seam_at).norm() < 1e-3 { idle + 1 } else { 0 };
+            resumed |= (p - seam_at).xy().norm() < 1e-3 && p.z > seam_at.z + 1e-3;
             let speed = (p - Vector3::from(w[0].tcp)).norm() / dt.max(1e-9);
             let (across, above, s) = project(&p);
             // The second layer's melt only (the first lies 0.2 mm below), within a bead's width.
@@ -171,6 +169,10 @@ fn kill_and_resume(name: &str, whole_cell: bool) {
             truth.as_os_str(),
             "--exit-after-silence".as_ref(),
             "10".as_ref(),
+            // Lockstep, on a loaded machine: a late answer waits (a cycle run without it would
+            // drop that tick's extruder command, which a real board, given positions, never does).
+            "--answer-timeout".as_ref(),
+            "0.5".as_ref(),
         ]))
     };
     let mut plant = sim(&truths[0]);
