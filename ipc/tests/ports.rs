@@ -30,7 +30,7 @@ fn names(test: &str) -> ServiceNames {
 }
 
 const ALL_ROLES: ClientRoles =
-    ClientRoles { feeder: true, driver: true, tracker: true, monitor: true, control: true, progress: true, base: true };
+    ClientRoles { feeder: true, driver: true, tracker: true, monitor: true, control: true, progress: true, base: true, heater: true };
 
 /// The bytes of a wire message (the contract types have no implicit padding).
 fn bytes<T: Copy>(v: &T) -> &[u8] {
@@ -56,6 +56,10 @@ fn segment(seq: u64, x: f64) -> Segment {
         _reserved: 0,
         pressure_advance: 0.03 + 1e-3 * x,
         axes: [0.5 * x, -0.25],
+        heater: 1,
+        heat_wait: 2,
+        temperature: 200.0 + x,
+        temperature_range: [190.0, 210.0 + x],
     }
 }
 

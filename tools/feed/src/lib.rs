@@ -57,6 +57,7 @@ pub fn load_gcode(path: &Path, cfg: &Config, resume_from: Option<u64>) -> Result
     let bed = cfg.bed_transform()?;
     let (mut all, mut warnings) = load_segments_with(path, &bed, cfg.gcode_options())?;
     warnings.extend(program_pressure_advance(all.iter().map(|(s, _)| s), cfg));
+    warnings.extend(skipped_heat_waits(all.iter().map(|(s, _)| s), cfg));
     let mut start = bed.point(&GcodeOptions::default().start);
     let mut skipped = 0;
     let mut progress_offset = 0.0;
@@ -86,10 +87,30 @@ pub fn load_gcode(path: &Path, cfg: &Config, resume_from: Option<u64>) -> Result
                 }
                 at = s.end;
             }
+            // The temperatures the skipped part set, hot end and bed, as waits before the travel:
+            // the resumed job heats (and waits) as the whole one would have at segment k.
+            let mut heats: Vec<Segment> = Vec::new();
+            for heater in [strand_core::Heater::Bed, strand_core::Heater::HotEnd] {
+                let last = all[..k]
+                    .iter()
+                    .rev()
+                    .map(|(s, _)| s)
+                    .find(|s| s.kind == SegmentKind::Heat && s.heat.heater == heater && s.heat.target >= 0.0);
+                if let Some(h) = last {
+                    let wait = if h.heat.target > 0.0 { strand_core::HeatWait::Heating } else { strand_core::HeatWait::None };
+                    heats.push(Segment { heat: strand_core::HeatRequest { wait, ..h.heat }, flags: SegmentFlags::default(), ..*h });
+                }
+            }
             start = if k >= 2 { all[k - 2].0.end } else { start };
             skipped = k;
             all.drain(..k);
             all.insert(0, (travel, layer));
+            let first = travel.seq.saturating_sub(heats.len() as u64);
+            if first >= 1 {
+                for (i, h) in heats.iter().enumerate() {
+                    all.insert(i, (Segment { seq: first + i as u64, ..*h }, layer));
+                }
+            }
         }
     }
     let last = all.len() - 1;
@@ -107,6 +128,23 @@ pub fn load_gcode(path: &Path, cfg: &Config, resume_from: Option<u64>) -> Result
         progress_offset,
         warnings,
     })
+}
+
+/// A program's heat waits (`M109`, `M190`, `TEMPERATURE_WAIT`) on a cell without a temperature
+/// source (`[extruder] heater = "none"`): the service skips them; said once, before streaming,
+/// with their count and the first line, so nobody believes the job waited for its heaters.
+fn skipped_heat_waits<'a>(segments: impl Iterator<Item = &'a Segment>, cfg: &Config) -> Option<String> {
+    if cfg.extruder.heater != strand_core::HeaterSource::None {
+        return None;
+    }
+    let waits: Vec<u32> =
+        segments.filter(|s| s.kind == SegmentKind::Heat && s.heat.wait != strand_core::HeatWait::None).map(|s| s.source_line).collect();
+    let first = waits.first()?;
+    Some(format!(
+        "the program waits for its heaters {} times (first at line {first}); this cell has no temperature source \
+         ([extruder] heater = \"none\"): the service sets the targets but skips the waits",
+        waits.len()
+    ))
 }
 
 /// What becomes of the pressure advance a program sets (`M900 K`, `M572 S`, `SET_PRESSURE_ADVANCE`):
