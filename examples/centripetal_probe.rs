@@ -90,6 +90,7 @@ fn probe(config: &Config, file: &PathBuf, window: usize) {
                 last_end = segment.end;
             }
         }
+        engine.release_wait(); // heat waits: no heaters here
         let s = engine.step(1.0);
         tick += 1;
         let mut ac = 0.0;

@@ -30,6 +30,7 @@ pub use strand_core::ControllerConfig;
 use strand_core::ControllerSettings;
 use strand_core::ExtruderConfig;
 use strand_core::PathConfig;
+use strand_core::ThermalConfig;
 use strand_core::kin::{ClikConfig, Frame, ModelError, RobotModel, geom};
 use strand_core::{Carries, Controller, Positioner};
 use strand_job::bed::BedConfig;
@@ -332,6 +333,8 @@ pub struct Config {
     pub tracker: Option<TrackerConfig>,
     /// The live view and the log's scene channels.
     pub view: ViewConfig,
+    /// The heaters as a plant: strand-sim runs it, `strand check-job` predicts heat-up waits with it.
+    pub thermal: ThermalConfig,
 }
 
 #[derive(Deserialize, Serialize)]
@@ -364,6 +367,8 @@ struct ConfigFile<R> {
     tracker: Option<TrackerConfig>,
     #[serde(default)]
     view: ViewConfig,
+    #[serde(default)]
+    thermal: ThermalConfig,
 }
 
 impl<R> ConfigFile<R> {
@@ -378,6 +383,7 @@ impl<R> ConfigFile<R> {
         self.log.validate().map_err(|m| ConfigError::new(path, m.to_string()))?;
         self.check.validate().map_err(|m| ConfigError::new(path, m.to_string()))?;
         self.view.validate().map_err(|m| ConfigError::new(path, m.to_string()))?;
+        self.thermal.validate().map_err(|m| ConfigError::new(path, m.message))?;
         if let Some(d) = &self.driver {
             // The per-joint lists are checked against the robot by the driver, which loads it.
             d.validate(d.axis_sign.len().max(d.axis_offset.len())).map_err(|m| ConfigError::new(path, m.to_string()))?;
@@ -406,6 +412,7 @@ impl<R> ConfigFile<R> {
             driver: self.driver,
             tracker: self.tracker,
             view: self.view,
+            thermal: self.thermal,
         }
     }
 }
@@ -490,6 +497,7 @@ impl Config {
             driver: self.driver.clone(),
             tracker: self.tracker.clone(),
             view: self.view.clone(),
+            thermal: self.thermal.clone(),
         };
         toml::to_string(&file).expect("every config value is representable in TOML")
     }

@@ -11,7 +11,7 @@ use std::time::{Duration, Instant};
 
 use strand_ipc as ipc;
 use strand_ipc::ports::{ClientPorts, ClientRoles};
-use strand_ipc::{Command, FaultCode, JobOutcome, JobProgress, RejectReason, RunState, ServiceNames, Status};
+use strand_ipc::{Command, FaultCode, HeatHold, JobOutcome, JobProgress, RejectReason, RunState, ServiceNames, Status, heater_flags};
 
 use crate::io::clock::monotonic_ns;
 
@@ -281,6 +281,9 @@ pub fn status_line(s: &Status, progress: Option<&JobProgress>) -> String {
     let _ =
         write!(out, " · queue {used}/{} · feed {:.0} % flow {:.0} %", s.queue_capacity, s.feed_override * 100.0, s.flow_override * 100.0);
     let _ = write!(out, " · TCP error {:.3} mm", s.tcp_error * 1e3);
+    if let Some(heat) = heat_text(s) {
+        let _ = write!(out, " · {heat}");
+    }
     if s.fault != 0 {
         let _ = write!(out, " · FAULT {:?}", FaultCode::from_u32(s.fault).unwrap_or(FaultCode::None));
     }
@@ -292,6 +295,41 @@ pub fn status_line(s: &Status, progress: Option<&JobProgress>) -> String {
         let _ = write!(out, " · underruns {} overruns {}", s.underruns, s.overruns);
     }
     out
+}
+
+/// The temperatures as text (°C), for the status line and strand-feed's progress: during a heat
+/// wait what it waits for (`HEATING hot end 187.3 °C → 207–213 °C` while outside the band,
+/// `… settling 1.2 s` inside it); otherwise each heater with a target or a measurement as
+/// measured/target (`hot end 210.1/210 °C · bed 60.0/60 °C`; `--` where nothing is measured).
+/// None when there is nothing to say (no target, no measurement).
+pub fn heat_text(s: &Status) -> Option<String> {
+    let measured = |bit: u32, t: f64| if s.heater_flags & bit != 0 { format!("{t:.1}") } else { "--".to_string() };
+    let hot_end = measured(heater_flags::HOT_END, s.hot_end_temperature);
+    let bed = measured(heater_flags::BED, s.bed_temperature);
+    let [low, high] = s.heat_hold_band;
+    let band = if high >= 10_000.0 { format!(">= {low:.0} °C") } else { format!("{low:.0}-{high:.0} °C") };
+    let hold = |name: &str, t: &str, v: f64| {
+        let inside = v >= low && v <= high && t != "--";
+        let settle = s.heat_hold_left;
+        if inside {
+            format!("HEATING {name} {t} °C in {band}, settling {settle:.1} s")
+        } else {
+            format!("HEATING {name} {t} °C -> {band}")
+        }
+    };
+    match HeatHold::from_u32(s.heat_hold) {
+        Some(HeatHold::HotEnd) => return Some(hold("hot end", &hot_end, s.hot_end_temperature)),
+        Some(HeatHold::Bed) => return Some(hold("bed", &bed, s.bed_temperature)),
+        _ => {}
+    }
+    let mut parts = Vec::new();
+    if s.hot_end_target > 0.0 || s.heater_flags & heater_flags::HOT_END != 0 {
+        parts.push(format!("hot end {hot_end}/{:.0} °C", s.hot_end_target));
+    }
+    if s.bed_target > 0.0 || s.heater_flags & heater_flags::BED != 0 {
+        parts.push(format!("bed {bed}/{:.0} °C", s.bed_target));
+    }
+    (!parts.is_empty()).then(|| parts.join(" · "))
 }
 
 /// The status as a JSON object (names for the enums), with the feeder's progress under `job` when
@@ -332,5 +370,58 @@ pub fn status_json(s: &Status, progress: Option<&JobProgress>) -> serde_json::Va
         "tcp_error_m": s.tcp_error,
         "underruns": s.underruns,
         "overruns": s.overruns,
+        "heaters": heat_json(s),
     })
+}
+
+/// The temperatures as JSON (°C): whether the service acts on them, each heater's measurement
+/// (null when none is fresh) and target, and the hold with its band and settle time left.
+fn heat_json(s: &Status) -> serde_json::Value {
+    let measured = |bit: u32, t: f64| if s.heater_flags & bit != 0 { serde_json::json!(t) } else { serde_json::Value::Null };
+    let hold = match HeatHold::from_u32(s.heat_hold) {
+        Some(h) if h != HeatHold::None => serde_json::json!({
+            "heater": format!("{h:?}"),
+            "band_c": s.heat_hold_band,
+            "settle_left_s": s.heat_hold_left,
+        }),
+        _ => serde_json::Value::Null,
+    };
+    serde_json::json!({
+        "acting": s.heater_flags & heater_flags::ACTING != 0,
+        "hot_end": { "measured_c": measured(heater_flags::HOT_END, s.hot_end_temperature), "target_c": s.hot_end_target },
+        "bed": { "measured_c": measured(heater_flags::BED, s.bed_temperature), "target_c": s.bed_target },
+        "hold": hold,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The temperatures in the status line and the JSON: a hold says what it waits for, with the
+    /// settle time left once in band; otherwise measured/target per heater; nothing without either.
+    #[test]
+    fn temperatures_are_shown() {
+        let mut s =
+            Status { heater_flags: heater_flags::ACTING | heater_flags::HOT_END, hot_end_temperature: 187.34, ..Default::default() };
+        s.hot_end_target = 210.0;
+        s.heat_hold = HeatHold::HotEnd as u32;
+        s.heat_hold_band = [207.0, 213.0];
+        s.heat_hold_left = 2.0;
+        assert_eq!(heat_text(&s).unwrap(), "HEATING hot end 187.3 °C -> 207-213 °C");
+        s.hot_end_temperature = 209.0;
+        s.heat_hold_left = 1.25;
+        assert_eq!(heat_text(&s).unwrap(), "HEATING hot end 209.0 °C in 207-213 °C, settling 1.2 s");
+        assert!(status_line(&s, None).contains("HEATING hot end 209.0 °C"));
+        s.heat_hold = 0;
+        s.bed_target = 60.0;
+        assert_eq!(heat_text(&s).unwrap(), "hot end 209.0/210 °C · bed --/60 °C");
+        let j = status_json(&s, None);
+        assert_eq!(j["heaters"]["hot_end"]["measured_c"], 209.0);
+        assert_eq!(j["heaters"]["bed"]["measured_c"], serde_json::Value::Null);
+        assert_eq!(j["heaters"]["bed"]["target_c"], 60.0);
+        assert_eq!(j["heaters"]["acting"], true);
+        assert_eq!(j["heaters"]["hold"], serde_json::Value::Null);
+        assert_eq!(heat_text(&Status::default()), None);
+    }
 }

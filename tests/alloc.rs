@@ -113,6 +113,8 @@ fn path_engine_and_extruder_ticks_allocate_nothing() {
             if tick == 20_000 {
                 engine.set_feed_override(0.6);
             }
+            // The program's M190/M109 are heat waits: no heaters here, released at once.
+            engine.release_wait();
             let sample = engine.step(if (30_000..30_200).contains(&tick) { 0.7 } else { 1.0 });
             std::hint::black_box(extruder.step(&sample));
         }
@@ -244,14 +246,30 @@ fn controller_steps_with_a_turning_table_allocate_nothing() {
 fn counted_cell_ticks(file: Option<&std::path::Path>, view: Option<strand_view::LiveView>) -> usize {
     use common::cell::{Cell, IIWA_START, config, square_job};
     use strand_ipc::{BasePose, Command, RunState};
-    // A tracked base with a plan by progress: its setpoint and `BaseCommand` are counted too.
+    // A tracked base with a plan by progress: its setpoint and `BaseCommand` are counted too. And
+    // the heaters: measured every tick, the job opening with an `M109 S210` wait (the hot end at
+    // 209 °C: 0.5 s of settling) and switching the bed on.
     let cfg = config(|c| {
         c.base.mode = strand_core::BaseMode::Tracked;
         let [x, y, _] = c.base.mount_xyz;
         c.base.plan = vec![[0.0, x, y, 0.0], [0.2, x + 0.01, y, 0.0]];
+        c.extruder.heater = strand_core::HeaterSource::Wire;
+        c.extruder.temperature_settle_time = 0.5;
     });
     let mut cell = Cell::new(&cfg, &IIWA_START);
-    let job = square_job(1, [0.45, -0.02, 0.2], 0.03, 3, 0.04);
+    let mut plant = strand_core::ThermalModel::new(&cfg.thermal);
+    (plant.hot_end.block, plant.hot_end.sensor) = (209.0, 209.0);
+    let heat = |seq: u64, bed: bool, wait: strand_ipc::HeatWait, target: f64| strand_ipc::Segment {
+        seq,
+        kind: strand_ipc::SegmentKind::Heat as u32,
+        orientation: common::cell::DOWN,
+        heater: bed as u32,
+        heat_wait: wait as u32,
+        temperature: target,
+        ..Default::default()
+    };
+    let mut job = vec![heat(1, false, strand_ipc::HeatWait::Heating, 210.0), heat(2, true, strand_ipc::HeatWait::None, 60.0)];
+    job.extend(square_job(3, [0.45, -0.02, 0.2], 0.03, 3, 0.04));
     let second = square_job(100, [0.45, -0.02, 0.2], 0.02, 1, 0.04);
     // The log's tick side runs in the same ticks (its writer thread allocates as it likes).
     let model = cfg.robot.build_model().unwrap();
@@ -260,6 +278,7 @@ fn counted_cell_ticks(file: Option<&std::path::Path>, view: Option<strand_view::
     let timing = strand::log::messages::TickTiming::default();
     let mut total = 0usize;
     let mut states = std::collections::BTreeSet::new();
+    let mut heat_held = false;
     for k in 0..30_000u64 {
         match k {
             0 => cell.send(&job),
@@ -280,11 +299,14 @@ fn counted_cell_ticks(file: Option<&std::path::Path>, view: Option<strand_view::
             let t = cell.now_ns();
             cell.poses.push(BasePose { seq: k + 1, stamp_ns: t, position: [1e-7 * k as f64, 0.0, 0.0], orientation: [1.0, 0.0, 0.0, 0.0] });
         }
+        cell.heater_state = Some(plant.state(k + 1, cell.now_ns()));
         let input = cell.input();
         let before = allocations();
         let out = cell.ctl.step(&input);
         logger.push(&input, &out, &timing);
         total += allocations() - before;
+        plant.step(out.heater.hot_end_target, out.heater.bed_target, 1e-3);
+        heat_held |= out.status.heat_hold != 0;
         cell.q_robot = out.joint_command.position;
         cell.tick += 1;
         states.insert(cell.state() as u32);
@@ -301,6 +323,7 @@ fn counted_cell_ticks(file: Option<&std::path::Path>, view: Option<strand_view::
     ] {
         assert!(states.contains(&(s as u32)), "never in {s:?}: {states:?}");
     }
+    assert!(heat_held, "the job held at its heat wait");
     let recorded = file.is_some();
     let report = logger.finish();
     if recorded {

@@ -216,3 +216,41 @@ fn the_helix_cylinder_is_a_part_only_a_turning_table_can_print() {
     let reach = r.problems.iter().filter(|p| p.kind == ProblemKind::Unreachable).map(|p| p.worst).fold(0.0, f64::max);
     assert!(reach > 0.09, "out of reach by {reach} m");
 }
+
+/// Heat-up waits are in the predicted time: with `[extruder] heater = "wire"` the check runs the
+/// config's `[thermal]` plant, so an `M190 S60` then `M109 S210` from 25 °C holds for as long as
+/// that plant takes to enter each band (sampled at 100 Hz, as the check measures it) plus the
+/// settle time each; without a temperature source the waits are counted as skipped.
+#[test]
+fn heat_up_waits_are_in_the_predicted_time() {
+    let mut cfg = config("default");
+    cfg.extruder.heater = strand_core::HeaterSource::Wire;
+    cfg.extruder.temperature_settle_time = 1.0;
+    let program = "M190 S60\nM109 S210\nG21\nG90\nM83\nG0 X0 Y-20 Z0.2 F6000\nG1 X10 Y-20 E0.5 F1200\nG1 X10 Y-10 E0.5\n";
+    let r = check_text(program, &cfg);
+    assert!(r.clean, "{}", r.summary());
+    // The same plant alone: the bed from 25 °C into 57..63 °C, then the hot end into 207..213 °C
+    // (heating since the bed's wait ended; off before), each then held in band for the settle.
+    let mut plant = strand_core::ThermalModel::new(&cfg.thermal);
+    let dt = 1e-3;
+    let mut t = 0.0;
+    while !(57.0..=63.0).contains(&plant.bed.sensor) {
+        plant.step(0.0, 60.0, dt);
+        t += dt;
+    }
+    let bed_in = t;
+    let hot_start = t + 1.0;
+    while t < hot_start || !(207.0..=213.0).contains(&plant.hot_end.sensor) {
+        plant.step(if t >= hot_start { 210.0 } else { 0.0 }, 60.0, dt);
+        t += dt;
+    }
+    let expected = bed_in + 1.0 + (t - hot_start) + 1.0;
+    assert!((r.time.heat_s - expected).abs() < 0.1, "heat {:.3} s, the plant alone {expected:.3} s", r.time.heat_s);
+    assert!(r.time.heat_s > 5.0 && r.time.total_s > r.time.heat_s, "{:?}", r.time);
+    assert!(r.summary().contains("holding at heat waits"), "{}", r.summary());
+    // No temperature source: the waits cost nothing and are counted as skipped.
+    cfg.extruder.heater = strand_core::HeaterSource::None;
+    let r = check_text(program, &cfg);
+    assert_eq!((r.time.heat_s, r.time.heat_waits_skipped), (0.0, 2));
+    assert!(r.summary().contains("2 heat waits will be skipped"), "{}", r.summary());
+}

@@ -13,6 +13,10 @@
 //! - **A moving base** (half the cases: the base tracked, with a `[base] plan` by the print's
 //!   progress, and where its setpoint puts it): the base command is finite and within its speed and
 //!   acceleration limits every tick, and it stands while the path does (paused, idle, faulted).
+//! - **Temperatures** (a third of the cases: `[extruder] heater = "wire"`, the job opening with an
+//!   `M109 S210` wait, the hot end's measurement set to random values or silenced at random
+//!   times): no extruder command > 0 is ever issued with the hot end measured below
+//!   `min_extrude_temp` or not measured, and a stale or cold hot end ends in a named fault.
 //! - **Liveness, at the end**: (a) after a Stop, with the rest of the feeder's segments still
 //!   arriving, the controller comes to rest within a bound and no job is left in progress (the
 //!   feeder hang this test was written for: a stop right after a start left the segments still in
@@ -49,6 +53,8 @@ enum Op {
     Silent(u32),
     /// The feeder's process is gone (or back).
     FeederLost(bool),
+    /// The hot end now measures this (°C; < 0: its owner goes silent). Heated cases only.
+    HotEnd(f64),
 }
 
 #[derive(Clone, Copy, Debug)]
@@ -88,7 +94,19 @@ fn op_strategy() -> impl Strategy<Value = Op> {
         6 => prop_oneof![3 => 1..20u32, 2 => 20..400u32, 1 => 400..1500u32].prop_map(Op::Run),
         1 => (1..300u32).prop_map(Op::Silent),
         1 => prop::bool::weighted(0.3).prop_map(Op::FeederLost),
+        1 => prop_oneof![1 => Just(-1.0), 2 => 20.0..260.0f64, 2 => 205.0..215.0f64].prop_map(Op::HotEnd),
     ]
+}
+
+/// The hot end's measurement (°C), fresh every tick.
+fn hot_end(t: f64) -> Option<ipc::HeaterState> {
+    Some(ipc::HeaterState {
+        seq: 1,
+        hot_end: t,
+        bed: 25.0,
+        flags: ipc::heater_flags::HOT_END | ipc::heater_flags::BED,
+        ..Default::default()
+    })
 }
 
 /// A feeder streaming one job: its segments and how far it got.
@@ -129,6 +147,8 @@ struct Seen {
     ticks: u64,
     /// The base's limits, on a moving base.
     base: Option<strand_core::BaseConfig>,
+    /// The service acts on temperatures.
+    heated: bool,
 }
 
 /// One tick with the safety checks; the job's worst path error is kept, and a job reported
@@ -139,6 +159,20 @@ fn tick(cell: &mut Cell, seen: &mut Seen, limit: f64) -> Result<(), TestCaseErro
     let out = cell.step();
     seen.ticks += 1;
     check_limits(cell.ctl.model(), &out);
+    if seen.heated {
+        let warm = cell.heater_state.is_some_and(|h| h.hot_end >= 170.0);
+        prop_assert!(
+            warm || out.extruder.filament_rate <= 0.0,
+            "tick {}: extruding {} m/s with the hot end at {:?}",
+            seen.ticks,
+            out.extruder.filament_rate,
+            cell.heater_state.map(|h| h.hot_end)
+        );
+        let fault = strand_ipc::FaultCode::from_u32(out.status.fault);
+        if out.status.fault != 0 && !warm {
+            prop_assert!(fault.is_some(), "a named fault");
+        }
+    }
     if let Some(base) = &seen.base {
         check_base(base_before.as_ref(), &out, base, cell.dt_ns as f64 * 1e-9)?;
     }
@@ -215,12 +249,35 @@ fn check_base(
     Ok(())
 }
 
-fn run_case(ops: &[Op], closing: Closing, moving_base: bool) -> Result<u64, TestCaseError> {
-    let mut cell = if moving_base { moving_base_cell() } else { Cell::iiwa() };
+fn run_case(ops: &[Op], closing: Closing, moving_base: bool, heated: bool) -> Result<u64, TestCaseError> {
+    let heated = heated && !moving_base;
+    let mut cell = if moving_base {
+        moving_base_cell()
+    } else if heated {
+        let mut cell = Cell::new(&common::cell::config(|c| c.extruder.heater = strand_core::HeaterSource::Wire), &common::cell::IIWA_START);
+        cell.heater_state = hot_end(25.0);
+        cell
+    } else {
+        Cell::iiwa()
+    };
     let limit = 2e-3;
-    // Small squares at a brisk feed: a whole job is a few seconds of ticks.
-    let mut feeder = Feeder { job: square_job(1, ORIGIN, 0.01, 5, 0.05), next: 0 };
-    let mut seen = Seen::default();
+    // Small squares at a brisk feed: a whole job is a few seconds of ticks; heated, an M109 S210
+    // opens it.
+    let job = if heated {
+        let wait = ipc::Segment {
+            seq: 1,
+            kind: ipc::SegmentKind::Heat as u32,
+            orientation: common::cell::DOWN,
+            heat_wait: ipc::HeatWait::Heating as u32,
+            temperature: 210.0,
+            ..Default::default()
+        };
+        std::iter::once(wait).chain(square_job(2, ORIGIN, 0.01, 5, 0.05)).collect()
+    } else {
+        square_job(1, ORIGIN, 0.01, 5, 0.05)
+    };
+    let mut feeder = Feeder { job, next: 0 };
+    let mut seen = Seen { heated, ..Seen::default() };
     if moving_base {
         seen.base = Some(moving_base_cell_config());
     }
@@ -242,6 +299,8 @@ fn run_case(ops: &[Op], closing: Closing, moving_base: bool) -> Result<u64, Test
                 cell.driver = true;
             }
             Op::FeederLost(lost) => cell.feeder_lost = lost,
+            Op::HotEnd(t) if heated => cell.heater_state = if t < 0.0 { None } else { hot_end(t) },
+            Op::HotEnd(_) => {}
         }
     }
     tick(&mut cell, &mut seen, limit)?;
@@ -279,6 +338,10 @@ fn run_case(ops: &[Op], closing: Closing, moving_base: bool) -> Result<u64, Test
         }
         Closing::RunOut => {
             cell.feeder_lost = true;
+            // A wait ends once the hot end has settled at its target (2 s of default.toml).
+            if heated {
+                cell.heater_state = hot_end(210.0);
+            }
             cell.control(Command::Resume, 0.0);
             cell.control(Command::Start, 0.0);
             // The longest job this feeder can make takes about 5 s; the approach, a stop from the
@@ -322,11 +385,16 @@ fn whatever_happens_the_command_stays_safe_and_every_job_ends() {
     let seed = RngSeed::Fixed(strand_testkit::proptest_seed("controller_props"));
     let config = Config { cases: cases(), failure_persistence: None, max_shrink_iters: 200, rng_seed: seed, ..Config::default() };
     let mut runner = TestRunner::new(config);
-    let strategy = (prop::collection::vec(op_strategy(), 1..30), prop_oneof![Just(Closing::Stop), Just(Closing::RunOut)], any::<bool>());
+    let strategy = (
+        prop::collection::vec(op_strategy(), 1..30),
+        prop_oneof![Just(Closing::Stop), Just(Closing::RunOut)],
+        any::<bool>(),
+        prop::bool::weighted(0.35),
+    );
     let ticks = std::cell::Cell::new(0u64);
     runner
-        .run(&strategy, |(ops, closing, moving_base)| {
-            ticks.set(ticks.get() + run_case(&ops, closing, moving_base)?);
+        .run(&strategy, |(ops, closing, moving_base, heated)| {
+            ticks.set(ticks.get() + run_case(&ops, closing, moving_base, heated)?);
             Ok(())
         })
         .unwrap();

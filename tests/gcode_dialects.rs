@@ -328,7 +328,8 @@ fn accelerations_jerk_and_pressure_advance_are_recorded() {
 fn one_tool_per_job() {
     // T codes before any extrusion just select; the one that extrudes is the job's tool.
     let parsed = parse("T1\nT0\nG1 X1 E1 F600\nT0\nM104 T1 S200\nM109 T1 S200\nG1 X2 E2\n");
-    assert_eq!(parsed.segments.len(), 2);
+    assert_eq!(parsed.segments.len(), 2, "a temperature for another tool is reported, not acted on");
+    assert_eq!(find(&parsed.warnings, "M104 T").line, 5);
     assert_eq!(find(&parsed.warnings, "T0").count, 2);
     let err = error("T0\nG1 X1 E1 F600\nG1 X2 E2\n  T1\nG1 X3 E3\n");
     assert_eq!((err.line, err.column), (4, 3), "{err}");
@@ -352,7 +353,7 @@ fn free_text_and_unacted_codes_are_reported_never_errors() {
         "M118 E1 Homing X Y #2\n",
         "M73 P10 R5\n",
         "M400\n",
-        "M104 S200\nM109 S200\nM140 S60\nM190 S60\nM141 S40\nM191 S40\nM106 S255\nM107\n",
+        "M105\nM141 S40\nM191 S40\nM106 S255\nM107\n",
         "M1002 gcode_claim_action : 2\n",
         "M486 AShape-Box id:0 copy 0\n",
         "M624 AQAAAAAAAAA=\n",
@@ -362,7 +363,7 @@ fn free_text_and_unacted_codes_are_reported_never_errors() {
     );
     let parsed = parse(program);
     assert!(parsed.segments.is_empty());
-    for kind in ["M117", "M118", "M73", "M400", "M104", "M109", "M140", "M190", "M141", "M191", "M106", "M107", "M1002", "M486", "M624"] {
+    for kind in ["M117", "M118", "M73", "M400", "M105", "M141", "M191", "M106", "M107", "M1002", "M486", "M624"] {
         assert!(has(&parsed.warnings, kind), "{kind}: {:#?}", parsed.warnings);
     }
     assert_eq!(find(&parsed.warnings, "M620").count, 1);
@@ -740,4 +741,92 @@ fn nul_bytes_invalid_utf8_and_huge_lines_are_located_errors_or_ignored() {
     let err = error(&long);
     assert_eq!((err.line, err.column), (1, 0));
     assert!(err.message.contains("line longer than"));
+}
+
+// ------------------------------------------------------------------------------------------------
+// Temperatures (CELL item 2): heat segments in order with the motion.
+// ------------------------------------------------------------------------------------------------
+
+fn heats(parsed: &Parsed) -> Vec<(usize, strand_core::HeatRequest)> {
+    parsed.segments.iter().filter(|g| g.segment.kind == SegmentKind::Heat).map(|g| (g.line, g.segment.heat)).collect()
+}
+
+#[test]
+fn temperature_codes_become_heat_segments_in_order() {
+    use strand_core::{HeatRequest, HeatWait::*, Heater::*, OPEN_BAND};
+    let program = concat!(
+        "M140 S60\n",
+        "M104 S150 T0\n",
+        "M190 S60\n",
+        "M109 S210\n",
+        "G1 X10 Y10 F3000\n",
+        "G1 X20 E1\n",
+        "M109 R190\n",
+        "SET_HEATER_TEMPERATURE HEATER=extruder TARGET=205\n",
+        "SET_HEATER_TEMPERATURE HEATER=heater_bed\n",
+        "TEMPERATURE_WAIT SENSOR=extruder MINIMUM=200 MAXIMUM=215\n",
+        "TEMPERATURE_WAIT SENSOR=heater_bed MAXIMUM=40\n",
+        "M104 S0\n",
+    );
+    let parsed = parse(program);
+    let h = |heater, wait, target| HeatRequest { heater, wait, target, band: OPEN_BAND };
+    assert_eq!(
+        heats(&parsed),
+        [
+            (1, h(Bed, None, 60.0)),
+            (2, h(HotEnd, None, 150.0)),
+            (3, h(Bed, Heating, 60.0)),
+            (4, h(HotEnd, Heating, 210.0)),
+            (7, h(HotEnd, Both, 190.0)),
+            (8, h(HotEnd, None, 205.0)),
+            (9, h(Bed, None, 0.0)),
+            (10, HeatRequest { heater: HotEnd, wait: Range, target: -1.0, band: [200.0, 215.0] }),
+            (11, HeatRequest { heater: Bed, wait: Range, target: -1.0, band: [-273.15, 40.0] }),
+            (12, h(HotEnd, None, 0.0)),
+        ]
+    );
+    // In order with the motion: the moves sit between the waits, numbered in sequence, and a
+    // heat segment stands where the machine is.
+    let kinds: Vec<_> = parsed.segments.iter().map(|g| (g.segment.seq, g.segment.kind)).collect();
+    assert_eq!(kinds[4..6], [(4, SegmentKind::Line), (5, SegmentKind::Line)]);
+    assert_eq!(parsed.segments[6].segment.end, parsed.segments[5].segment.end);
+    assert_eq!(parsed.segments.last().unwrap().segment.kind, SegmentKind::Heat);
+    assert!(parsed.segments.last().unwrap().segment.flags.contains(SegmentFlags::LAST), "the job may end on a heat segment");
+    // Acted on: notes, not warnings.
+    for kind in ["M104", "M109", "M140", "M190", "SET_HEATER_TEMPERATURE", "TEMPERATURE_WAIT"] {
+        assert!(has(&parsed.notes, kind), "{kind}: {:#?}", parsed.notes);
+        assert!(!has(&parsed.warnings, kind), "{kind}");
+    }
+    // Without S nothing is set (Marlin); another heater or sensor is reported.
+    let parsed = parse("M104\nM109\nSET_HEATER_TEMPERATURE HEATER=extruder1 TARGET=200\nTEMPERATURE_WAIT SENSOR=chamber MINIMUM=30\n");
+    assert!(heats(&parsed).is_empty());
+    for kind in ["M104", "M109", "SET_HEATER_TEMPERATURE extruder1", "TEMPERATURE_WAIT chamber"] {
+        assert!(has(&parsed.warnings, kind), "{kind}: {:#?}", parsed.warnings);
+    }
+    // RS274/NGC: not a firmware, reported.
+    assert!(parse_with("M104 S200\n", rs274()).segments.is_empty());
+}
+
+#[test]
+fn bad_temperature_parameters_are_errors_with_line_and_column() {
+    for (program, line, column, words) in [
+        ("G1 X1 F600\nM104 S600\n", 2, 6, "M104 S (°C) 600 is out of range [0, 500]"),
+        ("M190 S-5\n", 1, 6, "M190 S (°C) -5 is out of range"),
+        ("\n\nM109 S200 R190\n", 3, 11, "S and R both given"),
+        ("M140 Snan\n", 1, 0, ""),
+        ("SET_HEATER_TEMPERATURE TARGET=200\n", 1, 1, "HEATER= is required"),
+        ("SET_HEATER_TEMPERATURE HEATER=extruder TARGET=hot\n", 1, 47, "TARGET=\"hot\": not a finite number"),
+        ("SET_HEATER_TEMPERATURE HEATER=extruder TARGET=900\n", 1, 47, "TARGET (°C) 900 is out of range"),
+        ("TEMPERATURE_WAIT SENSOR=extruder\n", 1, 1, "MINIMUM= or MAXIMUM= is required"),
+        ("TEMPERATURE_WAIT SENSOR=extruder MINIMUM=220 MAXIMUM=200\n", 1, 54, "MINIMUM 220 is above MAXIMUM 200"),
+        ("TEMPERATURE_WAIT MINIMUM=200\n", 1, 1, "SENSOR= is required"),
+    ] {
+        let e = error(program);
+        assert_eq!(e.line, line, "{program:?}: {e}");
+        if column > 0 {
+            assert_eq!(e.column, column, "{program:?}: {e}");
+        }
+        assert!(e.message.contains(words), "{program:?}: {e}");
+        assert!(e.to_string().contains(&format!("test.gcode:{line}")), "{e}");
+    }
 }

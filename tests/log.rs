@@ -160,6 +160,11 @@ fn every_record_type_round_trips_bit_for_bit() {
             // A `/segments` record leaves the external axes out (a tick carries them after its
             // base command, so logs from before them still read).
             axes: [0.0; 2],
+            // Likewise the heat fields (contract v5), after the axes.
+            heater: 0,
+            heat_wait: 0,
+            temperature: 0.0,
+            temperature_range: [0.0; 2],
         };
         assert_eq!(bytes(&decode::<ipc::Segment>(&bytes(&seg)).unwrap()), bytes(&seg));
         let st = ipc::Status { seq: 3, tcp_error: f(), path_speed: f(), feed_override: f(), log_state: 2, ..Default::default() };
@@ -176,6 +181,24 @@ fn every_record_type_round_trips_bit_for_bit() {
         for (a, b) in back.input.segments().iter().zip(t.input.segments()) {
             assert_eq!(a.axes.map(f64::to_bits), b.axes.map(f64::to_bits));
         }
+        assert_eq!(bytes(&back), bytes(&t));
+        // And the temperatures: the heater measurement, the segments' heat fields, the heater
+        // command and the status's heat fields, bit for bit.
+        let mut t = Tick::default();
+        let heat = ipc::Segment { kind: 3, heater: 1, heat_wait: 3, temperature: f(), temperature_range: [f(), f()], ..seg };
+        t.input.push_segment(&heat);
+        t.input.heater_state = Some(ipc::HeaterState { seq: 5, stamp_ns: 6, hot_end: f(), bed: f(), flags: 3, ..Default::default() });
+        t.output.heater = ipc::HeaterCommand { seq: 9, hot_end_target: f(), bed_target: f(), ..Default::default() };
+        t.output.status.hot_end_temperature = f();
+        t.output.status.heat_hold = 1;
+        t.output.status.heat_hold_band = [f(), f()];
+        let back: Tick = decode(&bytes(&t)).unwrap();
+        assert_eq!(back.input.segments[0].temperature.to_bits(), heat.temperature.to_bits());
+        assert_eq!(back.input.segments[0].temperature_range.map(f64::to_bits), heat.temperature_range.map(f64::to_bits));
+        assert_eq!((back.input.segments[0].heater, back.input.segments[0].heat_wait), (1, 3));
+        assert_eq!(back.input.heater_state.map(|h| h.hot_end.to_bits()), t.input.heater_state.map(|h| h.hot_end.to_bits()));
+        assert_eq!(back.output.heater.hot_end_target.to_bits(), t.output.heater.hot_end_target.to_bits());
+        assert_eq!(back.output.status.heat_hold_band.map(f64::to_bits), t.output.status.heat_hold_band.map(f64::to_bits));
         assert_eq!(bytes(&back), bytes(&t));
     }
     // Whole ticks from a real run: each decodes to the same bytes and the same fields.

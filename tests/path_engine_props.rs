@@ -139,7 +139,7 @@ fn build(ops: &[Op], start: Vector3<f64>, config: &PathConfig) -> Vec<Programmed
                 None => continue,
             },
             SegmentKind::Line => ((segment.end - at).norm(), f64::INFINITY),
-            SegmentKind::Dwell => (0.0, f64::INFINITY),
+            SegmentKind::Dwell | SegmentKind::Heat => (0.0, f64::INFINITY),
         };
         // Slow feeds on short moves only, so that a case stays a few seconds of motion.
         let mut segment = segment;

@@ -153,6 +153,7 @@ fn check_segment(g: &GcodeSegment, lines: usize) {
     assert!(q.coords.iter().all(|x| x.is_finite()) && (q.norm() - 1.0).abs() < 1e-9, "line {at}: orientation not a unit quaternion");
     match s.kind {
         SegmentKind::Dwell => assert!(s.duration >= 0.0, "line {at}: negative dwell {s:?}"),
+        SegmentKind::Heat => assert!(s.check().is_ok(), "line {at}: heat segment refused by its check: {s:?}"),
         SegmentKind::Line => assert!(s.feed > 0.0, "line {at}: feed {} on a move", s.feed),
         SegmentKind::Arc => {
             assert!(s.feed > 0.0, "line {at}: feed {} on an arc", s.feed);
@@ -196,6 +197,8 @@ pub fn check_path(data: &[u8]) -> Option<u64> {
     let bound = tick_bound(&segments, &options.start, &config)?;
     let mut previous: Option<PathSample> = None;
     for tick in 0..bound {
+        // Heat waits: no heaters here, released as soon as the path stands at one.
+        engine.release_wait();
         let sample = engine.step(1.0);
         check_sample(&sample, previous.as_ref(), &config, tick);
         previous = Some(sample);
@@ -240,6 +243,8 @@ pub fn tick_bound(segments: &[Segment], start: &Vector3<f64>, config: &PathConfi
         }
         total += match s.kind {
             SegmentKind::Dwell => s.duration,
+            // A heat wait is released at once here (no heaters): a stop, as a dwell of no time.
+            SegmentKind::Heat => 0.0,
             SegmentKind::Line | SegmentKind::Arc => {
                 let length = segment_length(&at, s);
                 let mut v = s.feed.min(config.max_speed);

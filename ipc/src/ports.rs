@@ -12,8 +12,8 @@
 //! |---|---|---|---|---|
 //! | segments | 256 | 0 | 4 | 8 |
 //! | control | 64 | 0 | 4 | 8 |
-//! | joint_state, base_pose | 16 | 0 | 4 | 8 |
-//! | joint_command, extruder_command, status | 16 | 1 | 1 | 8 |
+//! | joint_state, base_pose, heater_state | 16 | 0 | 4 | 8 |
+//! | joint_command, extruder_command, heater_command, status | 16 | 1 | 1 | 8 |
 //!
 //! Segments are never lost to the overflow: flow control is credit-based. A feeder sends segment
 //! sequence numbers only up to `Status.last_received_seq + Status.queue_free`, and the controller
@@ -51,7 +51,10 @@
 use core::fmt::Debug;
 use core::time::Duration;
 
-use crate::{BaseCommand, BasePose, Control, ExtruderCommand, JobProgress, JointCommand, JointState, SegmentBatch, ServiceNames, Status};
+use crate::{
+    BaseCommand, BasePose, Control, ExtruderCommand, HeaterCommand, HeaterState, JobProgress, JointCommand, JointState, SegmentBatch,
+    ServiceNames, Status,
+};
 use iceoryx2::port::listener::{Listener, ListenerWaitError};
 use iceoryx2::port::notifier::Notifier;
 use iceoryx2::port::publisher::Publisher;
@@ -344,9 +347,11 @@ pub struct ServicePorts {
     control: Inbox<Control>,
     joint_state: Inbox<JointState>,
     base_pose: Inbox<BasePose>,
+    heater_state: Inbox<HeaterState>,
     joint_command: Outbox<JointCommand>,
     extruder_command: Outbox<ExtruderCommand>,
     base_command: Outbox<BaseCommand>,
+    heater_command: Outbox<HeaterCommand>,
     status: Outbox<Status>,
     // Last: every port above is dropped before the node.
     _node: Node<Ipc>,
@@ -363,9 +368,11 @@ impl ServicePorts {
             control: Channel::open(&node, names.control(), CONTROL_QOS)?.subscriber()?,
             joint_state: Channel::open(&node, names.joint_state(), MEASUREMENT_QOS)?.subscriber_with_listener()?,
             base_pose: Channel::open(&node, names.base_pose(), MEASUREMENT_QOS)?.subscriber()?,
+            heater_state: Channel::open(&node, names.heater_state(), MEASUREMENT_QOS)?.subscriber()?,
             joint_command: Channel::open(&node, names.joint_command(), OUTPUT_QOS)?.publisher()?,
             extruder_command: Channel::open(&node, names.extruder_command(), OUTPUT_QOS)?.publisher()?,
             base_command: Channel::open(&node, names.base_command(), OUTPUT_QOS)?.publisher()?,
+            heater_command: Channel::open(&node, names.heater_command(), OUTPUT_QOS)?.publisher()?,
             status: Channel::open(&node, names.status(), OUTPUT_QOS)?.publisher()?,
             _node: node,
         })
@@ -401,6 +408,17 @@ impl ServicePorts {
     /// Tick-path safe.
     pub fn publish_extruder_command(&self, cmd: &ExtruderCommand) -> Result<usize, PortError> {
         self.extruder_command.send(cmd)
+    }
+
+    /// The oldest queued heater measurement; `None` when empty. Tick-path safe.
+    pub fn receive_heater_state(&self) -> Result<Option<HeaterState>, PortError> {
+        self.heater_state.receive()
+    }
+
+    /// Publishes the heater targets and notifies; returns the number of subscribers reached.
+    /// Tick-path safe.
+    pub fn publish_heater_command(&self, cmd: &HeaterCommand) -> Result<usize, PortError> {
+        self.heater_command.send(cmd)
     }
 
     /// Publishes a moving base's setpoint and notifies; returns the number of subscribers reached.
@@ -479,6 +497,9 @@ pub struct ClientRoles {
     /// Subscribes to joint states and base poses as measured (`strand calibrate`: the arm's joints
     /// and the tracker's pose at each touch). A driver or a tracker publishes them.
     pub measurements: bool,
+    /// Publishes [`HeaterState`] and subscribes to the [`HeaterCommand`]: whoever owns the heaters
+    /// (the simulator's thermal model, a Klipper extruder board's process).
+    pub heater: bool,
 }
 
 /// The other side of the contract: a feeder, robot driver (or simulator), tracker or monitor, or
@@ -494,6 +515,8 @@ pub struct ClientPorts {
     joint_command: Option<Inbox<JointCommand>>,
     extruder_command: Option<Inbox<ExtruderCommand>>,
     base_command: Option<Inbox<BaseCommand>>,
+    heater_state: Option<Outbox<HeaterState>>,
+    heater_command: Option<Inbox<HeaterCommand>>,
     status: Option<Inbox<Status>>,
     job_progress_out: Option<Outbox<JobProgress>>,
     job_progress_in: Option<Inbox<JobProgress>>,
@@ -524,6 +547,8 @@ impl ClientPorts {
             },
             extruder_command: if monitor { Some(Channel::open(&node, names.extruder_command(), OUTPUT_QOS)?.subscriber()?) } else { None },
             base_command: if roles.base { Some(Channel::open(&node, names.base_command(), OUTPUT_QOS)?.subscriber()?) } else { None },
+            heater_state: if roles.heater { Some(Channel::open(&node, names.heater_state(), MEASUREMENT_QOS)?.publisher()?) } else { None },
+            heater_command: if roles.heater { Some(Channel::open(&node, names.heater_command(), OUTPUT_QOS)?.subscriber()?) } else { None },
             status: if monitor { Some(Channel::open(&node, names.status(), OUTPUT_QOS)?.subscriber_with_listener()?) } else { None },
             job_progress_out: if feeder { Some(Channel::open(&node, names.job_progress(), JOB_PROGRESS_QOS)?.publisher()?) } else { None },
             job_progress_in: if roles.progress {
@@ -605,6 +630,20 @@ impl ClientPorts {
             Some(inbox) => inbox.receive(),
             None => Err(self.missing(self.names.extruder_command(), "monitor")),
         }
+    }
+
+    /// Sends a heater measurement and notifies (heater); returns the number of subscribers reached.
+    pub fn send_heater_state(&self, state: &HeaterState) -> Result<usize, PortError> {
+        match &self.heater_state {
+            Some(out) => out.send(state),
+            None => Err(self.missing(self.names.heater_state(), "heater")),
+        }
+    }
+
+    /// Drains the heater command queue and returns the newest (heater); `None` if nothing was
+    /// queued (or the heater role is not open): the heaters keep their last targets.
+    pub fn latest_heater_command(&self) -> Option<HeaterCommand> {
+        self.heater_command.as_ref().and_then(Inbox::latest)
     }
 
     /// Drains the base command queue and returns the newest (base); `None` if nothing was queued

@@ -38,6 +38,7 @@ const ALL_ROLES: ClientRoles = ClientRoles {
     progress: true,
     base: true,
     measurements: false,
+    heater: true,
 };
 
 #[test]
@@ -84,6 +85,10 @@ fn segment(seq: u64, x: f64) -> Segment {
         _reserved: 0,
         pressure_advance: 0.03 + 1e-3 * x,
         axes: [0.5 * x, -0.25],
+        heater: 1,
+        heat_wait: 2,
+        temperature: 200.0 + x,
+        temperature_range: [190.0, 210.0 + x],
     }
 }
 

@@ -37,7 +37,7 @@ use strand_ipc::{Command, FaultCode, JobOutcome, RunState};
 use crate::config::Config;
 use strand_core::BaseMode;
 use strand_core::kin::{JointVector, MAX_JOINTS};
-use strand_core::{Event, MAX_SEGMENTS_PER_TICK, TickInput};
+use strand_core::{Event, HeaterSource, MAX_SEGMENTS_PER_TICK, ThermalModel, TickInput};
 use strand_job::bed::BedTransform;
 use strand_job::load::BaseTrajectory;
 use strand_job::timing::MAX_SEGMENT_SECONDS;
@@ -126,6 +126,12 @@ pub struct JobTime {
     pub path_s: f64,
     /// Time lost to CLIK slow-downs (Σ dt·(1 − scale) while slowed).
     pub slowdown_s: f64,
+    /// Time the job holds at heat waits (`M109`, `M190`, `TEMPERATURE_WAIT`), predicted with the
+    /// config's `[thermal]` plant from ambient (with `[extruder] heater = "wire"`; 0 otherwise:
+    /// the waits are skipped, `heat_waits_skipped` counts them). Part of `path_s` and `total_s`.
+    pub heat_s: f64,
+    /// Heat waits the service will skip (`[extruder] heater = "none"`).
+    pub heat_waits_skipped: u64,
     /// Per layer, in order of first appearance.
     pub layers: Vec<LayerTime>,
 }
@@ -179,6 +185,8 @@ pub struct CheckReport {
     pub rate_hz: f64,
     /// How the base was taken: fixed mount, a still tracked base (assumed), or a planned trajectory.
     pub base: String,
+    /// The room the heaters start from (°C, `[thermal] ambient`).
+    pub ambient: f64,
     /// True when no finding is an error (exit 0).
     pub clean: bool,
     /// How the job ended in the check: Finished, Faulted, Stopped, or DidNotFinish.
@@ -460,6 +468,10 @@ pub fn check_job(
         let end = Vector3::from(s.end);
         let seconds = match s.kind {
             k if k == ipc::SegmentKind::Dwell as u32 => s.duration,
+            // A heat wait: at most the plant's slowest heat-up (five time constants) and the settle.
+            k if k == ipc::SegmentKind::Heat as u32 => {
+                5.0 * cfg.thermal.hot_end.time_constant.max(cfg.thermal.bed.time_constant) + cfg.extruder.temperature_settle_time
+            }
             _ => (end - at).norm().max(s.sweep.abs() * (end - Vector3::from(s.centre)).norm()) / s.feed.min(cfg.path.max_speed),
         };
         // NaN (a zero feed) is absurd too.
@@ -484,6 +496,7 @@ pub fn check_job(
         robot: model.name().to_string(),
         rate_hz: cfg.controller.rate_hz,
         base: base_note,
+        ambient: cfg.thermal.ambient,
         clean: true,
         outcome: "DidNotFinish".to_string(),
         problems: Vec::new(),
@@ -530,9 +543,18 @@ pub fn check_job(
     let mut above_since: Option<u64> = None;
     let mut would_fault_marked = false;
     let mut tick = 0u64;
+    // The heaters, as strand-sim runs them (`[thermal]`), measured at 100 Hz.
+    let mut thermal = (cfg.extruder.heater == HeaterSource::Wire).then(|| ThermalModel::new(&cfg.thermal));
+    let heater_every = ((0.01 / dt).round() as u64).max(1);
+    let mut heat_ticks = 0u64;
     while tick < max_ticks {
         let now = t0_ns + tick * dt_ns;
         let mut input = TickInput::new(tick, now);
+        if let Some(th) = &thermal
+            && tick.is_multiple_of(heater_every)
+        {
+            input.heater_state = Some(th.state(tick / heater_every + 1, now));
+        }
         state_seq += 1;
         input.joint_state =
             Some(ipc::JointState { seq: state_seq, stamp_ns: now, dof: cell_dof as u32, position: q_robot, ..Default::default() });
@@ -562,6 +584,10 @@ pub fn check_job(
             input.push_control(&ipc::Control { seq: 1, stamp_ns: now, command: Command::Start as u32, value: 0.0, _reserved: 0 });
         }
         let out = ctl.step(&input);
+        if let Some(th) = thermal.as_mut() {
+            th.step(out.heater.hot_end_target, out.heater.bed_target, dt);
+        }
+        heat_ticks += u64::from(out.status.heat_hold != 0);
         if out.joint_command.valid == 1 {
             q_robot = out.joint_command.position;
         }
@@ -680,6 +706,7 @@ pub fn check_job(
                     });
                 }
                 Event::JobEnded { outcome, .. } => ended = Some((tick, outcome)),
+                Event::HeatWaitSkipped { .. } => report.time.heat_waits_skipped += 1,
                 _ => {}
             }
         }
@@ -737,6 +764,7 @@ pub fn check_job(
     }
     report.time.approach_s = approach_ticks as f64 * dt;
     report.time.path_s = path_ticks as f64 * dt;
+    report.time.heat_s = heat_ticks as f64 * dt;
     report.time.layers = layer_times;
     for p in &mut problems {
         p.message = describe(p, job.file, &joint_names, tcp_limit, tcp_time);
@@ -769,6 +797,20 @@ impl CheckReport {
             "  job        {} | {} segments | predicted {:.1} s (approach {:.1} s, path {:.1} s; slow-downs cost {:.2} s)",
             self.outcome, self.segments, t.total_s, t.approach_s, t.path_s, t.slowdown_s
         );
+        if t.heat_s > 0.0 {
+            let _ = writeln!(
+                s,
+                "  heat       {:.1} s holding at heat waits (predicted with [thermal] from {:.0} degC)",
+                t.heat_s, self.ambient
+            );
+        }
+        if t.heat_waits_skipped > 0 {
+            let _ = writeln!(
+                s,
+                "  heat       WARNING: {} heat waits will be skipped: no temperature source ([extruder] heater = \"none\")",
+                t.heat_waits_skipped
+            );
+        }
         let layered: Vec<&LayerTime> = t.layers.iter().filter(|l| l.layer.is_some()).collect();
         if !layered.is_empty() {
             let shown: Vec<String> = layered.iter().take(8).map(|l| format!("{}: {:.1} s", l.layer.unwrap_or(0), l.seconds)).collect();

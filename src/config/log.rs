@@ -44,7 +44,7 @@ pub struct LogConfig {
     pub fsync: bool,
     /// Rate (Hz) at which the file gets the channels the replay record (`/strand/tick`, always
     /// every tick) already holds or derives: `/joint_states`, `/joint_command`, `/tcp/target`,
-    /// `/tcp/actual`, `/base/measured`, `/base/estimated`, `/base/command`, `/extruder`, `/status`
+    /// `/tcp/actual`, `/base/measured`, `/base/estimated`, `/base/command`, `/extruder`, `/heaters`, `/status`
     /// (`/status` also on every change of run state, fault, job outcome or layer). 0: every tick.
     /// `strand-replay regenerate` writes them at the full rate again from the replay record; the
     /// live view is fed every tick either way (it keeps its own `[view] rates`).

@@ -26,6 +26,22 @@ use serde::{Deserialize, Serialize};
 use crate::path::{Motion, PathSample};
 use crate::setting::InvalidSetting;
 
+/// Where the hot end's and the bed's temperatures come from (`[extruder] heater`).
+#[derive(Clone, Copy, Debug, Default, Deserialize, Serialize, PartialEq, Eq)]
+#[serde(rename_all = "lowercase")]
+pub enum HeaterSource {
+    /// No temperature source (a cell whose heaters a separate controller runs): targets are still
+    /// published (`HeaterCommand`) and shown, but nothing is measured, so heat waits (`M109`,
+    /// `M190`, `TEMPERATURE_WAIT`) are *skipped* — each reported (`Event::HeatWaitSkipped`, and
+    /// strand-feed warns before streaming) — and cold extrusion is not checked. Today's behaviour.
+    #[default]
+    None,
+    /// The heaters' owner publishes `HeaterState` on the wire (strand-sim's thermal model, a
+    /// Klipper board's process) and consumes `HeaterCommand`: waits hold the job, cold extrusion
+    /// faults `ColdExtrusion`, a silent source faults `TemperatureLost`.
+    Wire,
+}
+
 /// `[extruder]`.
 #[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
 #[serde(deny_unknown_fields, default)]
@@ -56,6 +72,22 @@ pub struct ExtruderConfig {
     pub retract_length: f64,
     /// Filament speed of a retraction and of the prime that undoes it (m/s).
     pub retract_speed: f64,
+    /// Where temperatures come from: `"none"` (default: waits skipped and reported, no cold
+    /// check) or `"wire"` (`HeaterState` from strand-sim or a board; see [`HeaterSource`]).
+    pub heater: HeaterSource,
+    /// No extruding segment starts, and the extruder pushes nothing, with the hot end measured
+    /// below this (°C; Marlin's `EXTRUDE_MINTEMP`, Klipper's `min_extrude_temp`): `ColdExtrusion`.
+    pub min_extrude_temp: f64,
+    /// A hot-end wait ends once |T − target| ≤ this (°C) for `temperature_settle_time`.
+    pub temperature_tolerance: f64,
+    /// The same for the bed (°C).
+    pub bed_temperature_tolerance: f64,
+    /// How long (s) the temperature must stay in its band before a wait ends (Marlin's
+    /// `TEMP_RESIDENCY_TIME` is 10 s, `TEMP_BED_RESIDENCY_TIME` 10 s; Klipper's M109 none).
+    pub temperature_settle_time: f64,
+    /// A temperature older than this (s) is stale: `TemperatureLost` when a wait or an extruding
+    /// move needs it.
+    pub temperature_timeout: f64,
 }
 
 impl Default for ExtruderConfig {
@@ -70,6 +102,12 @@ impl Default for ExtruderConfig {
             max_pressure_advance: 0.2,
             retract_length: 1.0e-3,
             retract_speed: 0.035,
+            heater: HeaterSource::None,
+            min_extrude_temp: 170.0,
+            temperature_tolerance: 3.0,
+            bed_temperature_tolerance: 3.0,
+            temperature_settle_time: 5.0,
+            temperature_timeout: 1.0,
         }
     }
 }
@@ -103,6 +141,17 @@ impl ExtruderConfig {
         }
         if !(self.retract_speed.is_finite() && self.retract_speed > 0.0) {
             return Err(InvalidSetting::new("extruder", "[extruder] retract_speed: must be finite and > 0".to_string()));
+        }
+        for (key, v, lo, hi, unit) in [
+            ("min_extrude_temp", self.min_extrude_temp, 0.0, 500.0, "degC"),
+            ("temperature_tolerance", self.temperature_tolerance, 0.1, 50.0, "degC"),
+            ("bed_temperature_tolerance", self.bed_temperature_tolerance, 0.1, 50.0, "degC"),
+            ("temperature_settle_time", self.temperature_settle_time, 0.0, 600.0, "s"),
+            ("temperature_timeout", self.temperature_timeout, 0.05, 60.0, "s"),
+        ] {
+            if !(v.is_finite() && (lo..=hi).contains(&v)) {
+                return Err(InvalidSetting::new("extruder", format!("[extruder] {key} = {v}: must lie in [{lo}, {hi}] {unit}")));
+            }
         }
         Ok(())
     }

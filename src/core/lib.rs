@@ -17,6 +17,8 @@
 //!   benches that check a job or a robot.
 //! - The positioner ([`Positioner`]): the external axes that carry the part, and the work's motion.
 //! - The base estimator and the extruder model, for the simulator and the tools that predict them.
+//! - The heaters' thermal model ([`ThermalModel`], `[thermal]`), for the simulator's plant and the
+//!   job check's prediction of heat-up waits.
 
 mod base;
 mod base_setpoint;
@@ -27,16 +29,19 @@ pub mod kin;
 mod path;
 mod positioner;
 mod setting;
+mod thermal;
 
 pub use base::{BaseConfig, BaseEstimator, BaseMode, BaseState, EstimatorKind, MAX_WINDOW, MountPose, PoseRejection};
 pub use controller::{
     Controller, ControllerConfig, ControllerError, ControllerSettings, CycleCounters, Event, MAX_BASE_POSES_PER_TICK,
     MAX_CONTROLS_PER_TICK, MAX_EVENTS, MAX_SEGMENTS_PER_TICK, TickDiagnostics, TickInput, TickOutput,
 };
-pub use extrude::{Extruder, ExtruderCommand, ExtruderConfig};
+pub use extrude::{Extruder, ExtruderCommand, ExtruderConfig, HeaterSource};
 pub use path::{
-    AxisLimits, Geometry, InvalidPathConfig, InvalidSegment, MAX_ARC_SWEEP, Motion, PathConfig, PathEngine, PathPoint, PathSample,
-    PathStats, PlanningMode, Segment, SegmentError, SegmentFlags, SegmentKind, arc_geometry, distance_to_arc, distance_to_segment,
+    AxisLimits, Geometry, HeatRequest, HeatWait, Heater, InvalidPathConfig, InvalidSegment, MAX_ARC_SWEEP, MAX_TEMPERATURE, Motion,
+    OPEN_BAND, PathConfig, PathEngine, PathPoint, PathSample, PathStats, PlanningMode, Segment, SegmentError, SegmentFlags, SegmentKind,
+    arc_geometry, distance_to_arc, distance_to_segment,
 };
 pub use positioner::{Carries, Positioner, PositionerError};
 pub use setting::InvalidSetting;
+pub use thermal::{HeaterModel, HeaterModelConfig, ThermalConfig, ThermalModel};

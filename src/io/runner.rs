@@ -345,6 +345,7 @@ impl Runner {
                 }
             }
             self.ports.publish_extruder_command(&out.extruder)?;
+            self.ports.publish_heater_command(&out.heater)?;
             if out.base_command.valid == 1 {
                 self.ports.publish_base_command(&out.base_command)?;
             }
@@ -394,6 +395,9 @@ impl Runner {
         }
         while let Some(p) = self.ports.receive_base_pose()? {
             input.push_base_pose(&p);
+        }
+        while let Some(h) = self.ports.receive_heater_state()? {
+            input.heater_state = Some(h);
         }
         Ok(())
     }
@@ -554,6 +558,12 @@ fn log_events(out: &TickOutput) {
             }
             Event::JobEnded { outcome, last_seq } => tracing::info!("job ended: {outcome:?} (last segment {last_seq})"),
             Event::Clamped { joint } => tracing::warn!("final stage clamped joint {joint}"),
+            Event::HeatWaitSkipped { seq } => {
+                tracing::warn!("heat wait (segment {seq}) skipped: no temperature source ([extruder] heater = \"none\")")
+            }
+            Event::HeaterStateRejected { seq } => {
+                tracing::warn!("heater state {seq} rejected: a temperature not finite or outside -60..1000 degC")
+            }
         }
     }
     if out.events_dropped > 0 {

@@ -81,6 +81,64 @@ cdr_message!(
         executing_layer
     ]
 );
+cdr_message!(ipc::HeaterState, "strand_msgs/msg/HeaterState", [seq, stamp_ns, hot_end, bed, hot_end_power, bed_power, flags]);
+cdr_message!(ipc::HeaterCommand, "strand_msgs/msg/HeaterCommand", [seq, stamp_ns, tick, hot_end_target, bed_target]);
+
+/// The temperature part of a tick (contract v5), logged after the segments' axes: the input's
+/// heater measurement, the heat fields of the input's segments, the heater command and the heat
+/// fields of the status. A log from before reads back without them (zeros: what a controller
+/// without temperatures had).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct HeatStatus {
+    /// `Status::hot_end_temperature` (°C).
+    pub hot_end_temperature: f64,
+    /// `Status::hot_end_target` (°C).
+    pub hot_end_target: f64,
+    /// `Status::bed_temperature` (°C).
+    pub bed_temperature: f64,
+    /// `Status::bed_target` (°C).
+    pub bed_target: f64,
+    /// `Status::heater_flags`.
+    pub heater_flags: u32,
+    /// `Status::heat_hold`.
+    pub heat_hold: u32,
+    /// `Status::heat_hold_left` (s).
+    pub heat_hold_left: f64,
+    /// `Status::heat_hold_band` (°C).
+    pub heat_hold_band: [f64; 2],
+}
+cdr_message!(
+    HeatStatus,
+    "strand_msgs/msg/HeatStatus",
+    [hot_end_temperature, hot_end_target, bed_temperature, bed_target, heater_flags, heat_hold, heat_hold_left, heat_hold_band]
+);
+
+impl HeatStatus {
+    /// The temperature fields of `s`.
+    pub fn of(s: &ipc::Status) -> Self {
+        HeatStatus {
+            hot_end_temperature: s.hot_end_temperature,
+            hot_end_target: s.hot_end_target,
+            bed_temperature: s.bed_temperature,
+            bed_target: s.bed_target,
+            heater_flags: s.heater_flags,
+            heat_hold: s.heat_hold,
+            heat_hold_left: s.heat_hold_left,
+            heat_hold_band: s.heat_hold_band,
+        }
+    }
+    fn put(&self, s: &mut ipc::Status) {
+        s.hot_end_temperature = self.hot_end_temperature;
+        s.hot_end_target = self.hot_end_target;
+        s.bed_temperature = self.bed_temperature;
+        s.bed_target = self.bed_target;
+        s.heater_flags = self.heater_flags;
+        s.heat_hold = self.heat_hold;
+        s.heat_hold_left = self.heat_hold_left;
+        s.heat_hold_band = self.heat_hold_band;
+    }
+}
+
 cdr_message!(CycleCounters, "strand_msgs/msg/CycleCounters", [overruns, late_wakeups, worst_lateness_ns, log_drops, log_state]);
 cdr_message!(BaseState, "strand_msgs/msg/BaseState", [position, orientation, linear_velocity, angular_velocity]);
 cdr_message!(
@@ -184,6 +242,8 @@ impl CdrType for Event {
             6 => Event::Fault { code: FaultCode::from_u32(a).ok_or(unknown("FaultCode", a))?, seq, line: b, value },
             7 => Event::JobEnded { outcome: JobOutcome::from_u32(a).ok_or(unknown("JobOutcome", a))?, last_seq: seq },
             8 => Event::Clamped { joint: a as u8 },
+            9 => Event::HeatWaitSkipped { seq },
+            10 => Event::HeaterStateRejected { seq },
             k => return Err(unknown("event kind", k as u32)),
         })
     }
@@ -209,6 +269,8 @@ fn event_parts(event: &Event) -> (u8, u64, u32, u32, f64, &'static str) {
         Event::Fault { code, seq, line, value } => (6, seq, code as u32, line, value, ""),
         Event::JobEnded { outcome, last_seq } => (7, last_seq, outcome as u32, 0, 0.0, ""),
         Event::Clamped { joint } => (8, 0, joint as u32, 0, 0.0, ""),
+        Event::HeatWaitSkipped { seq } => (9, seq, 0, 0, 0.0, ""),
+        Event::HeaterStateRejected { seq } => (10, seq, 0, 0, 0.0, ""),
     }
 }
 
@@ -363,6 +425,10 @@ strand_msgs/TickOutput output
 strand_msgs/TickTiming timing
 strand_msgs/BaseCommand base_command
 float64[] segment_axes
+strand_msgs/HeaterState[<=1] heater_state
+float64[] segment_heat
+strand_msgs/HeaterCommand heater
+strand_msgs/HeatStatus heat_status
 ";
 
 /// The base command (`TickOutput::base_command`) is written after the timing, then the external
@@ -380,6 +446,9 @@ impl CdrType for Tick {
         TickOutput::dependencies(out);
         TickTiming::dependencies(out);
         ipc::BaseCommand::dependencies(out);
+        ipc::HeaterState::dependencies(out);
+        ipc::HeaterCommand::dependencies(out);
+        HeatStatus::dependencies(out);
         add_dependency(out, Self::ros_type(), || TICK_DEFINITION.to_string());
     }
     fn write(&self, w: &mut CdrWriter) {
@@ -394,6 +463,7 @@ impl CdrType for Tick {
                 w.f64(a);
             }
         }
+        write_heat(w, &self.input, &self.output);
     }
     fn read(r: &mut CdrReader) -> Result<Self, CdrError> {
         let mut v = Tick { input: TickInput::read(r)?, output: TickOutput::read(r)?, timing: TickTiming::read(r)? };
@@ -412,6 +482,9 @@ impl CdrType for Tick {
                 }
             }
         }
+        if r.remaining() > 3 {
+            read_heat(r, &mut v.input, &mut v.output)?;
+        }
         Ok(v)
     }
     fn flatten(&self, path: &str, out: &mut Vec<(String, Scalar)>) {
@@ -426,6 +499,46 @@ pub fn encode_output(w: &mut CdrWriter, output: &TickOutput) {
     w.begin();
     output.write(w);
     output.base_command.write(w);
+    output.heater.write(w);
+    HeatStatus::of(&output.status).write(w);
+}
+
+/// Numbers per segment in `segment_heat`: heater, wait, target, band low, band high.
+const HEAT_PER_SEGMENT: usize = 5;
+
+/// The temperature part of a tick (see [`HeatStatus`]).
+fn write_heat(w: &mut CdrWriter, input: &TickInput, output: &TickOutput) {
+    write_seq(w, input.heater_state.as_slice());
+    let segments = input.segments();
+    w.len(segments.len() * HEAT_PER_SEGMENT);
+    for s in segments {
+        for x in [f64::from(s.heater), f64::from(s.heat_wait), s.temperature, s.temperature_range[0], s.temperature_range[1]] {
+            w.f64(x);
+        }
+    }
+    output.heater.write(w);
+    HeatStatus::of(&output.status).write(w);
+}
+
+fn read_heat(r: &mut CdrReader, input: &mut TickInput, output: &mut TickOutput) -> Result<(), CdrError> {
+    if r.len(1)? == 1 {
+        input.heater_state = Some(ipc::HeaterState::read(r)?);
+    }
+    let n = input.segment_count as usize;
+    if r.len(n * HEAT_PER_SEGMENT)? != n * HEAT_PER_SEGMENT {
+        return Err(CdrError::Truncated { at: r.position(), what: "segment_heat (five per segment)" });
+    }
+    for k in 0..n {
+        let s = &mut input.segments[k];
+        let (heater, wait) = (r.f64()?, r.f64()?);
+        // Small whole numbers written from u32: exact in f64.
+        (s.heater, s.heat_wait) = (heater as u32, wait as u32);
+        s.temperature = r.f64()?;
+        s.temperature_range = [r.f64()?, r.f64()?];
+    }
+    output.heater = ipc::HeaterCommand::read(r)?;
+    HeatStatus::read(r)?.put(&mut output.status);
+    Ok(())
 }
 
 /// Schema names and texts of the standard ROS 2 types, as in ROS 2 Humble (comments and default

@@ -47,6 +47,10 @@ pub mod topics {
     pub const STATUS: &str = "/status";
     /// Segments as received (`strand_msgs/msg/Segment`).
     pub const SEGMENTS: &str = "/segments";
+    /// The heaters (`strand_msgs/msg/HeatStatus`, °C): measured and target, hot end and bed, and a
+    /// heat wait's band and settle time left — `Status`'s temperature fields, on their own channel
+    /// so that the live view and older readers of `/status` keep their layout.
+    pub const HEATERS: &str = "/heaters";
     /// Each tick's complete input, output and timing (`strand_msgs/msg/Tick`).
     pub const TICK: &str = "/strand/tick";
 }

@@ -24,7 +24,7 @@ use mcap::{Attachment, Compression, WriteOptions};
 use strand_ipc::LogState;
 
 use super::cdr::{CdrWriter, encode, schema_text};
-use super::messages::{Tick, TickTiming, ros};
+use super::messages::{HeatStatus, Tick, TickTiming, ros};
 use super::scene::{Scene, SceneTopic};
 use super::{LogCompression, LogConfig, build_version, names, topics, unix_now_ns, utc_stamp};
 use crate::config::Config;
@@ -265,6 +265,7 @@ fn copy_tick(slot: &mut Tick, input: &TickInput, output: &TickOutput, timing: &T
     d.controls[..n].copy_from_slice(&input.controls[..n]);
     d.control_count = input.control_count;
     d.joint_state = input.joint_state;
+    d.heater_state = input.heater_state;
     let n = input.base_pose_count as usize;
     d.base_poses[..n].copy_from_slice(&input.base_poses[..n]);
     d.base_pose_count = input.base_pose_count;
@@ -320,10 +321,11 @@ enum Channel {
     Status,
     Segments,
     BaseCommand,
+    Heaters,
     Scene(SceneTopic),
 }
 
-const TICK_CHANNELS: usize = 11;
+const TICK_CHANNELS: usize = 12;
 const CHANNELS: usize = TICK_CHANNELS + SceneTopic::ALL.len();
 
 impl Channel {
@@ -340,6 +342,7 @@ impl Channel {
             Channel::Status => 8,
             Channel::Segments => 9,
             Channel::BaseCommand => 10,
+            Channel::Heaters => 11,
             Channel::Scene(t) => TICK_CHANNELS + t.index(),
         }
     }
@@ -361,6 +364,7 @@ fn channel_list() -> Vec<(&'static str, String, String)> {
         (topics::STATUS, "strand_msgs/msg/Status".to_string(), schema_text::<strand_ipc::Status>()),
         (topics::SEGMENTS, "strand_msgs/msg/Segment".to_string(), schema_text::<strand_ipc::Segment>()),
         (topics::BASE_COMMAND, ros::POSE_STAMPED.to_string(), ros::pose_stamped_schema()),
+        (topics::HEATERS, "strand_msgs/msg/HeatStatus".to_string(), schema_text::<HeatStatus>()),
     ];
     for t in SceneTopic::ALL {
         let (name, text) = t.schema();
@@ -734,6 +738,8 @@ impl WriterThread {
             }
             encode(cdr, &o.extruder);
             put(Channel::Extruder, log_time, cdr.bytes())?;
+            encode(cdr, &HeatStatus::of(&o.status));
+            put(Channel::Heaters, log_time, cdr.bytes())?;
         }
         if encode_derived || status_due {
             encode(cdr, &o.status);

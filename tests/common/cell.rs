@@ -35,6 +35,8 @@ pub(crate) struct Cell {
     pub controls: Vec<ipc::Control>,
     pub poses: Vec<ipc::BasePose>,
     pub feeder_lost: bool,
+    /// The heater measurement sent with every tick (None: no heater publishes).
+    pub heater_state: Option<ipc::HeaterState>,
     /// A tracked base that is exactly where the service's `BaseCommand` put it, reported by its
     /// tracker every tick (a base that follows its setpoint, as the robot follows its commands).
     pub base_follows_command: bool,
@@ -60,6 +62,7 @@ impl Cell {
             controls: Vec::new(),
             poses: Vec::new(),
             feeder_lost: false,
+            heater_state: None,
             base_follows_command: false,
             last: None,
             state_seq: 0,
@@ -100,6 +103,7 @@ impl Cell {
             input.push_base_pose(&p);
         }
         input.feeder_lost = self.feeder_lost;
+        input.heater_state = self.heater_state;
         input
     }
 

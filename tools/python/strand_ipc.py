@@ -4,11 +4,11 @@ Every message is a fixed-size ``#[repr(C)]`` struct on the Rust side with no imp
 gap is a named ``_reserved`` field, always zero), so the ``ctypes.Structure`` below with the same
 fields in the same order has the same layout. iceoryx2 checks the type name, size and alignment
 when a service is opened, so each class has a ``type_name()`` staticmethod returning the exact
-string of the Rust ``#[type_name("strand.v4.…")]`` attribute; a mismatch gives ``IncompatibleTypes``
+string of the Rust ``#[type_name("strand.v5.…")]`` attribute; a mismatch gives ``IncompatibleTypes``
 instead of misread bytes. The sizes are asserted at import time (they are part of the contract and
 the Rust test ``sizes_are_stable`` pins the same numbers).
 
-Conventions (as in Rust): SI units, world frame W, quaternions (w, x, y, z), timestamps in ns of
+Conventions (as in Rust): SI units (temperatures in °C, the one exception), world frame W, quaternions (w, x, y, z), timestamps in ns of
 CLOCK_MONOTONIC (``time.monotonic_ns()`` on Linux), joint arrays of MAX_JOINTS of which the first
 ``dof`` are used.
 
@@ -30,6 +30,10 @@ __all__ = [
     "SegmentFlags",
     "ExtruderFlags",
     "JointStateFlags",
+    "HeaterFlags",
+    "Heater",
+    "HeatWait",
+    "HeatHold",
     "Command",
     "RunState",
     "FaultCode",
@@ -43,6 +47,8 @@ __all__ = [
     "JointCommand",
     "ExtruderCommand",
     "BaseCommand",
+    "HeaterState",
+    "HeaterCommand",
     "Status",
     "JobProgress",
     "ServiceNames",
@@ -54,7 +60,7 @@ __all__ = [
 # --- constants -------------------------------------------------------------------------------------
 
 #: Version of the contract; part of every type name and published in every Status.
-CONTRACT_VERSION = 4
+CONTRACT_VERSION = 5
 #: Joints per message (the longest chain strand drives).
 MAX_JOINTS = 8
 #: Segments per SegmentBatch.
@@ -69,6 +75,45 @@ class SegmentKind(enum.IntEnum):
     LINE = 0
     ARC = 1
     DWELL = 2
+    #: A heater's target and, with ``heat_wait``, a hold until its temperature has settled.
+    HEAT = 3
+
+
+class Heater(enum.IntEnum):
+    """``Segment.heater``."""
+
+    HOT_END = 0
+    BED = 1
+
+
+class HeatWait(enum.IntEnum):
+    """``Segment.heat_wait``."""
+
+    NONE = 0
+    #: M109 S / M190 S: hold while heating until |T - target| <= tolerance (no wait for cooling).
+    HEATING = 1
+    #: M109 R / M190 R: hold until |T - target| <= tolerance, cooling too.
+    BOTH = 2
+    #: TEMPERATURE_WAIT: hold until temperature_range[0] <= T <= temperature_range[1].
+    RANGE = 3
+
+
+class HeatHold(enum.IntEnum):
+    """``Status.heat_hold``."""
+
+    NONE = 0
+    HOT_END = 1
+    BED = 2
+
+
+class HeaterFlags(enum.IntFlag):
+    """Bits of ``HeaterState.flags`` and ``Status.heater_flags``."""
+
+    NONE = 0
+    HOT_END = 1
+    BED = 2
+    #: (Status only) the service acts on temperatures ([extruder] heater = "wire").
+    ACTING = 4
 
 
 class SegmentFlags(enum.IntFlag):
@@ -149,6 +194,8 @@ class FaultCode(enum.IntEnum):
     ROBOT_DEVIATION = 6
     PATH_STALLED = 7
     TCP_ERROR_LIMIT = 8
+    COLD_EXTRUSION = 9
+    TEMPERATURE_LOST = 10
 
 
 class RejectReason(enum.IntEnum):
@@ -226,7 +273,7 @@ class _Message(ctypes.Structure):
 
 
 class Segment(_Message):
-    """One planned motion segment, world frame W (with a positioner: the work frame at home). 192 bytes."""
+    """One planned motion segment, world frame W (with a positioner: the work frame at home). 224 bytes."""
 
     _fields_ = [
         ("seq", _u64),
@@ -245,11 +292,15 @@ class Segment(_Message):
         ("_reserved", _u32),
         ("pressure_advance", _f64),
         ("axes", _f64 * 2),
+        ("heater", _u32),
+        ("heat_wait", _u32),
+        ("temperature", _f64),
+        ("temperature_range", _f64 * 2),
     ]
 
     @staticmethod
     def type_name() -> str:
-        return "strand.v4.Segment"
+        return "strand.v5.Segment"
 
     @classmethod
     def line(
@@ -288,7 +339,7 @@ class SegmentBatch(_Message):
 
     @staticmethod
     def type_name() -> str:
-        return "strand.v4.SegmentBatch"
+        return "strand.v5.SegmentBatch"
 
     def as_list(self) -> list[Segment]:
         """The segments in use (copies)."""
@@ -308,7 +359,7 @@ class Control(_Message):
 
     @staticmethod
     def type_name() -> str:
-        return "strand.v4.Control"
+        return "strand.v5.Control"
 
 
 class JointState(_Message):
@@ -328,7 +379,7 @@ class JointState(_Message):
 
     @staticmethod
     def type_name() -> str:
-        return "strand.v4.JointState"
+        return "strand.v5.JointState"
 
 
 class BasePose(_Message):
@@ -343,7 +394,7 @@ class BasePose(_Message):
 
     @staticmethod
     def type_name() -> str:
-        return "strand.v4.BasePose"
+        return "strand.v5.BasePose"
 
 
 class JointCommand(_Message):
@@ -364,7 +415,7 @@ class JointCommand(_Message):
 
     @staticmethod
     def type_name() -> str:
-        return "strand.v4.JointCommand"
+        return "strand.v5.JointCommand"
 
 
 class ExtruderCommand(_Message):
@@ -384,7 +435,7 @@ class ExtruderCommand(_Message):
 
     @staticmethod
     def type_name() -> str:
-        return "strand.v4.ExtruderCommand"
+        return "strand.v5.ExtruderCommand"
 
 
 class BaseCommand(_Message):
@@ -406,7 +457,7 @@ class BaseCommand(_Message):
 
     @staticmethod
     def type_name() -> str:
-        return "strand.v4.BaseCommand"
+        return "strand.v5.BaseCommand"
 
 
 class Status(_Message):
@@ -446,11 +497,19 @@ class Status(_Message):
         ("tcp_error", _f64),
         ("log_state", _u32),
         ("executing_layer", _u32),
+        ("hot_end_temperature", _f64),
+        ("hot_end_target", _f64),
+        ("bed_temperature", _f64),
+        ("bed_target", _f64),
+        ("heater_flags", _u32),
+        ("heat_hold", _u32),
+        ("heat_hold_left", _f64),
+        ("heat_hold_band", _f64 * 2),
     ]
 
     @staticmethod
     def type_name() -> str:
-        return "strand.v4.Status"
+        return "strand.v5.Status"
 
     def credit_limit(self) -> int:
         """The last segment sequence number a feeder may send now."""
@@ -467,6 +526,42 @@ class Status(_Message):
             f"executing {self.executing_seq} (line {self.executing_line}) path {self.path_position:.4f} m at {self.path_speed:.4f} m/s "
             f"underruns {self.underruns} overruns {self.overruns} clamps {self.clamps}"
         )
+
+
+class HeaterState(_Message):
+    """Measured heater temperatures (°C) from the heaters' owner (strand-sim, a board's process). 56 bytes."""
+
+    _fields_ = [
+        ("seq", _u64),
+        ("stamp_ns", _u64),
+        ("hot_end", _f64),
+        ("bed", _f64),
+        ("hot_end_power", _f64),
+        ("bed_power", _f64),
+        ("flags", _u32),
+        ("_reserved", _u32),
+    ]
+
+    @staticmethod
+    def type_name() -> str:
+        return "strand.v5.HeaterState"
+
+
+class HeaterCommand(_Message):
+    """The heater targets (°C; 0 = off), every tick. 48 bytes."""
+
+    _fields_ = [
+        ("seq", _u64),
+        ("stamp_ns", _u64),
+        ("tick", _u64),
+        ("hot_end_target", _f64),
+        ("bed_target", _f64),
+        ("_reserved", _u64),
+    ]
+
+    @staticmethod
+    def type_name() -> str:
+        return "strand.v5.HeaterCommand"
 
 
 class JobProgress(_Message):
@@ -488,7 +583,7 @@ class JobProgress(_Message):
 
     @staticmethod
     def type_name() -> str:
-        return "strand.v4.JobProgress"
+        return "strand.v5.JobProgress"
 
 
 # --- service names ---------------------------------------------------------------------------------
@@ -508,6 +603,8 @@ class ServiceNames:
     base_command: str
     status: str
     job_progress: str
+    heater_state: str
+    heater_command: str
 
 
 def service_names(prefix: str = DEFAULT_PREFIX) -> ServiceNames:
@@ -524,36 +621,53 @@ def service_names(prefix: str = DEFAULT_PREFIX) -> ServiceNames:
         base_command=f"{p}/base_command",
         status=f"{p}/status",
         job_progress=f"{p}/job_progress",
+        heater_state=f"{p}/heater_state",
+        heater_command=f"{p}/heater_command",
     )
 
 
 # --- layout self-check -----------------------------------------------------------------------------
 
-MESSAGE_TYPES = (Segment, SegmentBatch, Control, JointState, BasePose, JointCommand, ExtruderCommand, BaseCommand, Status, JobProgress)
+MESSAGE_TYPES = (
+    Segment,
+    SegmentBatch,
+    Control,
+    JointState,
+    BasePose,
+    HeaterState,
+    JointCommand,
+    ExtruderCommand,
+    HeaterCommand,
+    BaseCommand,
+    Status,
+    JobProgress,
+)
 
 #: Sizes from the Rust test ``sizes_are_stable`` (wire/src/lib.rs).
 EXPECTED_SIZES = {
-    Segment: 192,
-    SegmentBatch: 24 + 32 * 192,
+    Segment: 224,
+    SegmentBatch: 24 + 32 * 224,
     Control: 32,
     JointState: 24 + 5 * 64,
     BasePose: 72,
     JointCommand: 48 + 3 * 64,
     ExtruderCommand: 64,
     BaseCommand: 152,
-    Status: 192,
+    HeaterState: 56,
+    HeaterCommand: 48,
+    Status: 256,
     JobProgress: 112,
 }
 
-assert ctypes.sizeof(Segment) == 192
-assert ctypes.sizeof(SegmentBatch) == 24 + 32 * 192
+assert ctypes.sizeof(Segment) == 224
+assert ctypes.sizeof(SegmentBatch) == 24 + 32 * 224
 assert ctypes.sizeof(Control) == 32
 assert ctypes.sizeof(JointState) == 344
 assert ctypes.sizeof(BasePose) == 72
 assert ctypes.sizeof(JointCommand) == 240
 assert ctypes.sizeof(ExtruderCommand) == 64
 assert ctypes.sizeof(BaseCommand) == 152
-assert ctypes.sizeof(Status) == 192
+assert ctypes.sizeof(Status) == 256
 for _t in MESSAGE_TYPES:
     assert ctypes.sizeof(_t) == EXPECTED_SIZES[_t], _t
     assert ctypes.alignment(_t) == 8, _t

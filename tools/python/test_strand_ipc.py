@@ -115,6 +115,9 @@ def test_enums():
         "RejectReason": ipc.RejectReason,
         "JobOutcome": ipc.JobOutcome,
         "LogState": ipc.LogState,
+        "Heater": ipc.Heater,
+        "HeatWait": ipc.HeatWait,
+        "HeatHold": ipc.HeatHold,
     }
     assert set(enums) == set(mapping), sorted(enums)
     for rust_name, py in mapping.items():
@@ -125,6 +128,7 @@ def test_enums():
         ("segment_flags", ipc.SegmentFlags),
         ("extruder_flags", ipc.ExtruderFlags),
         ("joint_state_flags", ipc.JointStateFlags),
+        ("heater_flags", ipc.HeaterFlags),
     ):
         want = _rust_flag_mod(src, module)
         got = {m.name: m.value for m in py if m.value}
@@ -136,7 +140,18 @@ def test_service_names():
     assert n.segments == "strand/test/segments"
     assert n.status == "strand/test/status"
     src = _source()
-    for method in ("segments", "control", "joint_state", "base_pose", "joint_command", "extruder_command", "base_command", "status"):
+    for method in (
+        "segments",
+        "control",
+        "joint_state",
+        "base_pose",
+        "joint_command",
+        "extruder_command",
+        "base_command",
+        "status",
+        "heater_state",
+        "heater_command",
+    ):
         assert f'format!("{{}}/{method}", self.prefix)' in src, method
         assert getattr(n, method) == f"strand/test/{method}"
 

@@ -7,7 +7,7 @@
 //! gap is a named `_reserved` field, always zero), so a Python `ctypes.Structure` or a C++ struct with
 //! the same fields in the same order has the same layout, and the bytes of a message are fully
 //! defined (the logger can store them bit for bit). Each type carries an explicit iceoryx2 type name
-//! that includes the contract version ("strand.v4.Segment"): a client built against another version
+//! that includes the contract version ("strand.v5.Segment"): a client built against another version
 //! fails to open the service with `IncompatibleTypes` instead of misreading bytes. [`CONTRACT_VERSION`]
 //! is also published in every [`Status`]. (The type names and the `ZeroCopySend` marker come from
 //! iceoryx2's two building-block crates of derive macro and trait, not from iceoryx2 itself.)
@@ -53,7 +53,7 @@ macro_rules! wire_enum {
 }
 
 /// Version of this contract. Bumped on any change of layout or meaning; part of every type name.
-pub const CONTRACT_VERSION: u32 = 4;
+pub const CONTRACT_VERSION: u32 = 5;
 /// Joints per message (the longest chain strand drives).
 pub const MAX_JOINTS: usize = 8;
 /// Segments per [`SegmentBatch`].
@@ -72,6 +72,45 @@ wire_enum! {
         Arc = 1,
         /// Stand still for `duration`, optionally moving filament.
         Dwell = 2,
+        /// A heater's target and, with a `heat_wait`, a hold: the job stands (no later segment
+        /// executes) until the heater's measured temperature has settled (`heater`, `heat_wait`,
+        /// `temperature`, `temperature_range`; `end` is not used: the tool stands where the path
+        /// is).
+        /// Contract v5.
+        Heat = 3,
+    }
+}
+
+wire_enum! {
+    /// Which heater a [`SegmentKind::Heat`] segment is about (`Segment::heater`).
+    #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+    pub enum Heater {
+        /// The hot end (Klipper's `extruder`; `M104`/`M109`).
+        #[default]
+        HotEnd = 0,
+        /// The bed (Klipper's `heater_bed`; `M140`/`M190`).
+        Bed = 1,
+    }
+}
+
+wire_enum! {
+    /// How a [`SegmentKind::Heat`] segment holds the job (`Segment::heat_wait`). Every hold ends
+    /// when the measured temperature has stayed inside its band for the service's
+    /// `[extruder] temperature_settle_time`, the arm standing still meanwhile.
+    #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+    pub enum HeatWait {
+        /// No hold: the target is set where the segment stands in the job, and the job goes on.
+        #[default]
+        None = 0,
+        /// Marlin's `M109 S` / `M190 S`: hold while heating, until |T − target| ≤ the tolerance
+        /// (`[extruder] temperature_tolerance`, `bed_temperature_tolerance`); a heater already
+        /// above target + tolerance when the hold begins does not hold (no wait for cooling).
+        Heating = 1,
+        /// Marlin's `M109 R` / `M190 R`: hold until |T − target| ≤ the tolerance, cooling too.
+        Both = 2,
+        /// Klipper's `TEMPERATURE_WAIT`: hold until `temperature_range[0] ≤ T ≤
+        /// temperature_range[1]`; the target is not changed.
+        Range = 3,
     }
 }
 
@@ -95,14 +134,14 @@ pub mod segment_flags {
 /// External axes a [`Segment`] can carry (a two-axis positioner: tilt and turn).
 pub const MAX_EXTERNAL_AXES: usize = 2;
 
-/// One planned motion segment, world frame W. 192 bytes.
+/// One planned motion segment, world frame W. 224 bytes.
 ///
 /// In a cell with a positioner (external axes that carry the part), `end`, `centre`, `normal` and
 /// `orientation` are in the *work frame at home*: where they lie in W while every external axis is
 /// at 0. The part rides on the positioner; the controller moves the points with it (the path's
 /// speed is then the speed on the part: tool-tip following).
 #[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
-#[type_name("strand.v4.Segment")]
+#[type_name("strand.v5.Segment")]
 #[repr(C)]
 pub struct Segment {
     /// Sequence number; consecutive within a job (a gap is rejected).
@@ -141,11 +180,22 @@ pub struct Segment {
     /// cell's `[positioner]` chain; unused entries 0), valid with [`segment_flags::AXES`]. Over
     /// the segment they move in proportion to the path travelled.
     pub axes: [f64; MAX_EXTERNAL_AXES],
+    /// [`Heater`] as u32; [`SegmentKind::Heat`] only (0 otherwise).
+    pub heater: u32,
+    /// [`HeatWait`] as u32; [`SegmentKind::Heat`] only (0 otherwise).
+    pub heat_wait: u32,
+    /// The heater's new target (°C — temperatures are in degrees Celsius on the wire, the one
+    /// exception to SI, as every firmware and slicer writes them; 0 = heater off; < 0 = keep the
+    /// current target, as `TEMPERATURE_WAIT` does); [`SegmentKind::Heat`] only.
+    pub temperature: f64,
+    /// The band of a [`HeatWait::Range`] hold (°C, low then high; an open end is −273.15 or
+    /// 10,000); [`SegmentKind::Heat`] only.
+    pub temperature_range: [f64; 2],
 }
 
 /// Up to [`SEGMENT_BATCH_CAPACITY`] segments in one message, in order.
 #[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
-#[type_name("strand.v4.SegmentBatch")]
+#[type_name("strand.v5.SegmentBatch")]
 #[repr(C)]
 pub struct SegmentBatch {
     /// Batch sequence number.
@@ -210,7 +260,7 @@ wire_enum! {
 
 /// A command to the controller. 32 bytes.
 #[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
-#[type_name("strand.v4.Control")]
+#[type_name("strand.v5.Control")]
 #[repr(C)]
 pub struct Control {
     /// Sequence number.
@@ -241,7 +291,7 @@ pub mod joint_state_flags {
 
 /// Measured joint state from the robot driver, and what the driver last told the robot. 344 bytes.
 #[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
-#[type_name("strand.v4.JointState")]
+#[type_name("strand.v5.JointState")]
 #[repr(C)]
 pub struct JointState {
     /// Sequence number.
@@ -272,7 +322,7 @@ pub struct JointState {
 /// Published by the feeder about once a second on its own service (the controller does not read
 /// it); history 1, so a console that opens late gets the latest at the next publish. 112 bytes.
 #[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
-#[type_name("strand.v4.JobProgress")]
+#[type_name("strand.v5.JobProgress")]
 #[repr(C)]
 pub struct JobProgress {
     /// Sequence number.
@@ -337,7 +387,7 @@ impl JobProgress {
 
 /// A measured pose of the robot base B in W, from tracking. 72 bytes.
 #[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
-#[type_name("strand.v4.BasePose")]
+#[type_name("strand.v5.BasePose")]
 #[repr(C)]
 pub struct BasePose {
     /// Sequence number.
@@ -350,9 +400,68 @@ pub struct BasePose {
     pub orientation: [f64; 4],
 }
 
+/// Bits of `HeaterState::flags` and `Status::heater_flags`.
+pub mod heater_flags {
+    /// `hot_end` holds a measurement.
+    pub const HOT_END: u32 = 1;
+    /// `bed` holds a measurement.
+    pub const BED: u32 = 2;
+    /// (`Status` only) the service acts on temperatures (`[extruder] heater = "wire"`): it holds
+    /// at waits and refuses cold extrusion. Without it, targets are passed on and waits skipped.
+    pub const ACTING: u32 = 4;
+}
+
+/// Measured heater temperatures, from whoever owns the heaters: strand-sim's thermal model today,
+/// a Klipper extruder board's process (`strand-mcu`) later. Publish at 5 Hz or faster (the
+/// service faults `TemperatureLost` after `[extruder] temperature_timeout` without one while a
+/// hold or an extruding move needs it). Temperatures in °C (the wire's one exception to SI). 56 bytes.
+#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
+#[type_name("strand.v5.HeaterState")]
+#[repr(C)]
+pub struct HeaterState {
+    /// Sequence number.
+    pub seq: u64,
+    /// When the temperatures were measured (ns, monotonic).
+    pub stamp_ns: u64,
+    /// Hot end (°C), valid with [`heater_flags::HOT_END`].
+    pub hot_end: f64,
+    /// Bed (°C), valid with [`heater_flags::BED`].
+    pub bed: f64,
+    /// The hot end heater's duty (fraction, 0 to 1; for display).
+    pub hot_end_power: f64,
+    /// The bed heater's duty (fraction, 0 to 1; for display).
+    pub bed_power: f64,
+    /// [`heater_flags`] bits (`HOT_END`, `BED`).
+    pub flags: u32,
+    /// Always 0.
+    pub _reserved: u32,
+}
+
+/// The heater targets for whoever owns the heaters (strand-sim, a board's process), published
+/// every tick: targets change where the job says (in order with the motion: a
+/// [`SegmentKind::Heat`] segment takes effect when the path reaches it), and fall to 0 (off) on
+/// every fault and emergency stop. °C (the wire's one exception to SI). 48 bytes.
+#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
+#[type_name("strand.v5.HeaterCommand")]
+#[repr(C)]
+pub struct HeaterCommand {
+    /// Sequence number (one per tick).
+    pub seq: u64,
+    /// Nominal time of the tick (ns, monotonic).
+    pub stamp_ns: u64,
+    /// Tick index.
+    pub tick: u64,
+    /// Hot end target (°C; 0 = off).
+    pub hot_end_target: f64,
+    /// Bed target (°C; 0 = off).
+    pub bed_target: f64,
+    /// Always 0.
+    pub _reserved: u64,
+}
+
 /// The joint command for the robot driver. 240 bytes.
 #[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
-#[type_name("strand.v4.JointCommand")]
+#[type_name("strand.v5.JointCommand")]
 #[repr(C)]
 pub struct JointCommand {
     /// Sequence number (one per tick).
@@ -388,7 +497,7 @@ pub mod extruder_flags {
 
 /// The extruder command for the extruder driver. 64 bytes.
 #[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
-#[type_name("strand.v4.ExtruderCommand")]
+#[type_name("strand.v5.ExtruderCommand")]
 #[repr(C)]
 pub struct ExtruderCommand {
     /// Sequence number (one per tick).
@@ -417,7 +526,7 @@ pub struct ExtruderCommand {
 /// moved there within the base's velocity and acceleration limits. Published every tick while the
 /// service has a plan; `valid` is 0 without one. 152 bytes.
 #[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
-#[type_name("strand.v4.BaseCommand")]
+#[type_name("strand.v5.BaseCommand")]
 #[repr(C)]
 pub struct BaseCommand {
     /// Sequence number (one per tick).
@@ -495,6 +604,13 @@ wire_enum! {
         /// `tcp_error_time`: the commanded (or measured) tool left its path — out of reach, at a joint
         /// limit, a singularity, or a base that drifted away.
         TcpErrorLimit = 8,
+        /// An extruding segment was about to start (or the extruder to push) with the hot end's
+        /// measured temperature below `[extruder] min_extrude_temp`, as Marlin and Klipper refuse
+        /// a cold extrusion: the job stops, nothing is pushed.
+        ColdExtrusion = 9,
+        /// No [`HeaterState`] within `[extruder] temperature_timeout` while a hold or an extruding
+        /// move needed the temperature (the heater's owner went silent or stopped measuring).
+        TemperatureLost = 10,
     }
 }
 
@@ -554,9 +670,9 @@ wire_enum! {
 
 /// The controller's state, published every tick. Feeders use `last_received_seq + queue_free` as the
 /// last segment sequence number they may send (credit-based back-pressure: nothing is ever dropped).
-/// 192 bytes.
+/// 256 bytes.
 #[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
-#[type_name("strand.v4.Status")]
+#[type_name("strand.v5.Status")]
 #[repr(C)]
 pub struct Status {
     /// Sequence number (one per tick).
@@ -619,6 +735,37 @@ pub struct Status {
     /// executing since the job started (0 before the first). A feeder that resumes a job from
     /// layer N adds N − 1 to show the program's layer number.
     pub executing_layer: u32,
+    /// Hot end: measured (°C; valid with [`heater_flags::HOT_END`] in `heater_flags`).
+    pub hot_end_temperature: f64,
+    /// Hot end: the target in force (°C; 0 = off).
+    pub hot_end_target: f64,
+    /// Bed: measured (°C; valid with [`heater_flags::BED`]).
+    pub bed_temperature: f64,
+    /// Bed: the target in force (°C; 0 = off).
+    pub bed_target: f64,
+    /// [`heater_flags`] bits: which measurements are fresh, and whether the service acts on them.
+    pub heater_flags: u32,
+    /// [`HeatHold`] as u32: the job holds at a heat wait (the path stands still).
+    pub heat_hold: u32,
+    /// During a hold: the settle time still to run (s); the whole settle time while the
+    /// temperature is outside the band.
+    pub heat_hold_left: f64,
+    /// During a hold: the band the temperature must stay in (°C, low then high).
+    pub heat_hold_band: [f64; 2],
+}
+
+wire_enum! {
+    /// What the job holds for (`Status::heat_hold`).
+    #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+    pub enum HeatHold {
+        /// No hold.
+        #[default]
+        None = 0,
+        /// Waiting for the hot end (`M109`, `TEMPERATURE_WAIT SENSOR=extruder`).
+        HotEnd = 1,
+        /// Waiting for the bed (`M190`, `TEMPERATURE_WAIT SENSOR=heater_bed`).
+        Bed = 2,
+    }
 }
 
 wire_enum! {
@@ -686,6 +833,14 @@ impl ServiceNames {
     pub fn job_progress(&self) -> String {
         format!("{}/job_progress", self.prefix)
     }
+    /// [`HeaterState`] from the heaters' owner (strand-sim, a board's process).
+    pub fn heater_state(&self) -> String {
+        format!("{}/heater_state", self.prefix)
+    }
+    /// [`HeaterCommand`] to the heaters' owner.
+    pub fn heater_command(&self) -> String {
+        format!("{}/heater_command", self.prefix)
+    }
 }
 
 impl Default for ServiceNames {
@@ -702,15 +857,17 @@ mod tests {
     /// The sizes are part of the contract (Python and C++ mirrors check them).
     #[test]
     fn sizes_are_stable() {
-        assert_eq!(size_of::<Segment>(), 192);
-        assert_eq!(size_of::<SegmentBatch>(), 24 + 32 * 192);
+        assert_eq!(size_of::<Segment>(), 224);
+        assert_eq!(size_of::<SegmentBatch>(), 24 + 32 * 224);
         assert_eq!(size_of::<Control>(), 32);
         assert_eq!(size_of::<JointState>(), 24 + 5 * 64);
         assert_eq!(size_of::<BasePose>(), 72);
         assert_eq!(size_of::<JointCommand>(), 48 + 3 * 64);
         assert_eq!(size_of::<ExtruderCommand>(), 64);
         assert_eq!(size_of::<BaseCommand>(), 152);
-        assert_eq!(size_of::<Status>(), 192);
+        assert_eq!(size_of::<Status>(), 256);
+        assert_eq!(size_of::<HeaterState>(), 56);
+        assert_eq!(size_of::<HeaterCommand>(), 48);
         assert_eq!(size_of::<JobProgress>(), 112);
         for a in [align_of::<Segment>(), align_of::<Status>(), align_of::<JointCommand>()] {
             assert_eq!(a, 8);

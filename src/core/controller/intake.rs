@@ -71,7 +71,8 @@ impl Intake {
         }
         let segment = Segment::try_from(w).map_err(|e| (e.reject, e.field))?;
         let inside = |p: &[f64; 3]| (0..3).all(|i| p[i] >= self.bounds_min[i] && p[i] <= self.bounds_max[i]);
-        if segment.kind != SegmentKind::Dwell && !inside(&w.end) {
+        // A standstill (dwell, heat) stands where the tool is, whatever point it names.
+        if !matches!(segment.kind, SegmentKind::Dwell | SegmentKind::Heat) && !inside(&w.end) {
             return Err((RejectReason::OutOfBounds, "end"));
         }
         Ok(segment)

@@ -44,11 +44,13 @@ use strand_wire::MAX_EXTERNAL_AXES;
 
 mod approach;
 mod command;
+mod heat;
 mod intake;
 mod tick;
 
 use approach::{Approach, ApproachStep, FirstPoint};
 use command::{CellJoints, JointCommandStage};
+use heat::{Heat, HeatVerdict};
 use intake::Intake;
 pub use tick::{
     ControllerConfig, ControllerError, ControllerSettings, CycleCounters, Event, MAX_BASE_POSES_PER_TICK, MAX_CONTROLS_PER_TICK,
@@ -128,7 +130,17 @@ pub struct Controller {
     /// Where along the base's plan the next (or this) job starts (m): `Command::ProgressOffset`,
     /// sent for a resumed job; 0 again when that job ends.
     base_offset: f64,
+    /// Temperatures: targets, waits, the cold-extrusion guard (heat.rs).
+    heat: Heat,
+    /// Heat segments that arrived before the job's first move (a program's `M190`/`M109` come
+    /// before its first travel): the first point is that move's, so they wait here until it (or
+    /// Start) opens the job, then go into the path in order.
+    pre_heat: [super::path::Segment; PRE_HEAT],
+    pre_heat_len: usize,
 }
+
+/// Heat segments a job may send before its first move (more open the job where the tool is).
+const PRE_HEAT: usize = 16;
 
 impl Controller {
     /// A controller for `model`, idle, not yet knowing where the robot is (it learns from the first
@@ -156,6 +168,9 @@ impl Controller {
             base_progress: 0.0,
             base_lead_in: 0.0,
             base_offset: 0.0,
+            heat: Heat::new(&settings.extruder),
+            pre_heat: [super::path::Segment::default(); PRE_HEAT],
+            pre_heat_len: 0,
             approach,
             first_point: None,
             state: RunState::Idle,
@@ -272,6 +287,11 @@ impl Controller {
         };
         self.transition_count = 0;
         self.take_joint_state(input, &mut out);
+        if let Some(h) = input.heater_state
+            && !self.heat.measure(&h, input.time_ns)
+        {
+            out.push(Event::HeaterStateRejected { seq: h.seq });
+        }
         for p in input.base_poses() {
             if self.base.update(input.time_ns, p.stamp_ns, p.position, p.orientation).is_err() {
                 out.push(Event::BasePoseRejected { seq: p.seq });
@@ -298,6 +318,7 @@ impl Controller {
         out.diagnostics.base = base;
         let q_des = self.motion(&base, &mut out);
         self.final_stage(&q_des, &mut out);
+        self.step_heat(input.time_ns, &mut out);
         self.after_motion(input.time_ns, &mut out);
         self.step_base_setpoint();
 
@@ -336,6 +357,8 @@ impl Controller {
             let (seq, line) = self.last_sample.map_or((0, 0), |s| (s.seq, s.source_line));
             out.push(Event::Fault { code, seq, line, value });
         }
+        self.heat.fault();
+        self.pre_heat_len = 0;
         if self.job_open {
             self.end_job(JobOutcome::Faulted, out);
         }
@@ -459,6 +482,10 @@ impl Controller {
                 RunState::Running | RunState::Pausing | RunState::Paused | RunState::Approaching => self.begin_stop(FaultCode::None),
                 RunState::Idle => {
                     // Nothing moving: drop whatever was queued for the next job.
+                    if self.pre_heat_len > 0 && !self.job_open {
+                        self.pre_heat_len = 0;
+                        self.end_job(JobOutcome::Stopped, out);
+                    }
                     if self.job_open {
                         let (p, q) = self.tool_world(now_ns);
                         self.engine.reset_at(p, q);
@@ -485,6 +512,7 @@ impl Controller {
                 let (p, q) = self.tool_world(now_ns);
                 self.engine.reset_at(p, q);
                 self.job_open = false;
+                self.pre_heat_len = 0;
                 self.intake.restart_sequence();
                 self.set_state(RunState::Idle);
             }
@@ -546,6 +574,21 @@ impl Controller {
             return Err((RejectReason::NotReady, ""));
         }
         let mut segment = self.intake.admit(w)?;
+        if segment.kind == SegmentKind::Heat {
+            if !self.heat.has_room() {
+                return Err((RejectReason::QueueFull, ""));
+            }
+            if !self.job_open && self.pre_heat_len < PRE_HEAT {
+                // Before the job's first move: kept until that move says where the job starts.
+                self.pre_heat[self.pre_heat_len] = segment;
+                self.pre_heat_len += 1;
+                self.intake.accepted(seq);
+                if self.state == RunState::Idle {
+                    self.outcome = JobOutcome::InProgress;
+                }
+                return Ok(());
+            }
+        }
         if let (Some(axes), Some(positioner)) = (segment.axes, &self.positioner) {
             let model = positioner.model();
             if (0..positioner.dof()).any(|i| !(model.limits(i).lower..=model.limits(i).upper).contains(&axes[i])) {
@@ -580,6 +623,7 @@ impl Controller {
                 return Err((RejectReason::NotReady, ""));
             };
             self.engine.reset_with_axes(first.0, first.1, first.2);
+            self.flush_pre_heat(first.0);
             self.first_point = Some(first);
             // The base's plan counts progress from the end of the leading travel (what the
             // approach replaced); a new job reads it from its start again (or from
@@ -592,12 +636,15 @@ impl Controller {
             self.base_progress = self.base_offset;
             // A job may open with a standstill (a slicer's first retraction, `G10`, a `G4`): it
             // stands wherever the tool is, whatever point the program had in mind.
-            if segment.kind == SegmentKind::Dwell {
+            if matches!(segment.kind, SegmentKind::Dwell | SegmentKind::Heat) {
                 segment.end = first.0;
             }
         }
         match self.engine.push(&segment) {
             Ok(()) => {
+                if segment.kind == SegmentKind::Heat {
+                    self.heat.push(seq, segment.heat);
+                }
                 self.job_open = true;
                 self.intake.accepted(seq);
                 if self.state == RunState::Idle {
@@ -617,6 +664,7 @@ impl Controller {
             let (p, q) = self.tool_world(now_ns);
             let axes = self.axes_command();
             self.engine.reset_with_axes(p, q, axes);
+            self.flush_pre_heat(p);
             self.first_point = Some((p, q, axes));
             // A new job reads the base's plan from its start again (or from `Command::ProgressOffset`).
             self.base_progress = self.base_offset;
@@ -641,6 +689,33 @@ impl Controller {
         }
     }
 
+    /// The heat segments kept before the job's first move, into the path at `at` (m, W: the
+    /// job's first point, where the tool will stand for them), in order.
+    fn flush_pre_heat(&mut self, at: Vector3<f64>) {
+        for k in 0..self.pre_heat_len {
+            let segment = super::path::Segment { end: at, ..self.pre_heat[k] };
+            // The queue was just emptied: it has room for these few.
+            if self.engine.push(&segment).is_ok() {
+                self.heat.push(segment.seq, segment.heat);
+            }
+        }
+        self.pre_heat_len = 0;
+    }
+
+    /// The heat stage after this tick's motion ([`Heat::step`]): targets the path reached, the
+    /// wait, the cold-extrusion and stale-temperature guards.
+    fn step_heat(&mut self, now_ns: u64, out: &mut TickOutput) {
+        let on_path = matches!(self.state, RunState::Running | RunState::Pausing | RunState::Paused | RunState::Stopping)
+            && !self.settling
+            && !self.stop_by_brake;
+        let sample = if on_path { self.last_sample } else { None };
+        match self.heat.step(&mut self.engine, sample.as_ref(), now_ns) {
+            HeatVerdict::Fine => {}
+            HeatVerdict::Skipped(seq) => out.push(Event::HeatWaitSkipped { seq }),
+            HeatVerdict::Fault(code) => self.latch_fault(code, out),
+        }
+    }
+
     fn enter_running(&mut self) {
         self.clik.reset(self.command.qd);
         self.speed_scale = 1.0;
@@ -659,6 +734,8 @@ impl Controller {
     }
 
     fn end_job(&mut self, outcome: JobOutcome, out: &mut TickOutput) {
+        self.heat.end_job(outcome == JobOutcome::Finished);
+        self.pre_heat_len = 0;
         self.outcome = outcome;
         self.job_open = false;
         self.base_offset = 0.0;
@@ -901,7 +978,12 @@ impl Controller {
             matches!(self.state, RunState::Running | RunState::Pausing | RunState::Stopping) && !self.settling && !self.stop_by_brake;
         let progress = self.engine.progress();
         // `has_work` walks the window, so it is asked only on a tick without progress.
-        let stalled = running && progress == self.progress_mark && !self.engine.is_held() && self.engine.has_work();
+        // A heat wait stands still by design: its own guard is the temperature's timeout.
+        let stalled = running
+            && progress == self.progress_mark
+            && !self.engine.is_held()
+            && self.engine.waiting_at().is_none()
+            && self.engine.has_work();
         let Some(since) = self.progress_ns.filter(|_| stalled) else {
             // Waiting, moving on, or the first look: the clock starts now.
             self.progress_mark = progress;
@@ -1006,7 +1088,15 @@ impl Controller {
             jc.velocity[i] = self.command.qd[i];
             jc.acceleration[i] = self.command.qdd[i];
         }
-        let e = self.extruder_command();
+        let mut e = self.extruder_command();
+        if e.filament_rate > 0.0
+            && let Some(code) = self.heat.push_fault(input.time_ns)
+        {
+            // The last guard: nothing is pushed into a cold (or unmeasured) hot end.
+            self.latch_fault(code, out);
+            self.extruder.halt();
+            e = super::extrude::ExtruderCommand { position: self.extruder.position(), ..Default::default() };
+        }
         let finite = [e.motor_speed, e.filament_rate, e.position, e.volumetric_rate].iter().all(|x| x.is_finite());
         out.extruder = ipc::ExtruderCommand {
             seq,
@@ -1052,7 +1142,10 @@ impl Controller {
             path_position: sample.map_or(0.0, |s| s.s),
             path_speed: sample.map_or(0.0, |s| s.speed),
             tcp_error: self.last_clik.map_or(0.0, |c| c.position_error),
+            ..Default::default()
         };
+        self.heat.fill_status(&mut out.status, input.time_ns);
+        out.heater = self.heat.command(seq, input.time_ns, input.tick);
         if let Some(b) = &self.base_setpoint {
             out.base_command = b.command(seq, input.time_ns, input.tick);
         }

@@ -164,6 +164,9 @@ pub struct TickInput {
     pub base_poses: [ipc::BasePose; MAX_BASE_POSES_PER_TICK],
     /// Tracking samples used.
     pub base_pose_count: u32,
+    /// The latest heater measurement, if one arrived since the last tick (`[extruder] heater =
+    /// "wire"`: from strand-sim's thermal model or a board's process).
+    pub heater_state: Option<ipc::HeaterState>,
     /// The shell saw no segment publisher left while a job was in progress.
     pub feeder_lost: bool,
     /// The shell's timing counters.
@@ -189,6 +192,7 @@ impl TickInput {
             joint_state: None,
             base_poses: [ipc::BasePose::default(); MAX_BASE_POSES_PER_TICK],
             base_pose_count: 0,
+            heater_state: None,
             feeder_lost: false,
             cycle: CycleCounters::default(),
         }
@@ -202,6 +206,7 @@ impl TickInput {
         self.control_count = 0;
         self.joint_state = None;
         self.base_pose_count = 0;
+        self.heater_state = None;
         self.feeder_lost = false;
     }
 
@@ -321,6 +326,18 @@ pub enum Event {
         /// The joint (chain order).
         joint: u8,
     },
+    /// A heat wait was passed without waiting: the service has no temperature source
+    /// (`[extruder] heater = "none"`).
+    HeatWaitSkipped {
+        /// The wait's segment.
+        seq: u64,
+    },
+    /// A heater measurement was refused (a temperature not finite or outside −60…1000 °C: an
+    /// open or shorted thermistor); it goes stale (`TemperatureLost` when one is needed).
+    HeaterStateRejected {
+        /// Its sequence number.
+        seq: u64,
+    },
 }
 
 /// Diagnostic values of a tick that are not on the wire but belong in the log.
@@ -357,6 +374,8 @@ pub struct TickOutput {
     pub extruder: ipc::ExtruderCommand,
     /// For a moving base's controller (`valid` 0 without a `[base] plan`).
     pub base_command: ipc::BaseCommand,
+    /// For the heaters' owner (strand-sim's thermal model, a board's process).
+    pub heater: ipc::HeaterCommand,
     /// For feeders and HMIs.
     pub status: ipc::Status,
     /// Events of this tick (`event_count` used).
@@ -375,6 +394,7 @@ impl Default for TickOutput {
             joint_command: ipc::JointCommand::default(),
             extruder: ipc::ExtruderCommand::default(),
             base_command: ipc::BaseCommand::default(),
+            heater: ipc::HeaterCommand::default(),
             status: ipc::Status::default(),
             events: [Event::Clamped { joint: 0 }; MAX_EVENTS],
             event_count: 0,

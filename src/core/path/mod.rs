@@ -11,4 +11,6 @@ pub use config::{InvalidPathConfig, PathConfig, PlanningMode};
 pub use engine::{AxisLimits, Motion, PathEngine, PathSample, PathStats, SegmentError};
 pub use geometry::{Geometry, PathPoint, arc_geometry};
 pub use geometry::{distance_to_arc, distance_to_segment};
-pub use segment::{InvalidSegment, MAX_ARC_SWEEP, Segment, SegmentFlags, SegmentKind};
+pub use segment::{
+    HeatRequest, HeatWait, Heater, InvalidSegment, MAX_ARC_SWEEP, MAX_TEMPERATURE, OPEN_BAND, Segment, SegmentFlags, SegmentKind,
+};

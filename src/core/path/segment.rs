@@ -12,6 +12,15 @@ use strand_wire::RejectReason;
 /// extruder pushing `filament` evenly meanwhile (a slicer's retraction).
 pub use strand_wire::SegmentKind;
 
+/// Which heater a heat segment is about, and how it holds the job (the wire's enums).
+pub use strand_wire::{HeatWait, Heater};
+
+/// The highest target or band a heat segment may name (°C): above any hot end's or bed's rating,
+/// so a typo (`M104 S2100`) is refused.
+pub const MAX_TEMPERATURE: f64 = 500.0;
+/// A [`HeatWait::Range`] band's open ends (°C): absolute zero and 10,000 °C.
+pub const OPEN_BAND: [f64; 2] = [-273.15, 10_000.0];
+
 /// The most an arc may turn (rad): 1,000 full turns. A helix of more turns is a program error, not
 /// a path (at a 0.2 mm pitch it is 20 cm of spring), and the bound keeps the arc's length and its
 /// sampling finite. The G-code parser (`P` turns), the segment file and the engine's intake all
@@ -81,6 +90,22 @@ pub struct Segment {
     /// are. Over the segment they move in proportion to the path travelled; the points are then in
     /// the work frame at home (where they lie in W with every external axis at 0).
     pub axes: Option<[f64; ipc::MAX_EXTERNAL_AXES]>,
+    /// Heat segments ([`SegmentKind::Heat`]): the heater, the hold, the new target (°C; 0 off,
+    /// < 0 keeps the current one) and a [`HeatWait::Range`] band (°C, low and high).
+    pub heat: HeatRequest,
+}
+
+/// What a heat segment asks for (°C, the wire's exception to SI).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct HeatRequest {
+    /// Which heater.
+    pub heater: Heater,
+    /// How the job holds.
+    pub wait: HeatWait,
+    /// The new target (°C; 0 off; < 0 keeps the current target).
+    pub target: f64,
+    /// The band of a [`HeatWait::Range`] hold (°C, low then high).
+    pub band: [f64; 2],
 }
 
 impl Default for Segment {
@@ -100,6 +125,7 @@ impl Default for Segment {
             source_line: 0,
             pressure_advance: None,
             axes: None,
+            heat: HeatRequest::default(),
         }
     }
 }
@@ -171,6 +197,24 @@ impl Segment {
                     return invalid(BadFeed, "feed", "must be finite and > 0");
                 }
             }
+            SegmentKind::Heat => {
+                let h = &self.heat;
+                if !(h.target.is_finite() && h.band.iter().all(|t| t.is_finite())) {
+                    return invalid(NonFinite, "temperature", "is not finite");
+                }
+                if h.target > MAX_TEMPERATURE {
+                    return invalid(BadGeometry, "temperature", "must be <= 500 degC (< 0 keeps the target)");
+                }
+                if h.target < 0.0 && matches!(h.wait, HeatWait::Heating | HeatWait::Both) {
+                    return invalid(BadGeometry, "temperature", "a wait for the target needs a target >= 0 degC");
+                }
+                if h.wait == HeatWait::Range && !(h.band[0] >= OPEN_BAND[0] && h.band[0] <= h.band[1] && h.band[1] <= OPEN_BAND[1]) {
+                    return invalid(BadGeometry, "temperature_range", "must be low <= high within [-273.15, 10000] degC");
+                }
+                if self.filament != 0.0 || self.duration != 0.0 {
+                    return invalid(BadGeometry, "filament", "a heat segment moves nothing (filament and duration 0)");
+                }
+            }
         }
         if (q.norm() - 1.0).abs() > 1e-6 {
             return invalid(BadGeometry, "orientation", "is not a finite unit quaternion");
@@ -199,6 +243,17 @@ impl TryFrom<&ipc::Segment> for Segment {
         let Some(kind) = SegmentKind::from_u32(w.kind) else {
             return Err(InvalidSegment { reject: RejectReason::UnknownKind, field: "kind", reason: "is not a segment kind" });
         };
+        let heat = if kind == SegmentKind::Heat {
+            let Some(heater) = Heater::from_u32(w.heater) else {
+                return Err(InvalidSegment { reject: RejectReason::UnknownKind, field: "heater", reason: "is not a heater" });
+            };
+            let Some(wait) = HeatWait::from_u32(w.heat_wait) else {
+                return Err(InvalidSegment { reject: RejectReason::UnknownKind, field: "heat_wait", reason: "is not a heat wait" });
+            };
+            HeatRequest { heater, wait, target: w.temperature, band: w.temperature_range }
+        } else {
+            HeatRequest::default()
+        };
         let finite = |v: &[f64]| v.iter().all(|x| x.is_finite());
         for (field, ok) in
             [("orientation", finite(&w.orientation)), ("pressure_advance", w.pressure_advance.is_finite()), ("axes", finite(&w.axes))]
@@ -224,6 +279,7 @@ impl TryFrom<&ipc::Segment> for Segment {
             source_line: w.source_line,
             pressure_advance: (w.flags & ipc::segment_flags::PRESSURE_ADVANCE != 0).then_some(w.pressure_advance),
             axes: (w.flags & ipc::segment_flags::AXES != 0).then_some(w.axes),
+            heat,
         };
         segment.check()?;
         // The controller used to renormalise here: keep the bits the engine has always seen.

@@ -9,7 +9,7 @@ mod resume;
 mod stream;
 
 pub use keys::{Key, Keys};
-pub use resume::{LogStop, Reentry, ResumePoint};
+pub use resume::{LogResume, LogStop, Reentry, ResumePoint};
 pub use stream::{StreamOptions, check, stream};
 
 use std::path::Path;
@@ -58,6 +58,7 @@ pub fn load_gcode(path: &Path, cfg: &Config, resume_from: Option<u64>) -> Result
     let bed = cfg.bed_transform()?;
     let (mut all, mut warnings) = load_segments_with(path, &bed, cfg.gcode_options())?;
     warnings.extend(program_pressure_advance(all.iter().map(|(s, _)| s), cfg));
+    warnings.extend(skipped_heat_waits(all.iter().map(|(s, _)| s), cfg));
     let mut start = bed.point(&GcodeOptions::default().start);
     let mut skipped = 0;
     let mut progress_offset = 0.0;
@@ -87,10 +88,30 @@ pub fn load_gcode(path: &Path, cfg: &Config, resume_from: Option<u64>) -> Result
                 }
                 at = s.end;
             }
+            // The temperatures the skipped part set, hot end and bed, as waits before the travel:
+            // the resumed job heats (and waits) as the whole one would have at segment k.
+            let mut heats: Vec<Segment> = Vec::new();
+            for heater in [strand_core::Heater::Bed, strand_core::Heater::HotEnd] {
+                let last = all[..k]
+                    .iter()
+                    .rev()
+                    .map(|(s, _)| s)
+                    .find(|s| s.kind == SegmentKind::Heat && s.heat.heater == heater && s.heat.target >= 0.0);
+                if let Some(h) = last {
+                    let wait = if h.heat.target > 0.0 { strand_core::HeatWait::Heating } else { strand_core::HeatWait::None };
+                    heats.push(Segment { heat: strand_core::HeatRequest { wait, ..h.heat }, flags: SegmentFlags::default(), ..*h });
+                }
+            }
             start = if k >= 2 { all[k - 2].0.end } else { start };
             skipped = k;
             all.drain(..k);
             all.insert(0, (travel, layer));
+            let first = travel.seq.saturating_sub(heats.len() as u64);
+            if first >= 1 {
+                for (i, h) in heats.iter().enumerate() {
+                    all.insert(i, (Segment { seq: first + i as u64, ..*h }, layer));
+                }
+            }
         }
     }
     let last = all.len() - 1;
@@ -108,6 +129,23 @@ pub fn load_gcode(path: &Path, cfg: &Config, resume_from: Option<u64>) -> Result
         progress_offset,
         warnings,
     })
+}
+
+/// A program's heat waits (`M109`, `M190`, `TEMPERATURE_WAIT`) on a cell without a temperature
+/// source (`[extruder] heater = "none"`): the service skips them; said once, before streaming,
+/// with their count and the first line, so nobody believes the job waited for its heaters.
+fn skipped_heat_waits<'a>(segments: impl Iterator<Item = &'a Segment>, cfg: &Config) -> Option<String> {
+    if cfg.extruder.heater != strand_core::HeaterSource::None {
+        return None;
+    }
+    let waits: Vec<u32> =
+        segments.filter(|s| s.kind == SegmentKind::Heat && s.heat.wait != strand_core::HeatWait::None).map(|s| s.source_line).collect();
+    let first = waits.first()?;
+    Some(format!(
+        "the program waits for its heaters {} times (first at line {first}); this cell has no temperature source \
+         ([extruder] heater = \"none\"): the service sets the targets but skips the waits",
+        waits.len()
+    ))
 }
 
 /// What becomes of the pressure advance a program sets (`M900 K`, `M572 S`, `SET_PRESSURE_ADVANCE`):
@@ -330,18 +368,22 @@ mod tests {
         let top =
             whole.segments[..k].iter().filter(|s| s.flags & ipc::segment_flags::EXTRUDE != 0).map(|s| s.end[2]).fold(f64::MIN, f64::max);
         let start = whole.segments[k - 1].end;
-        // Up to the clearance above the part, over the layer's start; straight down; a prime.
-        let (up, down, prime) = (&resumed.segments[0], &resumed.segments[1], &resumed.segments[2]);
+        // Re-heat (the program's last targets before the layer, as waits), then up to the
+        // clearance above the part, over the layer's start; straight down; a prime.
+        let heats = resumed.segments.iter().take_while(|s| s.kind == ipc::SegmentKind::Heat as u32).count();
+        assert_eq!(heats, 2, "the bed's and the hot end's targets");
+        assert!(resumed.segments[..heats].iter().all(|s| s.heat_wait == ipc::HeatWait::Heating as u32 && s.temperature > 0.0));
+        let (up, down, prime) = (&resumed.segments[heats], &resumed.segments[heats + 1], &resumed.segments[heats + 2]);
         assert!((up.end[2] - (top.max(start[2]) + 0.01)).abs() < 1e-12, "{:?} vs top {top}", up.end);
         assert_eq!((up.end[0], up.end[1]), (start[0], start[1]));
         assert_eq!(down.end, start);
         assert!(up.flags & ipc::segment_flags::TRAVEL != 0 && down.flags & ipc::segment_flags::TRAVEL != 0);
         assert_eq!((prime.kind, prime.filament), (ipc::SegmentKind::Dwell as u32, 0.001));
         // Then the layer, with the program's numbers, consecutive throughout.
-        assert_eq!(resumed.segments[3].seq, whole.segments[k].seq);
-        assert_eq!(resumed.segments[3].end, whole.segments[k].end);
+        assert_eq!(resumed.segments[heats + 3].seq, whole.segments[k].seq);
+        assert_eq!(resumed.segments[heats + 3].end, whole.segments[k].end);
         assert!(resumed.segments.windows(2).all(|w| w[1].seq == w[0].seq + 1));
-        assert_eq!(resumed.segments.len(), whole.segments.len() - k + 3);
+        assert_eq!(resumed.segments.len(), whole.segments.len() - k + heats + 3);
         assert_eq!((resumed.layers.len(), resumed.lengths.len()), (resumed.segments.len(), resumed.segments.len()));
         // A layer the program does not have is an error naming the range.
         let e = whole.from_layer(100_000, &r).unwrap_err().to_string();

@@ -20,7 +20,7 @@ use std::time::Instant;
 
 use clap::Parser;
 use strand::config::{Config, locate};
-use strand_feed::{Ending, Keys, LogStop, Reentry, StreamOptions, check, load_gcode, stream};
+use strand_feed::{Ending, Keys, LogResume, Reentry, StreamOptions, check, load_gcode, stream};
 use strand_ipc as ipc;
 
 #[derive(Parser)]
@@ -112,30 +112,9 @@ fn main() -> ExitCode {
     let loaded = load_gcode(&cli.file, &cfg, cli.resume_from).and_then(|j| match (cli.resume_layer, &cli.resume_from_log) {
         (Some(layer), _) => j.from_layer(layer, &Reentry { prime: cli.prime.map_or(reentry.prime, |mm| mm * 1e-3), ..reentry }),
         (None, Some(log)) => {
-            let stop = LogStop::read(log)?;
-            let mut point = j.resume_point(&stop)?;
-            eprintln!("{}", resume_summary(&cli.file, &stop, &point));
             let prefix = cli.prefix.clone().unwrap_or_else(|| cfg.service.prefix.clone());
-            if let Some((tcp, advanced)) = standing_nozzle(&cfg, &prefix).and_then(|tcp| Some((tcp, j.advance_to(&point, tcp, 1e-3, 0.05)?)))
-            {
-                let moved = (nalgebra::Vector3::from(advanced.at) - nalgebra::Vector3::from(point.at)).norm();
-                eprintln!(
-                    "strand-feed: the nozzle stands {:.2} mm further along the path than the log's last tick (at [{:.3}, {:.3}, {:.3}] mm): \
-                     resuming there, line {}, segment {} ({:.0} % along it)",
-                    moved * 1e3,
-                    tcp[0] * 1e3,
-                    tcp[1] * 1e3,
-                    tcp[2] * 1e3,
-                    advanced.line,
-                    advanced.seq,
-                    advanced.fraction * 100.0
-                );
-                point = advanced;
-            }
-            // Prime what the controller retracted when it ended the run; a crash retracted nothing.
-            let prime = cli.prime.map_or(if stop.retracted { reentry.prime } else { 0.0 }, |mm| mm * 1e-3);
-            eprintln!("strand-feed: resume point at [{:.3}, {:.3}, {:.3}] mm (W); prime {:.2} mm of filament", point.at[0] * 1e3, point.at[1] * 1e3, point.at[2] * 1e3, prime * 1e3);
-            Ok(j.from_point(&point, &Reentry { prime, ..reentry }))
+            let prime = cli.prime.map(|mm| mm * 1e-3);
+            j.from_log(&LogResume { program: &cli.file, log, cfg: &cfg, prefix: &prefix, reentry, prime }, &mut |line| eprintln!("{line}"))
         }
         (None, None) => Ok(j),
     });
@@ -225,58 +204,4 @@ fn main() -> ExitCode {
             ExitCode::from(1)
         }
     }
-}
-
-/// What `--resume-from-log` found, in the operator's terms: the program's line and layer, the point
-/// in the bed's millimetres as the program has them (W here), how far along its segment.
-fn resume_summary(file: &std::path::Path, stop: &LogStop, p: &strand_feed::ResumePoint) -> String {
-    let outcome = ipc::JobOutcome::from_u32(stop.outcome).map_or(format!("outcome {}", stop.outcome), |o| format!("{o:?}"));
-    format!(
-        "strand-feed: resuming {} at line {}, layer {}, segment {} ({:.0} % along it), at [{:.3}, {:.3}, {:.3}] mm (W); \
-         from {} ({}; {} ticks; the run's last state {outcome}; the extruder had pushed {:.1} mm)",
-        file.display(),
-        p.line,
-        p.layer.map_or("-".to_string(), |l| l.to_string()),
-        p.seq,
-        p.fraction * 100.0,
-        p.at[0] * 1e3,
-        p.at[1] * 1e3,
-        p.at[2] * 1e3,
-        stop.log.display(),
-        if stop.cut { "cut short: read to its last closed chunk" } else { "finished file" },
-        stop.ticks,
-        stop.filament_position * 1e3,
-    )
-}
-
-/// Where the nozzle stands now (m, W), from the robot's newest JointState on `prefix` (within 0.5 s):
-/// after the service died, a robot that held its position says where the print really stopped.
-/// `None` without a driver, for a cell with a positioner (the part moved with it) or a tracked
-/// base (the pose the service estimated is gone).
-fn standing_nozzle(cfg: &Config, prefix: &str) -> Option<[f64; 3]> {
-    use strand_ipc::ports::{ClientPorts, ClientRoles};
-    if cfg.robot.external_axes().is_some() || cfg.base.mode != strand_core::BaseMode::Fixed {
-        return None;
-    }
-    let model = cfg.robot.build_model().ok()?;
-    let roles = ClientRoles { measurements: true, ..Default::default() };
-    let ports = ClientPorts::open(&ipc::ServiceNames::new(prefix), &format!("strand-feed-resume-{}", std::process::id()), roles).ok()?;
-    let deadline = Instant::now() + std::time::Duration::from_millis(500);
-    let state = loop {
-        if let Some(s) = ports.latest_joint_state() {
-            break s;
-        }
-        if Instant::now() >= deadline {
-            return None;
-        }
-        std::thread::sleep(std::time::Duration::from_millis(5));
-    };
-    let dof = model.dof();
-    if (state.dof as usize) < dof || !state.position[..dof].iter().all(|v| v.is_finite()) {
-        return None;
-    }
-    let mut q = strand_core::kin::JointVector::zeros();
-    q.as_mut_slice()[..dof].copy_from_slice(&state.position[..dof]);
-    let tcp = cfg.base.mount() * model.forward_kinematics(&q);
-    Some(tcp.translation.vector.into())
 }

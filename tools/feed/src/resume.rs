@@ -16,6 +16,7 @@ use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
 use nalgebra::Vector3;
+use strand::config::Config;
 use strand::log::reader::LogFile;
 use strand_cli::error::{Result, ToolError};
 use strand_ipc as ipc;
@@ -61,6 +62,28 @@ pub struct LogStop {
 }
 
 impl LogStop {
+    /// What the log says, in the operator's terms: the program's line and layer, the point (W, mm),
+    /// how far along its segment, and how the run ended.
+    pub fn summary(&self, program: &Path, p: &ResumePoint) -> String {
+        let outcome = ipc::JobOutcome::from_u32(self.outcome).map_or(format!("outcome {}", self.outcome), |o| format!("{o:?}"));
+        format!(
+            "strand-feed: resuming {} at line {}, layer {}, segment {} ({:.0} % along it), at [{:.3}, {:.3}, {:.3}] mm (W); \
+             from {} ({}; {} ticks; the run's last state {outcome}; the extruder had pushed {:.1} mm)",
+            program.display(),
+            p.line,
+            p.layer.map_or("-".to_string(), |l| l.to_string()),
+            p.seq,
+            p.fraction * 100.0,
+            p.at[0] * 1e3,
+            p.at[1] * 1e3,
+            p.at[2] * 1e3,
+            self.log.display(),
+            if self.cut { "cut short: read to its last closed chunk" } else { "finished file" },
+            self.ticks,
+            self.filament_position * 1e3,
+        )
+    }
+
     /// Reads `path` (finished or cut short) for where its job stopped. Refused: a log with no job in
     /// it, or one whose job finished (nothing to resume).
     pub fn read(path: &Path) -> Result<LogStop> {
@@ -109,6 +132,22 @@ impl LogStop {
             retracted: log.finished || outcome != ipc::JobOutcome::InProgress as u32,
         })
     }
+}
+
+/// What `--resume-from-log` needs beside the job.
+pub struct LogResume<'a> {
+    /// The program (for the messages).
+    pub program: &'a Path,
+    /// The log of the run that stopped.
+    pub log: &'a Path,
+    /// The service config (the robot, for where a standing nozzle is).
+    pub cfg: &'a Config,
+    /// The service prefix a robot driver publishes joint states under.
+    pub prefix: &'a str,
+    /// The re-entry (its `prime` is what a controller-ended run retracted).
+    pub reentry: Reentry,
+    /// `--prime` (m), overriding the choice by how the run ended.
+    pub prime: Option<f64>,
 }
 
 /// Where a job resumes from a log: the segment, how far along it (0 its start, 1 its end) and the
@@ -190,6 +229,43 @@ impl Job {
         Ok(ResumePoint { index: k, seq: ours.seq, line: ours.source_line, layer: layers[k], fraction, at: at.into() })
     }
 
+    /// The job resumed where `r.log`'s run stopped: the point the log says ([`Job::resume_point`]),
+    /// moved forward to where a robot that held its position stands ([`Job::advance_to`], the
+    /// nozzle within 1 mm of the path at most 50 mm on), primed with what the controller retracted
+    /// when it ended the run (nothing after a crash) unless `r.prime` says. Each finding is told to
+    /// `say`, in the operator's terms, before anything is sent.
+    pub fn from_log(self, r: &LogResume, say: &mut dyn FnMut(String)) -> Result<Job> {
+        let stop = LogStop::read(r.log)?;
+        let mut point = self.resume_point(&stop)?;
+        say(stop.summary(r.program, &point));
+        if let Some((tcp, advanced)) =
+            standing_nozzle(r.cfg, r.prefix).and_then(|tcp| Some((tcp, self.advance_to(&point, tcp, 1e-3, 0.05)?)))
+        {
+            let moved = (Vector3::from(advanced.at) - Vector3::from(point.at)).norm();
+            say(format!(
+                "strand-feed: the nozzle stands {:.2} mm further along the path than the log's last tick (at [{:.3}, {:.3}, {:.3}] mm): \
+                 resuming there, line {}, segment {} ({:.0} % along it)",
+                moved * 1e3,
+                tcp[0] * 1e3,
+                tcp[1] * 1e3,
+                tcp[2] * 1e3,
+                advanced.line,
+                advanced.seq,
+                advanced.fraction * 100.0
+            ));
+            point = advanced;
+        }
+        let prime = r.prime.unwrap_or(if stop.retracted { r.reentry.prime } else { 0.0 });
+        say(format!(
+            "strand-feed: resume point at [{:.3}, {:.3}, {:.3}] mm (W); prime {:.2} mm of filament",
+            point.at[0] * 1e3,
+            point.at[1] * 1e3,
+            point.at[2] * 1e3,
+            prime * 1e3
+        ));
+        Ok(self.from_point(&point, &Reentry { prime, ..r.reentry }))
+    }
+
     /// `p` moved forward along the job to where the nozzle stands at `tcp` (m, W), if the nozzle is
     /// within `tolerance` (m) of the path between `p` and `reach` (m of path) after it: the log
     /// lags the nozzle by up to its last open chunk, which a robot that stood still where the
@@ -254,7 +330,18 @@ impl Job {
             source_line: self.segments[k].source_line,
             ..ipc::Segment::default()
         };
-        let mut lead = vec![travel(safe), travel(start)];
+        // Re-heat first: the last target each heater had before the resume point (bed, then hot
+        // end, as slicers order them), as a wait when it heats — the job resumes as hot as it was.
+        let mut lead: Vec<ipc::Segment> = Vec::new();
+        for heater in [ipc::Heater::Bed, ipc::Heater::HotEnd] {
+            let last =
+                printed.iter().rev().find(|s| s.kind == ipc::SegmentKind::Heat as u32 && s.heater == heater as u32 && s.temperature >= 0.0);
+            if let Some(h) = last {
+                let wait = if h.temperature > 0.0 { ipc::HeatWait::Heating } else { ipc::HeatWait::None };
+                lead.push(ipc::Segment { heat_wait: wait as u32, flags: 0, ..*h });
+            }
+        }
+        lead.extend([travel(safe), travel(start)]);
         if r.prime > 0.0 && r.prime_speed > 0.0 {
             lead.push(ipc::Segment {
                 kind: ipc::SegmentKind::Dwell as u32,
@@ -283,9 +370,11 @@ impl Job {
         for (i, s) in segments.iter_mut().take(lead.len()).enumerate() {
             s.seq = base + i as u64;
         }
-        let mut lengths = vec![(Vector3::from(safe) - Vector3::from(start)).norm(), r.clearance.max(safe[2] - start[2])];
-        lengths.resize(lead.len(), 0.0);
-        lengths[0] = 0.0; // from wherever the approach leaves the tool
+        // The lead's lengths: the heats none, the travel up from wherever the approach leaves the
+        // tool none, the travel down its height, the prime none.
+        let heats = lead.len() - 2 - usize::from(r.prime > 0.0 && r.prime_speed > 0.0);
+        let mut lengths = vec![0.0; lead.len()];
+        lengths[heats + 1] = r.clearance.max(safe[2] - start[2]);
         lengths.push(first_length);
         lengths.extend_from_slice(&self.lengths[k + 1..]);
         let mut layers = vec![layer; lead.len()];
@@ -293,17 +382,48 @@ impl Job {
         // Where a moving base's plan goes on from: the path before the resume point (past the
         // leading travel), less the travel down onto it (which the controller's progress counts).
         let before: f64 = self.lengths[..k].iter().skip(usize::from(self.leads_with_travel())).sum::<f64>() + skipped_of_k;
-        let progress_offset = (self.progress_offset + before - lengths[1]).max(0.0);
+        let progress_offset = (self.progress_offset + before - lengths[heats + 1]).max(0.0);
         self.skipped += k;
         Job { segments, layers, lengths, skipped: self.skipped, progress_offset, warnings: self.warnings }
     }
+}
+
+/// Where the nozzle stands now (m, W), from the robot's newest JointState on `prefix` (within 0.5 s):
+/// after the service died, a robot that held its position says where the print really stopped.
+/// `None` without a driver, for a cell with a positioner (the part moved with it) or a tracked
+/// base (the pose the service estimated is gone).
+fn standing_nozzle(cfg: &Config, prefix: &str) -> Option<[f64; 3]> {
+    use strand_ipc::ports::{ClientPorts, ClientRoles};
+    if cfg.robot.external_axes().is_some() || cfg.base.mode != strand_core::BaseMode::Fixed {
+        return None;
+    }
+    let model = cfg.robot.build_model().ok()?;
+    let roles = ClientRoles { measurements: true, ..Default::default() };
+    let ports = ClientPorts::open(&ipc::ServiceNames::new(prefix), &format!("strand-feed-resume-{}", std::process::id()), roles).ok()?;
+    let deadline = std::time::Instant::now() + std::time::Duration::from_millis(500);
+    let state = loop {
+        if let Some(s) = ports.latest_joint_state() {
+            break s;
+        }
+        if std::time::Instant::now() >= deadline {
+            return None;
+        }
+        std::thread::sleep(std::time::Duration::from_millis(5));
+    };
+    let dof = model.dof();
+    if (state.dof as usize) < dof || !state.position[..dof].iter().all(|v| v.is_finite()) {
+        return None;
+    }
+    let mut q = strand_core::kin::JointVector::zeros();
+    q.as_mut_slice()[..dof].copy_from_slice(&state.position[..dof]);
+    let tcp = cfg.base.mount() * model.forward_kinematics(&q);
+    Some(tcp.translation.vector.into())
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::load_gcode;
-    use strand::config::Config;
 
     fn job() -> Job {
         let cfg = Config::load(Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../../config/default.toml"))).unwrap();
@@ -346,14 +466,16 @@ mod tests {
         let resumed = job.clone().from_point(&p, &r);
         // Up over the point, down onto it (no prime after a crash), then the rest of the segment:
         // its end, 60 % of its filament and of its length.
-        let (up, down, rest) = (&resumed.segments[0], &resumed.segments[1], &resumed.segments[2]);
+        let heats = resumed.segments.iter().take_while(|s| s.kind == ipc::SegmentKind::Heat as u32).count();
+        assert_eq!(heats, 2, "re-heated first: the bed's and the hot end's last targets");
+        let (up, down, rest) = (&resumed.segments[heats], &resumed.segments[heats + 1], &resumed.segments[heats + 2]);
         assert_eq!((up.end[0], up.end[1]), (p.at[0], p.at[1]));
         assert!(up.end[2] >= p.at[2] + 0.01 - 1e-12);
         assert_eq!(down.end, p.at);
         assert_eq!((rest.seq, rest.end), (job.segments[k].seq, job.segments[k].end));
         assert!((rest.filament - 0.6 * job.segments[k].filament).abs() < 1e-15);
-        assert!((resumed.lengths[2] - 0.6 * job.lengths[k]).abs() < 1e-12);
-        assert_eq!(resumed.segments.len(), job.segments.len() - k + 2);
+        assert!((resumed.lengths[heats + 2] - 0.6 * job.lengths[k]).abs() < 1e-12);
+        assert_eq!(resumed.segments.len(), job.segments.len() - k + heats + 2);
         assert!(resumed.segments.windows(2).all(|w| w[1].seq == w[0].seq + 1));
         // A robot standing further along moves the point forward; one elsewhere does not.
         let a = Vector3::from(job.segments[k - 1].end);

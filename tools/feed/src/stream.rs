@@ -82,6 +82,8 @@ pub fn stream(job: &Job, opts: &StreamOptions, interrupts: &AtomicU32, keys: Opt
     let mut control_seq = 0u64;
     let mut interrupts_handled = 0;
     let mut last_quiet_decile = 0;
+    // A heat wait said once in quiet mode (again at the next wait).
+    let mut heat_said = false;
     let mut silent_since: Option<Instant> = None;
     let mut progress = ipc::JobProgress {
         first_seq,
@@ -207,8 +209,10 @@ pub fn stream(job: &Job, opts: &StreamOptions, interrupts: &AtomicU32, keys: Opt
         let layer = job.layers.get(done).copied().flatten().map_or("-".to_string(), |l| l.to_string());
         let fraction = if total_length > 0.0 { done_length / total_length } else { 0.0 };
         bar.set_position(done as u64);
+        // The temperatures (strand ctl's words): a heat wait says what it waits for.
+        let heat = strand::ctl::heat_text(&status).map_or(String::new(), |h| format!(" | {h}"));
         bar.set_message(format!(
-            "layer {layer} | sent {sent} | {:?} | feed {:.0} %{}{}",
+            "layer {layer} | sent {sent} | {:?} | feed {:.0} %{heat}{}{}",
             RunState::from_u32(status.run_state).unwrap_or_default(),
             status.feed_override * 100.0,
             eta(started_at.elapsed(), fraction),
@@ -227,6 +231,11 @@ pub fn stream(job: &Job, opts: &StreamOptions, interrupts: &AtomicU32, keys: Opt
             // For consoles only: a failed publish must not end the print.
             let _ = ports.send_job_progress(&progress);
         }
+        if opts.quiet && status.heat_hold != 0 && !heat_said {
+            heat_said = true;
+            eprintln!("strand-feed: {}", strand::ctl::heat_text(&status).unwrap_or_default());
+        }
+        heat_said &= status.heat_hold != 0;
         if opts.quiet && (fraction * 10.0) as u32 > last_quiet_decile {
             last_quiet_decile = (fraction * 10.0) as u32;
             eprintln!("strand-feed: {} % (segment {}, layer {layer})", last_quiet_decile * 10, status.executing_seq);

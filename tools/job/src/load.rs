@@ -13,7 +13,7 @@ use crate::bed::BedTransform;
 use crate::gcode::GcodeError;
 use crate::gcode::{GcodeOptions, parse_file};
 use crate::segfile::{self, SegfileError};
-use strand_core::Segment;
+use strand_core::{Segment, SegmentKind};
 
 /// Why a job, or a planned base trajectory, cannot be read (or a segment file written). Every
 /// variant names the file, and the line where there is one.
@@ -67,6 +67,10 @@ pub fn to_wire(s: &Segment) -> ipc::Segment {
         _reserved: 0,
         pressure_advance: s.pressure_advance.unwrap_or(0.0),
         axes: s.axes.unwrap_or_default(),
+        heater: if s.kind == SegmentKind::Heat { s.heat.heater as u32 } else { 0 },
+        heat_wait: if s.kind == SegmentKind::Heat { s.heat.wait as u32 } else { 0 },
+        temperature: if s.kind == SegmentKind::Heat { s.heat.target } else { 0.0 },
+        temperature_range: if s.kind == SegmentKind::Heat { s.heat.band } else { [0.0; 2] },
     }
 }
 

@@ -20,7 +20,7 @@
 //!
 //! | key | unit | kinds | meaning |
 //! |---|---|---|---|
-//! | `kind` | | all | `"line"` (default), `"arc"` or `"dwell"` |
+//! | `kind` | | all | `"line"` (default), `"arc"`, `"dwell"` or `"heat"` |
 //! | `end` | m | line, arc | end point of the TCP (required) |
 //! | `centre` | m | arc | arc centre, in the plane of the start point (required) |
 //! | `normal` | unit | arc | arc axis; counter-clockwise about it (required) |
@@ -29,6 +29,10 @@
 //! | `feed` | m/s | line, arc | programmed speed, > 0 (required) |
 //! | `filament` | m of filament | all | to push over the segment; negative retracts (default 0) |
 //! | `duration` | s | dwell | standing time, ≥ 0 (required) |
+//! | `heater` | | heat | `"hot_end"` or `"bed"` (required) |
+//! | `wait` | | heat | `"none"` (default), `"heating"` (M109 S), `"both"` (M109 R) or `"range"` (TEMPERATURE_WAIT) |
+//! | `temperature` | °C | heat | the new target, 0–500 (absent or < 0: keep the target) |
+//! | `range` | °C | heat | a `"range"` wait's low and high |
 //! | `flags` | | all | any of `"extrude"`, `"travel"`, `"layer_start"`, `"last"`; default: `extrude` for a move with filament > 0, `travel` for any other move, none for a dwell |
 //! | `layer` | | all | slicer layer index (optional; otherwise counted from `layer_start` flags) |
 //! | `pressure_advance` | s | all | the program's pressure advance for this segment, ≥ 0 (optional; the controller clamps it to `[extruder] max_pressure_advance`; absent keeps the config's) |
@@ -50,7 +54,7 @@ use nalgebra::{Quaternion, UnitQuaternion, Vector3};
 use serde::Deserialize;
 use thiserror::Error;
 
-use strand_core::{MAX_ARC_SWEEP, Segment, SegmentFlags, SegmentKind};
+use strand_core::{HeatWait, Heater, MAX_ARC_SWEEP, Segment, SegmentFlags, SegmentKind};
 use strand_wire::MAX_EXTERNAL_AXES;
 
 /// The header's `format` value.
@@ -125,7 +129,23 @@ struct Record {
     pressure_advance: Option<f64>,
     #[serde(default)]
     axes: Option<Vec<f64>>,
+    /// Heat records: `"hot_end"` or `"bed"`.
+    #[serde(default)]
+    heater: Option<String>,
+    /// Heat records: `"none"`, `"heating"`, `"both"` or `"range"`.
+    #[serde(default)]
+    wait: Option<String>,
+    /// Heat records: the target (°C; < 0 keeps it).
+    #[serde(default)]
+    temperature: Option<f64>,
+    /// Heat records with `"range"`: low and high (°C).
+    #[serde(default)]
+    range: Option<[f64; 2]>,
 }
+
+const HEATERS: [(Heater, &str); 2] = [(Heater::HotEnd, "hot_end"), (Heater::Bed, "bed")];
+const WAITS: [(HeatWait, &str); 4] =
+    [(HeatWait::None, "none"), (HeatWait::Heating, "heating"), (HeatWait::Both, "both"), (HeatWait::Range, "range")];
 
 /// The tool orientation that points the nozzle (tool z) along `nozzle` (any length > 0), reached
 /// from the nozzle-down default by the shortest rotation, so the tool's roll stays as close to the
@@ -250,8 +270,21 @@ fn segment(
         "line" => SegmentKind::Line,
         "arc" => SegmentKind::Arc,
         "dwell" => SegmentKind::Dwell,
-        other => return Err(format!("kind: \"{other}\" is not one of \"line\", \"arc\", \"dwell\"")),
+        "heat" => SegmentKind::Heat,
+        other => return Err(format!("kind: \"{other}\" is not one of \"line\", \"arc\", \"dwell\", \"heat\"")),
     };
+    if kind != SegmentKind::Heat {
+        for (key, present) in [
+            ("heater", r.heater.is_some()),
+            ("wait", r.wait.is_some()),
+            ("temperature", r.temperature.is_some()),
+            ("range", r.range.is_some()),
+        ] {
+            if present {
+                return Err(format!("{key}: not allowed on a {kind_name}"));
+            }
+        }
+    }
     let mut s = Segment { seq, kind, source_line: u32::try_from(line).unwrap_or(u32::MAX), ..Segment::default() };
     if let Some(q) = r.orientation {
         if !q.iter().all(|x| x.is_finite()) {
@@ -279,6 +312,30 @@ fn segment(
     s.pressure_advance = r.pressure_advance;
     s.axes = r.axes.as_deref().map(external_axes).transpose()?;
     match kind {
+        SegmentKind::Heat => {
+            absent("end", kind_name, &r.end)?;
+            absent("feed", kind_name, &r.feed)?;
+            absent("duration", kind_name, &r.duration)?;
+            if filament != 0.0 {
+                return Err("filament: not allowed on a heat record".into());
+            }
+            let heater = required("heater", kind_name, r.heater.as_deref())?;
+            s.heat.heater = HEATERS
+                .iter()
+                .find(|(_, n)| *n == heater)
+                .map(|(h, _)| *h)
+                .ok_or_else(|| format!("heater: \"{heater}\" is not \"hot_end\" or \"bed\""))?;
+            let wait = r.wait.as_deref().unwrap_or("none");
+            s.heat.wait = WAITS
+                .iter()
+                .find(|(_, n)| *n == wait)
+                .map(|(w, _)| *w)
+                .ok_or_else(|| format!("wait: \"{wait}\" is not one of \"none\", \"heating\", \"both\", \"range\""))?;
+            s.heat.target = r.temperature.unwrap_or(-1.0);
+            s.heat.band = r.range.unwrap_or(strand_core::OPEN_BAND);
+            s.end = position.unwrap_or_else(Vector3::zeros);
+            s.check().map_err(|e| e.to_string())?;
+        }
         SegmentKind::Dwell => {
             absent("end", kind_name, &r.end)?;
             absent("feed", kind_name, &r.feed)?;
@@ -327,7 +384,7 @@ fn segment(
         absent("normal", kind_name, &r.normal)?;
         absent("sweep", kind_name, &r.sweep)?;
     }
-    let moves = kind != SegmentKind::Dwell;
+    let moves = !matches!(kind, SegmentKind::Dwell | SegmentKind::Heat);
     s.flags = match &r.flags {
         None if moves && filament > 0.0 => SegmentFlags::EXTRUDE,
         None if moves => SegmentFlags::TRAVEL,
@@ -391,9 +448,18 @@ fn record(out: &mut String, s: &Segment) {
         SegmentKind::Line => "line",
         SegmentKind::Arc => "arc",
         SegmentKind::Dwell => "dwell",
+        SegmentKind::Heat => "heat",
     };
     let _ = write!(out, "{{\"kind\":\"{kind}\"");
     match s.kind {
+        SegmentKind::Heat => {
+            let heater = HEATERS.iter().find(|(h, _)| *h == s.heat.heater).map_or("hot_end", |(_, n)| n);
+            let wait = WAITS.iter().find(|(w, _)| *w == s.heat.wait).map_or("none", |(_, n)| n);
+            let _ = write!(out, ",\"heater\":\"{heater}\",\"wait\":\"{wait}\",\"temperature\":{:?}", s.heat.target);
+            if s.heat.wait == HeatWait::Range {
+                let _ = write!(out, ",\"range\":[{:?},{:?}]", s.heat.band[0], s.heat.band[1]);
+            }
+        }
         SegmentKind::Dwell => {
             let _ = write!(out, ",\"duration\":{:?}", s.duration);
         }
@@ -573,5 +639,57 @@ mod tests {
         }
         let down = tool_pointing(&-Vector3::z());
         assert!(down.angle_to(&UnitQuaternion::from_axis_angle(&Vector3::y_axis(), std::f64::consts::PI)) < 1e-12);
+    }
+}
+
+#[cfg(test)]
+mod heat_tests {
+    use super::*;
+    use strand_core::HeatRequest;
+
+    /// Heat records round trip (targets, waits, a band), stand where the previous move ended, and
+    /// bad ones are refused naming the key.
+    #[test]
+    fn heat_records_round_trip_and_bad_ones_name_the_key() {
+        let down = tool_pointing(&Vector3::new(0.0, 0.0, -1.0));
+        let travel = Segment {
+            seq: 1,
+            end: Vector3::new(0.1, 0.0, 0.2),
+            feed: 0.05,
+            flags: SegmentFlags::TRAVEL,
+            orientation: down,
+            ..Segment::default()
+        };
+        let heat = |seq, heater, wait, target, band| Segment {
+            seq,
+            kind: SegmentKind::Heat,
+            end: travel.end,
+            orientation: down,
+            heat: HeatRequest { heater, wait, target, band },
+            ..Segment::default()
+        };
+        let segments = vec![
+            travel,
+            heat(2, Heater::Bed, HeatWait::None, 60.0, strand_core::OPEN_BAND),
+            heat(3, Heater::HotEnd, HeatWait::Heating, 210.0, strand_core::OPEN_BAND),
+            heat(4, Heater::HotEnd, HeatWait::Range, -1.0, [200.0, 215.0]),
+        ];
+        let mut bytes = Vec::new();
+        write(&mut bytes, &segments, "heat").unwrap();
+        let back = read(bytes.as_slice(), "heat.jsonl", 1).unwrap();
+        // (The reader numbers each segment's source line: its line in the file.)
+        let got: Vec<Segment> = back.segments.iter().map(|(s, _)| Segment { source_line: 0, ..*s }).collect();
+        assert_eq!(got, segments);
+        let header = "{\"format\":\"strand-segments\",\"version\":1}\n";
+        for (record, words) in [
+            ("{\"kind\":\"heat\",\"wait\":\"heating\",\"temperature\":210}", "heater: required"),
+            ("{\"kind\":\"heat\",\"heater\":\"chamber\"}", "heater: \"chamber\""),
+            ("{\"kind\":\"heat\",\"heater\":\"bed\",\"temperature\":900}", "temperature"),
+            ("{\"kind\":\"line\",\"end\":[0,0,0],\"feed\":0.01,\"heater\":\"bed\"}", "heater: not allowed on a line"),
+        ] {
+            let e = read(format!("{header}{record}\n").as_bytes(), "bad.jsonl", 1).unwrap_err();
+            assert!(e.to_string().contains(words), "{e}");
+            assert_eq!(e.line, 2, "{e}");
+        }
     }
 }

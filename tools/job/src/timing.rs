@@ -54,6 +54,9 @@ pub struct TimingReport {
     pub underruns: u64,
     /// Times a limit could not be met and the engine braked instead.
     pub forced_brakes: u64,
+    /// Heat waits passed without waiting (the heaters are not modelled here; `strand check-job`
+    /// predicts them with `[thermal]`).
+    pub heat_waits: u64,
 }
 
 /// Longest a single segment may take in an offline run (s): ten days.
@@ -107,7 +110,7 @@ pub fn distance_from_programmed(p: &Vector3<f64>, start: &Vector3<f64>, segment:
             Some(g @ Geometry::Arc { .. }) => strand_core::distance_to_arc(p, &g, length),
             _ => (p - start).norm(),
         },
-        SegmentKind::Dwell => (p - start).norm(),
+        SegmentKind::Dwell | SegmentKind::Heat => (p - start).norm(),
     }
 }
 
@@ -153,7 +156,10 @@ pub fn time_program(
                 segment.flags = segment.flags.with(SegmentFlags::LAST);
             }
             let length = segment_length(&last_end, &segment);
-            if segment.kind != SegmentKind::Dwell && length < 1e-9 && !segment.flags.contains(SegmentFlags::LAST) {
+            if !matches!(segment.kind, SegmentKind::Dwell | SegmentKind::Heat)
+                && length < 1e-9
+                && !segment.flags.contains(SegmentFlags::LAST)
+            {
                 // The engine would skip it too; keep the numbers comparable.
                 engine.push(&segment).map_err(|e| TimingError::Segment { file: file.to_string(), line, message: e.to_string() })?;
                 continue;
@@ -164,6 +170,7 @@ pub fn time_program(
             report.program_filament_m += segment.filament;
             let seconds = match segment.kind {
                 SegmentKind::Dwell => segment.duration,
+                SegmentKind::Heat => 0.0,
                 _ => length / segment.feed.min(path.max_speed),
             };
             // Ticking through a month of one move is not a timing, it is a typo (F in the wrong
@@ -188,6 +195,11 @@ pub fn time_program(
                 tick_cap = tick.saturating_add(1000).saturating_add(lower_bound_ticks).saturating_add(report.segments.saturating_mul(100));
             }
         }
+        if engine.waiting_at().is_some() {
+            // A heat wait: the heaters are not modelled here (`strand check-job` predicts them).
+            engine.release_wait();
+            report.heat_waits += 1;
+        }
         let sample = engine.step(1.0);
         let command = extruder.step(&sample);
         tick += 1;
@@ -207,7 +219,7 @@ pub fn time_program(
         if let Some(programmed) = window.iter().find(|p| p.seq == sample.seq) {
             report.max_deviation_m = report.max_deviation_m.max(programmed.distance(&sample.position));
             let s = &programmed.segment;
-            if s.kind != SegmentKind::Dwell {
+            if !matches!(s.kind, SegmentKind::Dwell | SegmentKind::Heat) {
                 report.max_feed_ratio = report.max_feed_ratio.max(sample.speed / s.feed.min(path.max_speed));
             }
             if s.flags.contains(SegmentFlags::EXTRUDE) && sample.motion == Motion::Moving && sample.speed > 1e-6 && programmed.length > 0.0

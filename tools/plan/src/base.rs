@@ -158,6 +158,7 @@ fn constant_speed(segments: &[Segment], dt: f64, out: &mut TcpSeries) {
     for s in segments {
         let (geometry, length, duration) = match s.kind {
             SegmentKind::Dwell => (None, 0.0, s.duration),
+            SegmentKind::Heat => (None, 0.0, 0.0),
             SegmentKind::Line => {
                 let d = s.end - start;
                 let l = d.norm();

@@ -68,6 +68,9 @@ pub fn run(opts: &TimeOptions) -> Result<()> {
     println!("  max flow error  {:.2e}", r.max_flow_error);
     println!("  filament        {:.4} m commanded, {:.4} m programmed", r.extrude_length_m, r.program_filament_m);
     println!("  underruns {}, forced brakes {}", r.underruns, r.forced_brakes);
+    if r.heat_waits > 0 {
+        println!("  heat waits {} not timed here (no heaters; strand check-job predicts them with [thermal])", r.heat_waits);
+    }
     for w in &r.warnings {
         println!("  warning: {w}");
     }

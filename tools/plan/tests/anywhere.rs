@@ -86,7 +86,8 @@ fn copied_binaries_run_outside_the_repository_on_the_built_in_config() {
     let p = Place::new("built-in");
     let job = root().join("tests/data/gcode/slic3r/box35.gcode").canonicalize().unwrap();
     let out = ok(&p.run("strand-plan", &["time", job.to_str().unwrap()], &[]));
-    assert!(out.contains("segments        16236"), "{out}");
+    // 16236 moves and dwells, and the five heat segments (M190, M104, M109; M104 S0, M140 S0 at the end).
+    assert!(out.contains("segments        16241"), "{out}");
     // The copy is whole: robot files and URDFs beside the configs, as in the repository.
     let copy = built_in(&p.cache());
     for f in ["default.toml", "free-flyer.toml", "robots/iiwa7.toml", "robots/iiwa7.urdf", "robots/meca500.urdf", "sim/default.toml"] {

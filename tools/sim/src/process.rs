@@ -3,6 +3,12 @@
 //! answers each command as soon as it arrives, so a job runs as fast as the two processes can
 //! exchange messages, with every stamp on the sim's own clock; `realtime` paces it at the robot's
 //! rate instead. It writes the truth (actual nozzle, base, melt flow) as CSV for the demo.
+//!
+//! It also owns the heaters: the service config's `[thermal]` plant (hot end and bed, each a
+//! first-order block with a lagging thermistor and a feed-forward + P controller, strand-core's
+//! `ThermalModel`) heats toward the targets of the latest `HeaterCommand` and publishes what its
+//! thermistors read as `HeaterState` every 10 ms of sim time, stamped with the sim's clock — the
+//! messages a Klipper extruder board's process will exchange with the service.
 
 use std::fs::File;
 use std::io::{BufWriter, Write};
@@ -13,6 +19,7 @@ use std::time::{Duration, Instant};
 use strand::config::Config;
 use strand::io::clock::{TimerClock, monotonic_ns};
 use strand::io::histogram::Histogram;
+use strand_core::ThermalModel;
 use strand_ipc::ServiceNames;
 use strand_ipc::ports::{ClientPorts, ClientRoles};
 
@@ -52,7 +59,7 @@ pub fn run(opts: &SimOptions, cfg: &Config, sim_cfg: &SimConfig, stop: &AtomicBo
     let ports = ClientPorts::open(
         &ServiceNames::new(&prefix),
         "strand-sim",
-        ClientRoles { driver: true, tracker: true, monitor: true, base: sim.takes_base_commands(), ..Default::default() },
+        ClientRoles { driver: true, tracker: true, monitor: true, base: sim.takes_base_commands(), heater: true, ..Default::default() },
     )?;
     let truth_path = opts.truth.clone().unwrap_or_default();
     let mut truth_out = match &opts.truth {
@@ -76,7 +83,16 @@ pub fn run(opts: &SimOptions, cfg: &Config, sim_cfg: &SimConfig, stop: &AtomicBo
     let (mut cycles, mut answered, mut unanswered) = (0u64, 0u64, 0u64);
     let started = Instant::now();
     let mut round_trip = Histogram::new();
+    let mut thermal = ThermalModel::new(&cfg.thermal);
+    let (mut hot_end_target, mut bed_target) = (0.0, 0.0);
+    let heater_every = (10_000_000 / sim.dt_ns().max(1)).max(1);
+    let mut heater_seq = 0u64;
     while !stop.load(Ordering::Relaxed) {
+        // The heaters' measurement every 10 ms, before the JointState that wakes the service.
+        if cycles.is_multiple_of(heater_every) {
+            heater_seq += 1;
+            ports.send_heater_state(&thermal.state(heater_seq, sim.time_ns()))?;
+        }
         // Tracking first: the JointState that follows wakes the service, which then drains both.
         poses.clear();
         sim.base_poses(&mut pose_seq, &mut poses);
@@ -107,14 +123,18 @@ pub fn run(opts: &SimOptions, cfg: &Config, sim_cfg: &SimConfig, stop: &AtomicBo
                 let _ = ports.wait_joint_command((deadline - now).as_nanos().min(5_000_000) as u64);
             }
         }
-        // The extruder command of the same tick is published right after the joint command.
+        // The extruder command of the same tick is published right after the joint command: wait
+        // for it (in lockstep as long as for the answer itself; paced, 2 ms). A cycle run without it
+        // would repeat the last rate and the next would skip one — a velocity-driven drive pushing
+        // a tick's filament twice or never, which at a start (pressure advance's short push) shows
+        // in the bead as a blob or a gap that is the loaded machine's, not the controller's.
         if let Some(tick) = answer_tick {
             if !opts.realtime {
                 round_trip.record(sent.elapsed().as_nanos() as u64);
             }
             answered += 1;
             last_command = Some(Instant::now());
-            let until = Instant::now() + Duration::from_millis(2);
+            let until = Instant::now() + if opts.realtime { Duration::from_millis(2) } else { answer_timeout };
             let mut got = false;
             while !got && Instant::now() < until {
                 while let Ok(Some(e)) = ports.receive_extruder_command() {
@@ -134,6 +154,10 @@ pub fn run(opts: &SimOptions, cfg: &Config, sim_cfg: &SimConfig, stop: &AtomicBo
         if let Some(b) = ports.latest_base_command() {
             sim.command_base(&b);
         }
+        if let Some(h) = ports.latest_heater_command() {
+            (hot_end_target, bed_target) = (h.hot_end_target, h.bed_target);
+        }
+        thermal.step(hot_end_target, bed_target, sim.dt_ns() as f64 * 1e-9);
         let _ = ports.receive_status();
         let truth = sim.step();
         cycles += 1;

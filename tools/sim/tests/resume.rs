@@ -60,7 +60,11 @@ fn service(prefix: &str, dir: &Path, log: &str, chunk_interval: f64) -> Reaped {
         .args(set(format!("log.name={log:?}")))
         .args(set("log.wait_when_full=true".into()))
         .args(set(format!("log.chunk_interval={chunk_interval}")))
-        .args(set("controller.approach_speed_fraction=1.0".into()));
+        .args(set("controller.approach_speed_fraction=1.0".into()))
+        // Lockstep with the sim on a loaded machine: wait for its late state (up to 0.5 s, as the
+        // sim waits for a late answer) rather than tick without it; a tick the sim never sees is a
+        // lost extruder command, which the bead would show as a gap that is not the resume's.
+        .args(set("controller.joint_state_timeout=0.5".into()));
     spawn(&mut c)
 }
 

@@ -11,6 +11,15 @@ impl PathEngine {
         let axes_start = self.tail.map_or(self.pieces_end_axes(), |t| t.axes_end);
         let axes_end = s.axes.unwrap_or(axes_start);
         match s.kind {
+            SegmentKind::Heat => {
+                // A heat wait: a hold of no time that stays until released.
+                self.tail = None;
+                let piece = self.new_piece(Geometry::Hold { point: start_point }, 0.0, s, 0.0);
+                let wait = s.heat.wait != HeatWait::None;
+                let index = self.pieces.push(Piece { wait, axes: axes_start, ..piece });
+                self.path_end = self.pieces.get(index).end();
+                self.mark_dirty(index);
+            }
             SegmentKind::Dwell => {
                 self.tail = None;
                 let piece = self.new_piece(Geometry::Hold { point: start_point }, 0.0, s, 0.0);

@@ -94,6 +94,12 @@ impl PathEngine {
             }
             let current = *self.pieces.get(self.piece);
             if current.is_hold() && state.v <= 1e-12 {
+                if current.wait {
+                    // A heat wait: stand here until released (`settle_at_rest` says Waiting).
+                    self.state = PathState { s: state.s.max(current.start), v: 0.0, a: 0.0, j: 0.0 };
+                    self.plan = Plan::Rest;
+                    return;
+                }
                 if current.hold_time > 0.0 {
                     self.enter_dwell();
                     return;
@@ -577,6 +583,10 @@ impl PathEngine {
         let was_moving = self.motion == Motion::Moving;
         if self.held {
             self.motion = Motion::Held;
+            return;
+        }
+        if self.pieces.len() > 0 && self.piece < self.pieces.tail && self.pieces.get(self.piece).wait {
+            self.motion = Motion::Waiting;
             return;
         }
         let last = self.pieces.len() > 0 && self.pieces.get(self.pieces.tail - 1).flags.contains(SegmentFlags::LAST);

@@ -57,7 +57,7 @@ use rsruckig::prelude::*;
 use super::config::{InvalidPathConfig, PathConfig, PlanningMode};
 use super::geometry::{Geometry, PathPoint, arc_geometry};
 use super::profile::{Braking, PathState, Trapezoid};
-use super::segment::{Segment, SegmentFlags, SegmentKind};
+use super::segment::{HeatWait, Segment, SegmentFlags, SegmentKind};
 use crate::kin::geom;
 use strand_wire::MAX_EXTERNAL_AXES;
 
@@ -127,6 +127,9 @@ pub enum Motion {
     Finished,
     /// Brought to rest on the path by [`PathEngine::set_hold`] (a pause or a controlled stop).
     Held,
+    /// Standing at a heat wait (a [`SegmentKind::Heat`] segment with a hold) until the caller
+    /// releases it ([`PathEngine::release_wait`]): nothing after it executes meanwhile.
+    Waiting,
 }
 
 /// One tick of the path: the TCP's motion in W and the progress along the job.
@@ -218,6 +221,8 @@ struct Piece {
     /// Dwell time (s) and filament (m), holds only.
     hold_time: f64,
     hold_filament: f64,
+    /// A heat wait not yet released: the hold lasts until [`PathEngine::release_wait`].
+    wait: bool,
     /// Orientation at the start and the rotation vector over the piece (rad, W).
     orientation: UnitQuaternion<f64>,
     rotation: Vector3<f64>,
@@ -259,6 +264,7 @@ impl Piece {
             flow: 0.0,
             hold_time: 0.0,
             hold_filament: 0.0,
+            wait: false,
             orientation,
             rotation: Vector3::zeros(),
             axes: [0.0; MAX_EXTERNAL_AXES],
@@ -607,6 +613,19 @@ impl PathEngine {
         if self.intake.room() == 0 {
             return Err(SegmentError::QueueFull { seq });
         }
+        if segment.kind == SegmentKind::Heat {
+            // A heat segment with a hold is a hold piece that lasts until released; one without
+            // is the caller's business alone (it applies the target when the path passes its
+            // sequence number) and costs the path nothing, unless it ends the job.
+            let hold = segment.heat.wait != HeatWait::None;
+            if hold || segment.flags.contains(SegmentFlags::LAST) {
+                let marker = Segment { end: self.last_end, duration: 0.0, filament: 0.0, axes: None, ..*segment };
+                self.intake.push(marker);
+            }
+            self.last_seq = Some(seq);
+            self.stats.accepted += 1;
+            return Ok(());
+        }
         let turns_axes = segment.axes.is_some_and(|a| a != self.last_axes);
         if segment.kind == SegmentKind::Line && (segment.end - self.last_end).norm() < MIN_LENGTH && turns_axes {
             // A move of the external axes only (the tool stays on its point of the part, which
@@ -659,6 +678,7 @@ impl PathEngine {
             }
         }
         // What depends on the segments before it.
+        // (A heat segment's `end` is not checked: it stands wherever the path is.)
         if s.kind == SegmentKind::Dwell && (s.end - self.last_end).norm() > 1e-9 {
             return bad("end", "a dwell must stay at the previous end point");
         }
@@ -715,8 +735,26 @@ impl PathEngine {
         let s = self.state.s;
         (self.piece.max(self.pieces.head)..self.pieces.tail).any(|k| {
             let p = self.pieces.get(k);
-            if p.is_hold() { p.hold_time > 0.0 } else { p.end() > s + 1e-9 }
+            if p.is_hold() { p.hold_time > 0.0 || p.wait } else { p.end() > s + 1e-9 }
         })
+    }
+
+    /// The heat wait the tool stands at ([`Motion::Waiting`]): its sequence number.
+    pub fn waiting_at(&self) -> Option<u64> {
+        if self.motion != Motion::Waiting || self.pieces.len() == 0 || self.piece >= self.pieces.tail {
+            return None;
+        }
+        let p = self.pieces.get(self.piece);
+        p.wait.then_some(p.seq)
+    }
+
+    /// Ends the heat wait the tool stands at (the caller's condition is met): the path goes on
+    /// from the next tick. Nothing happens when the tool stands at none.
+    pub fn release_wait(&mut self) {
+        if self.waiting_at().is_some() {
+            self.pieces.get_mut(self.piece).wait = false;
+            self.replan = true;
+        }
     }
 
     /// The progress invariant (debug builds): every tick either advances the path state (s, v or a
@@ -742,6 +780,7 @@ impl PathEngine {
                 self.pieces.tail
             ),
             Motion::Held => debug_assert!(self.held),
+            Motion::Waiting => debug_assert!(self.waiting_at().is_some()),
         }
     }
 }

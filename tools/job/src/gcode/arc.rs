@@ -15,7 +15,7 @@ use strand_core::{Segment, SegmentKind, arc_geometry};
 pub fn segment_length(start: &Vector3<f64>, segment: &Segment) -> f64 {
     match segment.kind {
         SegmentKind::Line => (segment.end - start).norm(),
-        SegmentKind::Dwell => 0.0,
+        SegmentKind::Dwell | SegmentKind::Heat => 0.0,
         // A degenerate arc (start on the axis) is refused by the reader and the engine; its chord
         // is the honest length until then.
         SegmentKind::Arc => arc_geometry(start, segment).map_or((segment.end - start).norm(), |g| g.length(0.0)),

@@ -168,6 +168,8 @@ pub(super) enum FirmwareM {
     RetractSettings,
     /// A motion limit (see the `limits` module).
     Limit(LimitM),
+    /// M104/M109 (hot end), M140/M190 (bed): a heater's target, and with `wait` a hold.
+    Heat { bed: bool, wait: bool },
 }
 
 /// What an M-code does here.
@@ -186,6 +188,10 @@ pub(super) fn classify_m(tenths: u32, dialect: Dialect) -> MAction {
         820 | 830 => return MAction::ExtruderMode { absolute: tenths == 820 },
         20 | 300 => return MAction::ProgramEnd,
         _ if dialect == Dialect::Rs274ngc => return MAction::Ignored,
+        1040 => Heat { bed: false, wait: false },
+        1090 => Heat { bed: false, wait: true },
+        1400 => Heat { bed: true, wait: false },
+        1900 => Heat { bed: true, wait: true },
         2200 => FeedOverride,
         2210 => FlowOverride,
         2070 => RetractSettings,
@@ -209,8 +215,11 @@ pub(super) fn ignored_m_message(tenths: u32) -> &'static str {
         70..=90 => "coolant not acted on",
         170 | 180 | 840 => "motors on / off not acted on",
         730 => "progress display not acted on",
-        1040 | 1050 | 1080 | 1090 | 1160 => "hotend temperature not acted on",
-        1400 | 1900 | 1410 | 1910 => "bed / chamber temperature not acted on",
+        1040 | 1090 => "hot end temperature not acted on in RS274/NGC",
+        1400 | 1900 => "bed temperature not acted on in RS274/NGC",
+        1050 => "temperature report: nothing to do",
+        1080 | 1160 => "M108 / M116 (cancel heating, wait for all heaters) not acted on: M109/M190 wait in the job",
+        1410 | 1910 => "chamber temperature not acted on",
         1060 | 1070 => "fan not acted on",
         1170 | 1180 => "message (free text) not acted on",
         4000 => "wait for moves to finish: nothing to do (segments run in order)",

@@ -70,7 +70,7 @@
 //!   ±[`MAX_COORDINATE`] (10⁶ m) after unit conversion are errors, so no later sum or square can
 //!   overflow; so are rotary words and rotary positions beyond ±[`MAX_ANGLE`] (10⁶ degrees); every
 //!   value a segment carries is finite.
-//! - **Not acted on.** Codes and words the parser does not act on (temperatures, fans, spindle,
+//! - **Not acted on.** Codes and words the parser does not act on (fans, spindle, chamber temperatures,
 //!   homing `G28`, tool length `G43`, work offsets, `S`, ...) are reported once per kind with the
 //!   first line and a count ([`Parser::warnings`]). The words on a line with an M-code (or `G28`,
 //!   `G29` or any G-code RS274/NGC does not define) are its parameters, not a move (Marlin's
@@ -142,8 +142,10 @@
 //! | `M900 K`, `M572 S`, `SET_PRESSURE_ADVANCE ADVANCE=` | pressure advance (s) carried on every later segment (`Segment::pressure_advance`); the controller applies it, clamped to `[extruder] max_pressure_advance`. `SMOOTH_TIME=` is recorded |
 //! | `T<n>` | selects the tool; once filament has been pushed, a different tool is an error ("multi-tool jobs are not supported"). `T` beside an M-code other than `M6` is that code's parameter (`M104 T0 S200`); `T255` and up are firmware special tools (Bambu's unload and nozzle-prime mode `T1000`): reported, tool unchanged |
 //! | `F` on a line with M-codes and no G-code | the M-code's parameter (Bambu's `M620.1 E F523`), as Marlin reads F only on moves; in RS274/NGC it sets the feed |
-//! | `M73`, `M117`/`M118` (free text), `M400`, temperatures, fans, motors off, any other M-code | reported once per kind, never an error |
-//! | Klipper extended commands (`EXCLUDE_OBJECT_*`, `PRINT_START`, `BED_MESH_CALIBRATE`, any `NAME KEY=VALUE ...`) | reported once per name, never an error (the three above are acted on) |
+//! | `M104 S` / `M140 S` (°C), Klipper's `SET_HEATER_TEMPERATURE HEATER=extruder\|heater_bed TARGET=` (absent: 0) | a heat segment ([`SegmentKind::Heat`], no hold) where the line stands: the controller sets the target when the path reaches it. `M104 T` of another tool than the selected one, another heater: reported. Without `S`: reported, nothing set (Marlin) |
+//! | `M109 S` / `M190 S`, `M109 R` / `M190 R`, `TEMPERATURE_WAIT SENSOR=extruder\|heater_bed MINIMUM= MAXIMUM=` | a heat segment with a hold: the target set (`S`: hold while heating, no wait for cooling; `R`: hold either way, as Marlin), or the band (`TEMPERATURE_WAIT`, target unchanged, at least one bound); no later segment runs until the temperature has settled (see `strand_core`'s heat stage). `S` and `R` together, a target outside 0–500 °C, `MINIMUM` above `MAXIMUM`, a missing `HEATER=`/`SENSOR=`: errors with line and column |
+//! | `M73`, `M117`/`M118` (free text), `M400`, `M105`, `M116`, chamber temperatures, fans, motors off, any other M-code | reported once per kind, never an error |
+//! | Klipper extended commands (`EXCLUDE_OBJECT_*`, `PRINT_START`, `BED_MESH_CALIBRATE`, any `NAME KEY=VALUE ...`) | reported once per name, never an error (the five above are acted on) |
 //!
 //! Values acted on must be finite and in range (percentages 1–1000, limits > 0, jerk and corner
 //! velocity ≥ 0, pressure advance 0–10 s, smooth time 0–0.2 s), else an error naming the line and
@@ -465,7 +467,7 @@ impl<R: BufRead> Parser<R> {
             }
             LineKind::Extended(name) => {
                 let malformed = lexed.malformed_param.take();
-                return interpreter.extended(name, &self.lexer.params, malformed, line, lexed.first_column);
+                return interpreter.extended(name, &self.lexer.params, malformed, line, lexed.first_column, &mut self.queue);
             }
         }
         if self.lexer.words.is_empty() {

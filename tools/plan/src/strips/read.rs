@@ -147,7 +147,7 @@ pub fn read_job<R: BufRead>(parser: &mut Parser<R>, name: &str, options: &ReadOp
                     raw.push((tag.0, tag.1, Line { a: *a, b: *b, filament, feed: s.feed, source_line: g.line }));
                 }
             }
-            SegmentKind::Dwell => {}
+            SegmentKind::Dwell | SegmentKind::Heat => {}
         }
     }
     if raw.is_empty() {

@@ -84,7 +84,7 @@ pub fn run(opts: &DemoOptions) -> Result<bool> {
         (None, Some(r)) => locate::find(&format!("{r}.toml")),
         (None, None) => locate::find(locate::DEFAULT),
     }?;
-    let cfg = Config::load_with(&config, &opts.set)?;
+    let mut cfg = Config::load_with(&config, &opts.set)?;
     let tracked = cfg.base.mode == BaseMode::Tracked;
     let (gcode, layers) = match &opts.gcode {
         Some(g) => (locate::explicit(g)?, opts.layers),
@@ -92,6 +92,14 @@ pub fn run(opts: &DemoOptions) -> Result<bool> {
         None if cfg.robot.positioner.is_some() => (jobs::root()?.join(jobs::DEMO_HELIX), opts.layers),
         None => (jobs::root()?.join(jobs::DEMO_BOX), Some(opts.layers.unwrap_or(3))),
     };
+    // The demo's sim owns the heaters: a job that sets temperatures (the box's M190/M104/M109)
+    // runs with the service acting on them (`[extruder] heater = "wire"`: waits hold, a cold hot
+    // end faults), unless the operator set `extruder.heater`. A job without any keeps the config's.
+    let mut set = opts.set.clone();
+    if !set.iter().any(|s| s.trim_start().starts_with("extruder.heater")) && job_sets_temperatures(&gcode, &cfg)? {
+        set.insert(0, "extruder.heater=\"wire\"".to_string());
+        cfg = Config::load_with(&config, &set)?;
+    }
     let sim_cfg = match &opts.sim {
         Some(s) => locate::explicit(s)?,
         None => SimConfig::default_path(&cfg)?,
@@ -152,7 +160,7 @@ pub fn run(opts: &DemoOptions) -> Result<bool> {
         .arg("--log")
         .arg(&log)
         .env("RUST_LOG", "warn");
-    for s in &opts.set {
+    for s in &set {
         svc.args(["--set", s]);
     }
     if opts.view {
@@ -176,7 +184,7 @@ pub fn run(opts: &DemoOptions) -> Result<bool> {
         .arg("--stats")
         .arg(&stats);
     // The service's overrides, so that both agree on the rate, the robot and the base.
-    for o in &opts.set {
+    for o in &set {
         sim.args(["--set", o]);
     }
     if let Some(s) = opts.seed {
@@ -197,6 +205,9 @@ pub fn run(opts: &DemoOptions) -> Result<bool> {
     }
     let mut feed = Command::new(&feed_bin);
     feed.arg(&gcode).arg("--config").arg(&config).args(["--prefix", &prefix, "--quiet", "--wait-service", "20"]);
+    for o in &set {
+        feed.args(["--set", o]);
+    }
     if let Some(n) = layers {
         feed.args(["--layers", &n.to_string()]);
     }
@@ -294,6 +305,12 @@ pub fn run(opts: &DemoOptions) -> Result<bool> {
         print_table(&rep, wall, &log, log_bytes, round_trip.as_ref());
     }
     Ok(ok)
+}
+
+/// Whether the job has a heat segment (`M104`, `M109`, `M140`, `M190`, Klipper's heater commands).
+fn job_sets_temperatures(job: &Path, cfg: &Config) -> Result<bool> {
+    let loaded = strand_feed::load_gcode(job, cfg, None)?;
+    Ok(loaded.segments.iter().any(|s| s.kind == strand_ipc::SegmentKind::Heat as u32))
 }
 
 /// Checks the job the feeder will send (`strand::check`), same job and same controller as the

@@ -121,10 +121,25 @@ pub struct Report {
     pub faults: Vec<(u64, String)>,
     /// Ticks whose target found no truth row (should be 0 in lockstep).
     pub unmatched: u64,
+    /// The heaters, when the service acted on their temperatures: the time held at heat waits
+    /// (s, robot time) for the bed and the hot end, and the hot end's measured range while
+    /// extruding (°C).
+    pub heat: Option<HeatSummary>,
     /// `strand-replay verify` on the log: "identical (N ticks)" or what diverged.
     pub verify: String,
     /// True when verify found the replay identical.
     pub identical: bool,
+}
+
+/// The heat-up a run held for (see [`Report::heat`]).
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct HeatSummary {
+    /// Held at bed waits (s).
+    pub bed_wait_s: f64,
+    /// Held at hot-end waits (s).
+    pub hot_end_wait_s: f64,
+    /// The hot end's lowest and highest measurement while extruding (°C).
+    pub extruding_c: [f64; 2],
 }
 
 /// Joins the log with the truth and replays the log. `flyer`: report the base's error;
@@ -171,6 +186,18 @@ pub fn report(log: &Path, truth: &[Truth], flyer: bool, features: Option<&Featur
             measured = Some(q);
         }
         r.tcp_error_fault_m = r.tcp_error_fault_m.max(o.diagnostics.tcp_error);
+        if o.status.heater_flags & strand_ipc::heater_flags::ACTING != 0 {
+            let h = r.heat.get_or_insert(HeatSummary { extruding_c: [f64::INFINITY, f64::NEG_INFINITY], ..HeatSummary::default() });
+            match strand_ipc::HeatHold::from_u32(o.status.heat_hold) {
+                Some(strand_ipc::HeatHold::Bed) => h.bed_wait_s += dt_ns as f64 * 1e-9,
+                Some(strand_ipc::HeatHold::HotEnd) => h.hot_end_wait_s += dt_ns as f64 * 1e-9,
+                _ => {}
+            }
+            if o.extruder.filament_rate > 0.0 && o.status.heater_flags & strand_ipc::heater_flags::HOT_END != 0 {
+                let t = o.status.hot_end_temperature;
+                h.extruding_c = [h.extruding_c[0].min(t), h.extruding_c[1].max(t)];
+            }
+        }
         if path_ticks.update(o) {
             let target = o.diagnostics.tcp_target_world;
             let target_on_part = target_on_part(o, positioner.as_ref(), dof);

@@ -34,6 +34,17 @@ pub(crate) fn print_table(r: &Report, wall: f64, log: &Path, log_bytes: u64, sim
             },
         ),
         ("segments".into(), format!("{} accepted, {} rejected, {} underruns", r.segments_accepted, r.segments_rejected, r.underruns)),
+        (
+            "heaters".into(),
+            match &r.heat {
+                Some(h) if h.extruding_c[0].is_finite() => format!(
+                    "held {:.1} s for the bed, {:.1} s for the hot end (heat-up and settle); extruded at {:.1}-{:.1} °C",
+                    h.bed_wait_s, h.hot_end_wait_s, h.extruding_c[0], h.extruding_c[1]
+                ),
+                Some(h) => format!("held {:.1} s for the bed, {:.1} s for the hot end; nothing extruded", h.bed_wait_s, h.hot_end_wait_s),
+                None => "not acted on ([extruder] heater = \"none\")".into(),
+            },
+        ),
         ("TCP error (sim truth)".into(), format!("{} over {} ticks", mm(&r.tcp_error_m), r.tcp_error_m.samples)),
         ("TCP error (controller's view)".into(), mm(&r.tcp_error_estimated_m)),
         (

@@ -10,7 +10,7 @@ use super::super::lexer::{ExtendedParam, Fault, bounded};
 use super::super::limits::{self, FEED_LIMITED, Outcome, in_range, non_negative, positive};
 use super::super::{GcodeSegment, MM};
 use super::Interpreter;
-use strand_core::{Segment, SegmentKind};
+use strand_core::{HeatRequest, HeatWait, Heater, MAX_TEMPERATURE, OPEN_BAND, Segment, SegmentKind};
 
 impl Interpreter {
     /// `G10` (retract) or `G11` (recover) with the firmware's retracted flag: a second `G10`
@@ -107,8 +107,16 @@ impl Interpreter {
     }
 
     /// An M-code the firmware dialect acts on; its words are its parameters.
-    pub(super) fn firmware_m(&mut self, code: FirmwareM, block: &mut Block, line: usize, column: usize) -> Result<(), Fault> {
+    pub(super) fn firmware_m(
+        &mut self,
+        code: FirmwareM,
+        block: &mut Block,
+        line: usize,
+        column: usize,
+        out: &mut VecDeque<GcodeSegment>,
+    ) -> Result<(), Fault> {
         let limit = match code {
+            FirmwareM::Heat { bed, wait } => return self.heat_m(bed, wait, block, line, column, out),
             FirmwareM::FeedOverride => return self.feed_override(block, line, column),
             FirmwareM::FlowOverride => return self.flow_override(block, line, column),
             FirmwareM::RetractSettings => return self.retract_settings(block, line, column),
@@ -118,6 +126,140 @@ impl Interpreter {
             Outcome::Acted(name) => self.notes.record(name, line, column, || limits::message(name).into()),
             Outcome::NothingToDo(name, message) => self.warnings.record(name, line, column, || message),
         }
+        Ok(())
+    }
+
+    /// M104/M109 (hot end), M140/M190 (bed), as Marlin reads them: `S` sets the target (°C); on
+    /// M109/M190 `S` waits only while heating and `R` waits either way. `T` naming another tool
+    /// than the selected one is reported and not acted on (jobs use one tool). A heat segment is
+    /// emitted where the line stands in the program: the controller applies it there, and holds
+    /// the job at a wait until the temperature has settled.
+    fn heat_m(
+        &mut self,
+        bed: bool,
+        wait: bool,
+        block: &mut Block,
+        line: usize,
+        column: usize,
+        out: &mut VecDeque<GcodeSegment>,
+    ) -> Result<(), Fault> {
+        let name = match (bed, wait) {
+            (false, false) => "M104",
+            (false, true) => "M109",
+            (true, false) => "M140",
+            (true, true) => "M190",
+        };
+        if !bed
+            && let Some(t) = block.take(b'T')?
+            && t != f64::from(self.firmware.tool)
+        {
+            self.warnings.record(&format!("{name} T"), line, column, || {
+                format!("{name} T{t}: a temperature for another tool than the selected one is not acted on (jobs use one tool)")
+            });
+            return Ok(());
+        }
+        let s = block.take(b'S')?;
+        let r = if wait { block.take(b'R')? } else { None };
+        let (value, at, mode) = match (s, r) {
+            (Some(_), Some(_)) => {
+                return Err(Fault::new(
+                    block.column(b'R'),
+                    format!("{name}: S and R both given; S waits while heating, R either way: give one"),
+                ));
+            }
+            (Some(v), None) => (v, block.column(b'S'), if wait { HeatWait::Heating } else { HeatWait::None }),
+            (None, Some(v)) => (v, block.column(b'R'), HeatWait::Both),
+            (None, None) => {
+                self.warnings.record(name, line, column, || format!("{name} without S: no target, nothing to do"));
+                return Ok(());
+            }
+        };
+        let letter = if mode == HeatWait::Both { 'R' } else { 'S' };
+        let target = in_range(value, (0.0, MAX_TEMPERATURE), at, &format!("{name} {letter} (°C)"))?;
+        let heater = if bed { Heater::Bed } else { Heater::HotEnd };
+        self.notes.record(name, line, column, || match mode {
+            HeatWait::None => format!("{name}: heater target set where it stands in the job"),
+            _ => format!("{name}: heater target set, and the job holds until the temperature has settled"),
+        });
+        self.emit_heat(HeatRequest { heater, wait: mode, target, band: OPEN_BAND }, line, out);
+        Ok(())
+    }
+
+    /// A heat segment at the machine's position.
+    fn emit_heat(&mut self, heat: HeatRequest, line: usize, out: &mut VecDeque<GcodeSegment>) {
+        let segment = Segment { kind: SegmentKind::Heat, end: self.machine.position, heat, ..Segment::default() };
+        self.emit(segment, line, out);
+    }
+
+    /// Klipper's `SET_HEATER_TEMPERATURE HEATER= TARGET=` (TARGET absent: 0, off, as Klipper) and
+    /// `TEMPERATURE_WAIT SENSOR= MINIMUM= MAXIMUM=` (at least one bound). `extruder` and
+    /// `heater_bed` are acted on; other heaters and sensors are reported.
+    fn klipper_heat(
+        &mut self,
+        name: &str,
+        params: &[ExtendedParam],
+        line: usize,
+        column: usize,
+        out: &mut VecDeque<GcodeSegment>,
+    ) -> Result<(), Fault> {
+        let set = name == "SET_HEATER_TEMPERATURE";
+        let which_key = if set { "HEATER" } else { "SENSOR" };
+        let mut which: Option<&ExtendedParam> = None;
+        let mut numbers: [Option<(f64, usize)>; 3] = [None; 3];
+        for param in params {
+            let slot = match (set, param.key.as_str()) {
+                (_, k) if k == which_key => {
+                    which = Some(param);
+                    continue;
+                }
+                (true, "TARGET") => 0,
+                (false, "MINIMUM") => 1,
+                (false, "MAXIMUM") => 2,
+                _ => {
+                    let kind = format!("{name} parameters");
+                    self.warnings
+                        .record(&kind, line, param.column, || format!("{name}: parameters other than the ones acted on are not acted on"));
+                    continue;
+                }
+            };
+            numbers[slot] = Some((extended_number(name, param)?, param.column));
+        }
+        let Some(which) = which else {
+            return Err(Fault::new(column, format!("{name}: {which_key}= is required (extruder or heater_bed)")));
+        };
+        let heater = match which.value.trim() {
+            "extruder" => Heater::HotEnd,
+            "heater_bed" => Heater::Bed,
+            other => {
+                let kind = format!("{name} {other}");
+                self.warnings.record(&kind, line, which.column, || {
+                    format!("{name} {which_key}={other}: only extruder and heater_bed are acted on (jobs use one tool)")
+                });
+                return Ok(());
+            }
+        };
+        let request = if set {
+            let (target, at) = numbers[0].unwrap_or((0.0, column));
+            let target = in_range(target, (0.0, MAX_TEMPERATURE), at, &format!("{name} TARGET (°C)"))?;
+            HeatRequest { heater, wait: HeatWait::None, target, band: OPEN_BAND }
+        } else {
+            if numbers[1].is_none() && numbers[2].is_none() {
+                return Err(Fault::new(column, format!("{name}: MINIMUM= or MAXIMUM= is required")));
+            }
+            let (low, at_low) = numbers[1].unwrap_or((OPEN_BAND[0], column));
+            let (high, at_high) = numbers[2].unwrap_or((OPEN_BAND[1], column));
+            let low = in_range(low, (OPEN_BAND[0], MAX_TEMPERATURE), at_low, &format!("{name} MINIMUM (°C)"))?;
+            let high = in_range(high, (OPEN_BAND[0], OPEN_BAND[1]), at_high, &format!("{name} MAXIMUM (°C)"))?;
+            if low > high {
+                return Err(Fault::new(at_high, format!("{name}: MINIMUM {low} is above MAXIMUM {high}")));
+            }
+            HeatRequest { heater, wait: HeatWait::Range, target: -1.0, band: [low, high] }
+        };
+        self.notes.record(name, line, column, || match set {
+            true => format!("{name}: heater target set where it stands in the job"),
+            false => format!("{name}: the job holds until the temperature is in range and has settled"),
+        });
+        self.emit_heat(request, line, out);
         Ok(())
     }
 
@@ -194,17 +336,24 @@ impl Interpreter {
         malformed: Option<Fault>,
         line: usize,
         column: usize,
+        out: &mut VecDeque<GcodeSegment>,
     ) -> Result<(), Fault> {
         if self.firmware.dialect == Dialect::Rs274ngc {
             return Err(Fault::new(column, format!("{name}: not an RS274/NGC word (a Klipper command in a .ngc/.nc/.tap file?)")));
         }
-        let acted = matches!(name, "SET_VELOCITY_LIMIT" | "SET_PRESSURE_ADVANCE" | "SET_RETRACTION");
+        let acted = matches!(
+            name,
+            "SET_VELOCITY_LIMIT" | "SET_PRESSURE_ADVANCE" | "SET_RETRACTION" | "SET_HEATER_TEMPERATURE" | "TEMPERATURE_WAIT"
+        );
         if !acted {
             self.warnings.record(name, line, column, || format!("extended command {name} not acted on"));
             return Ok(());
         }
         if let Some(fault) = malformed {
             return Err(fault);
+        }
+        if matches!(name, "SET_HEATER_TEMPERATURE" | "TEMPERATURE_WAIT") {
+            return self.klipper_heat(name, params, line, column, out);
         }
         let mut ignored = false;
         for param in params {

@@ -212,7 +212,7 @@ impl Interpreter {
             self.rotary.offset = Default::default();
         }
         if let Some((code, column)) = plan.firmware {
-            self.firmware_m(code, block, line, column)?;
+            self.firmware_m(code, block, line, column, out)?;
         }
         if let Some((motion, column)) = motion {
             self.move_to(block, motion, column, line, out)?;
