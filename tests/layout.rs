@@ -296,7 +296,7 @@ fn no_crate_has_an_import_loop() {
 }
 
 /// The tools' crates: one job each, a binary (or two) over a library.
-const TOOL_CRATES: [&str; 7] = ["feed", "replay", "kin", "plan", "sim", "bench", "natnet"];
+const TOOL_CRATES: [&str; 8] = ["feed", "replay", "kin", "plan", "sim", "bench", "natnet", "mcu"];
 
 /// A tool crate's mains: `src/main.rs` and everything under `src/bin/`.
 fn tool_mains() -> Vec<PathBuf> {
@@ -375,6 +375,7 @@ fn library_code_returns_typed_errors() {
         "tools/driver/src",
         "tools/natnet/src",
         "tools/calibrate/src",
+        "tools/mcu/src",
     ] {
         rust_files(&root().join(dir), &mut files);
     }
