@@ -219,7 +219,7 @@ fn override_percentages_out_of_range_are_errors_naming_the_column() {
     // A letter always starts a word: `Sfast` is S, F, A, S, T, and S comes twice.
     let err = error("M220 Sfast");
     assert_eq!((err.line, err.column), (1, 9), "{err}");
-    assert!(err.message.contains("word S given twice"), "{err}");
+    assert!(err.message.contains("word S given twice") && err.message.contains("was a number meant?"), "{err}");
     let err = error("M220 S");
     assert_eq!((err.line, err.column), (1, 6), "{err}");
     let err = error("G1 X1 M220 S50");

@@ -69,8 +69,15 @@ impl Block {
             }
             _ => {
                 let slot = &mut self.params[letter_index(word.letter)];
-                if slot.is_some() {
-                    return Err(Fault::new(word.column, format!("word {letter} given twice on one line")));
+                if let Some(first) = slot {
+                    // Text glued to a letter (`M220 Sfast`) reads as more words, a letter always
+                    // starting one as in every firmware: say so when a bare letter is involved.
+                    let hint = if matches!(first.value, Value::Bare) || matches!(word.value, Value::Bare) {
+                        " (a letter always starts a word, so text after a letter reads as more words: was a number meant?)"
+                    } else {
+                        ""
+                    };
+                    return Err(Fault::new(word.column, format!("word {letter} given twice on one line{hint}")));
                 }
                 *slot = Some(Param { value: word.value, column: word.column });
             }
