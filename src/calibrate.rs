@@ -37,6 +37,8 @@ pub enum CalibrateVerb {
     },
     /// The bed frame from 3 or more touched points.
     Frame,
+    /// The bed's surface (`[bed.mesh]`) from heights probed over it.
+    Mesh(MeshOptions),
     /// The tracked base: hand–eye from pairs of arm and tracker poses (`--snapshots`: the pairs file).
     Base,
     /// The extruder drive from a commanded and a measured filament length.
@@ -48,6 +50,20 @@ pub enum CalibrateVerb {
         /// Filament speed of the live extrusion (m/s).
         speed: f64,
     },
+}
+
+/// What `strand calibrate mesh` takes beside the common options.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct MeshOptions {
+    /// Probed points (x, y, z in the bed frame, m), as a probe's script writes them; `None`: the
+    /// nozzle's touches (`--snapshots`, else live).
+    pub points: Option<PathBuf>,
+    /// Nodes along x and y; `None`: the config's `[bed.mesh]` grid.
+    pub grid: Option<[usize; 2]>,
+    /// The grid's corners (x, y) in the bed frame (m); `None`: the config's, else the touches' extent.
+    pub bounds: Option<([f64; 2], [f64; 2])>,
+    /// The interpolation (`bicubic`, `bilinear`); `None`: the config's, else bicubic.
+    pub algorithm: Option<strand_core::MeshAlgorithm>,
 }
 
 /// What every verb takes.
@@ -108,6 +124,7 @@ pub fn run(verb: &CalibrateVerb, opts: &CalibrateOptions, input: &mut dyn BufRea
             tool_verb(&cfg, opts, &prefix, *axis || axis_snapshots.is_some(), axis_snapshots.as_deref(), input)
         }
         CalibrateVerb::Frame => frame_verb(&cfg, opts, &prefix, input),
+        CalibrateVerb::Mesh(mesh) => mesh_verb(&cfg, opts, mesh, &prefix, input),
         CalibrateVerb::Base => base_verb(&cfg, opts, &prefix, input),
         CalibrateVerb::Extruder { commanded, measured, speed } => extruder_verb(&cfg, opts, &prefix, *commanded, *measured, *speed, input),
     }
@@ -478,6 +495,103 @@ fn frame_verb(cfg: &Config, opts: &CalibrateOptions, prefix: &str, input: &mut d
         let _ = writeln!(out, "written to {} (tilt and offset replaced)", f.display());
     }
     Ok(out)
+}
+
+fn mesh_verb(cfg: &Config, opts: &CalibrateOptions, mesh: &MeshOptions, prefix: &str, input: &mut dyn BufRead) -> Result<String> {
+    let current = cfg.bed.mesh.as_ref();
+    let grid = mesh.grid.or_else(|| current.map(|m| m.counts().into())).ok_or_else(|| CalibrationError::BadValue {
+        what: "grid",
+        reason: "the config has no [bed.mesh] to take the grid from: say --grid NXxNY (nodes along x and y)".into(),
+    })?;
+    let bounds = mesh.bounds.or_else(|| if mesh.grid.is_none() { current.map(|m| (m.min, m.max)) } else { None });
+    let algorithm = mesh.algorithm.or_else(|| current.map(|m| m.algorithm)).unwrap_or_default();
+    let bed = cfg.bed_transform()?;
+    let (points, source) = match &mesh.points {
+        Some(file) => (strand_calibrate::mesh::read_points(file)?, format!("probed points from {}", file.display())),
+        None => {
+            let model = cfg.robot.build_model()?;
+            if let Some((lo, hi)) = bounds
+                && opts.snapshots.is_none()
+            {
+                eprintln!(
+                    "touch the bed with the nozzle near each node of the {}×{} grid (bed frame, mm), in any order:",
+                    grid[0], grid[1]
+                );
+                for j in 0..grid[1] {
+                    let y = lo[1] + (hi[1] - lo[1]) * j as f64 / (grid[1] - 1) as f64;
+                    let row: Vec<String> = (0..grid[0])
+                        .map(|i| format!("({:.1}, {:.1})", (lo[0] + (hi[0] - lo[0]) * i as f64 / (grid[0] - 1) as f64) * 1e3, y * 1e3))
+                        .collect();
+                    eprintln!("  {}", row.join(" "));
+                }
+            }
+            let touches = read_touches(opts, prefix, "point", model.dof(), strand_calibrate::mesh::MIN_POINTS, input)?;
+            let mount = base_in_world(cfg);
+            let tcps: Vec<Frame> = snapshots::poses(&model, &touches)?.into_iter().map(|t| mount * t).collect();
+            (tcps.iter().map(|t| bed.to_bed(&t.translation.vector)).collect(), format!("{} nozzle touches", tcps.len()))
+        }
+    };
+    let fit = strand_calibrate::mesh::solve_mesh(&points, strand_calibrate::mesh::MeshGrid { algorithm, counts: grid, bounds })?;
+    let algorithm_name = match algorithm {
+        strand_core::MeshAlgorithm::Bilinear => "bilinear",
+        strand_core::MeshAlgorithm::Bicubic => "bicubic",
+    };
+    let mut written = None;
+    if let Some(w) = &opts.write {
+        let mut edit = ConfigEdit::open(w)?;
+        edit.set_bed_mesh(&fit.min, &fit.max, &fit.points, Some(algorithm_name))?;
+        save_checked(&edit, w)?;
+        written = Some(w.clone());
+    }
+    let mut notes = Vec::new();
+    let tilt = fit.tilt_mrad[0].hypot(fit.tilt_mrad[1]);
+    if tilt > 1.0 {
+        notes.push(format!(
+            "the touches' mean plane is tilted {tilt:.2} mrad against the bed frame: the mesh takes it out, but `strand calibrate frame` first keeps the layers above the fade level"
+        ));
+    }
+    let rms = (fit.residuals_mm.iter().map(|r| r * r).sum::<f64>() / fit.residuals_mm.len() as f64).sqrt();
+    if rms > 0.02 {
+        notes.push(format!("the touches depart from the fitted surface by {rms:.3} mm RMS: a finer --grid, or touch again"));
+    }
+    if opts.json {
+        let mut v = json!({
+            "min": fit.min,
+            "max": fit.max,
+            "points": fit.points,
+            "grid": grid,
+            "algorithm": algorithm_name,
+            "range_mm": fit.range_mm,
+            "tilt_mrad": fit.tilt_mrad,
+            "residuals_mm": fit.residuals_mm,
+            "notes": notes,
+        });
+        if let Some(f) = &written {
+            v["written"] = json!(f.display().to_string());
+        }
+        return Ok(format!("{v}\n"));
+    }
+    let mut out = String::new();
+    let _ = writeln!(out, "bed mesh from {source} (bed frame; m):");
+    let _ = writeln!(out, "[bed.mesh]\nmin = {}\nmax = {}\nalgorithm = \"{algorithm_name}\"\npoints = [", m6_2(&fit.min), m6_2(&fit.max));
+    for row in &fit.points {
+        let _ = writeln!(out, "    [{}],", row.iter().map(|z| format!("{z:.6}")).collect::<Vec<_>>().join(", "));
+    }
+    let _ = writeln!(out, "]");
+    let _ = writeln!(out, "range (highest minus lowest node): {:.3} mm", fit.range_mm);
+    let _ = writeln!(out, "mean plane slope: x {:.3} mrad, y {:.3} mrad", fit.tilt_mrad[0], fit.tilt_mrad[1]);
+    let _ = writeln!(out, "each point minus the surface (mm): {}", mm(&fit.residuals_mm));
+    for n in &notes {
+        let _ = writeln!(out, "note: {n}");
+    }
+    if let Some(f) = &written {
+        let _ = writeln!(out, "written to {} ([bed.mesh]; its fade kept)", f.display());
+    }
+    Ok(out)
+}
+
+fn m6_2(v: &[f64; 2]) -> String {
+    format!("[{:.6}, {:.6}]", v[0], v[1])
 }
 
 fn base_verb(cfg: &Config, opts: &CalibrateOptions, prefix: &str, input: &mut dyn BufRead) -> Result<String> {

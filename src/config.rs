@@ -524,6 +524,8 @@ impl Config {
             path: self.path.clone(),
             extruder: self.extruder.clone(),
             base: self.base.clone(),
+            // Checked when the config was read: a config that loaded has a valid bed.
+            bed_mesh: BedTransform::new(&self.bed).ok().and_then(|b| b.mesh().cloned()),
         }
     }
 }

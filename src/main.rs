@@ -149,6 +149,26 @@ enum CalibrateCommand {
         #[command(flatten)]
         args: CalibrateArgs,
     },
+    /// `[bed.mesh]`: the bed's surface from heights on a grid (nozzle touches, or a probe's points).
+    Mesh {
+        #[command(flatten)]
+        args: CalibrateArgs,
+        /// Probed points instead of touches: x, y, z per line in the bed frame (m), `#` comments allowed.
+        #[arg(long, value_name = "FILE")]
+        points: Option<PathBuf>,
+        /// Nodes along x and y, e.g. `5x5` (default: the config's [bed.mesh] grid).
+        #[arg(long, value_name = "NXxNY", value_parser = parse_grid)]
+        grid: Option<[usize; 2]>,
+        /// The grid's lower corner in the bed frame, `X,Y` in mm (default: the touches' extent).
+        #[arg(long, value_name = "X,Y", value_parser = parse_xy_mm, requires = "max")]
+        min: Option<[f64; 2]>,
+        /// The grid's upper corner in the bed frame, `X,Y` in mm.
+        #[arg(long, value_name = "X,Y", value_parser = parse_xy_mm, requires = "min")]
+        max: Option<[f64; 2]>,
+        /// Interpolation between the heights: bicubic or bilinear (default: the config's, else bicubic).
+        #[arg(long, value_parser = ["bicubic", "bilinear"])]
+        algorithm: Option<String>,
+    },
     /// `[base] mount` by hand-eye calibration (AX = XB, Park-Martin) from arm and tracker poses.
     Base {
         #[command(flatten)]
@@ -323,11 +343,31 @@ fn ctl(prefix: &str, timeout: f64, verb: strand::ctl::CtlVerb) -> ExitCode {
     }
 }
 
+/// `--grid 5x5`: nodes along x and y.
+fn parse_grid(s: &str) -> Result<[usize; 2], String> {
+    let (x, y) = s.split_once(['x', 'X', ',']).ok_or_else(|| format!("{s:?}: write the grid as NXxNY, e.g. 5x5"))?;
+    let n = |v: &str| v.trim().parse::<usize>().map_err(|_| format!("{s:?}: {v:?} is not a whole number of nodes"));
+    Ok([n(x)?, n(y)?])
+}
+
+/// `--min 10,20`: a bed point in mm, as m.
+fn parse_xy_mm(s: &str) -> Result<[f64; 2], String> {
+    let (x, y) = s.split_once(',').ok_or_else(|| format!("{s:?}: write X,Y in mm, e.g. 10,20"))?;
+    let n = |v: &str| v.trim().parse::<f64>().ok().filter(|v| v.is_finite()).ok_or_else(|| format!("{s:?}: {v:?} is not a number"));
+    Ok([n(x)? * 1e-3, n(y)? * 1e-3])
+}
+
 fn calibrate(verb: CalibrateCommand) -> ExitCode {
     use strand::calibrate::{CalibrateOptions, CalibrateVerb};
+    use strand_core::MeshAlgorithm;
     let (args, verb) = match verb {
         CalibrateCommand::Tool { args, axis, axis_snapshots } => (args, CalibrateVerb::Tool { axis, axis_snapshots }),
         CalibrateCommand::Frame { args } => (args, CalibrateVerb::Frame),
+        CalibrateCommand::Mesh { args, points, grid, min, max, algorithm } => {
+            let algorithm = algorithm.map(|a| if a == "bilinear" { MeshAlgorithm::Bilinear } else { MeshAlgorithm::Bicubic });
+            let bounds = min.zip(max);
+            (args, CalibrateVerb::Mesh(strand::calibrate::MeshOptions { points, grid, bounds, algorithm }))
+        }
         CalibrateCommand::Base { args } => (args, CalibrateVerb::Base),
         CalibrateCommand::Extruder { args, commanded, measured, speed } => {
             (args, CalibrateVerb::Extruder { commanded: commanded * 1e-3, measured: measured.map(|m| m * 1e-3), speed: speed * 1e-3 })

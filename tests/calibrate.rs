@@ -182,6 +182,76 @@ fn frame_from_snapshots_replaces_tilt_and_offset() {
     assert_eq!(std::fs::read_to_string(&config).unwrap(), written);
 }
 
+/// The bed mesh from nozzle touches (KR 6 joints) on a warped bed near the nodes of a 4 × 3 grid:
+/// the heights come back within the IK's precision, `--write` adds `[bed.mesh]` at the end of the
+/// file, the config loads with it and `check-job` names it; a node without a touch is refused.
+#[test]
+fn mesh_from_snapshots_written_into_bed_mesh() {
+    let dir = kr6_cell("mesh");
+    let config = dir.join("kr6r900.toml");
+    let cfg = Config::load(&config).unwrap();
+    let bed = cfg.bed_transform().unwrap();
+    let surface = |x: f64, y: f64| 2e-3 * (x - 0.05) + 0.2e-3 * ((x - 0.06) / 0.06).powi(2) - 0.1e-3 * (y / 0.05);
+    // Touches up to 1 mm off the nodes, inside the grid, the tip on the surface; bed frame (m).
+    let nodes: Vec<[f64; 2]> = (0..3).flat_map(|j| (0..4).map(move |i| [0.04 * i as f64, 0.05 * j as f64])).collect();
+    let inward = |v: f64, top: f64, d: f64| if v + d > top || v + d < 0.0 { v - d } else { v + d };
+    let touched: Vec<Vector3<f64>> = nodes
+        .iter()
+        .enumerate()
+        .map(|(k, n)| (inward(n[0], 0.12, 1e-3 * (k % 2) as f64), inward(n[1], 0.1, -0.5e-3 * (k % 3) as f64)))
+        .map(|(x, y)| Vector3::new(x, y, surface(x, y)))
+        .collect();
+    let model = cfg.robot.build_model().unwrap();
+    let down = bed.tool_orientation().to_rotation_matrix();
+    let text: String = touched.iter().map(|p| csv_line(&ik(&model, &Frame::from_parts(bed.point(p).into(), down)), 6) + "\n").collect();
+    let s = dir.join("mesh.csv");
+    std::fs::write(&s, &text).unwrap();
+    let c = config.to_str().unwrap();
+    let v = json(&strand(&[
+        "calibrate",
+        "mesh",
+        "--config",
+        c,
+        "--snapshots",
+        s.to_str().unwrap(),
+        "--grid",
+        "4x3",
+        "--min",
+        "0,0",
+        "--max",
+        "120,100",
+        "--json",
+        "--write",
+        c,
+    ]));
+    assert_eq!(v["grid"], serde_json::json!([4, 3]));
+    let points = v["points"].as_array().unwrap();
+    for (k, n) in nodes.iter().enumerate() {
+        let z = points[k / 4][k % 4].as_f64().unwrap();
+        // Bicubic through the nodes, fitted to touches 1 mm off them: the surface's curvature
+        // over 1 mm is a fraction of a µm.
+        assert!((z - surface(n[0], n[1])).abs() < 5e-6, "node {k}: {z} vs {}", surface(n[0], n[1]));
+    }
+    let written = std::fs::read_to_string(&config).unwrap();
+    let at = written.find("[bed.mesh]").expect("a [bed.mesh] table");
+    assert!(written[at..].contains("algorithm = \"bicubic\""), "{written}");
+    assert!(written.rfind("\n[").unwrap() <= at, "[bed.mesh] is the file's last table: {written}");
+    let again = Config::load(&config).unwrap();
+    let mesh = again.bed_transform().unwrap().mesh().cloned().expect("the mesh loads");
+    assert!((mesh.height(0.07, 0.03) - surface(0.07, 0.03)).abs() < 20e-6);
+    let job = dir.join("line.gcode");
+    std::fs::write(&job, "G21\nG90\nM83\nG1 Z0.3 F3000\nG1 X20 Y20 F3000\nG1 X60 Y40 E1.5 F1200\n").unwrap();
+    let out = strand(&["check-job", "--config", c, job.to_str().unwrap()]);
+    let report = String::from_utf8_lossy(&out.stdout);
+    assert!(report.contains("bed mesh   4×3 over x 0.0…120.0 mm, y 0.0…100.0 mm"), "{report}");
+    // Touches that leave a node far away: refused naming it, nothing written.
+    std::fs::write(&s, text.lines().take(11).map(|l| format!("{l}\n")).collect::<String>()).unwrap();
+    let out = strand(&["calibrate", "mesh", "--config", c, "--snapshots", s.to_str().unwrap(), "--grid", "4x3", "--write", c]);
+    assert_eq!(out.status.code(), Some(3), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("no touch near node (4, 3)"), "{}", String::from_utf8_lossy(&out.stderr));
+    assert_eq!(Config::load(&config).unwrap().bed.mesh, again.bed.mesh);
+}
+
 fn pose_columns(f: &Frame) -> String {
     let q = UnitQuaternion::from_rotation_matrix(&f.rotation);
     let t = f.translation.vector;

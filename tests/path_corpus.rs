@@ -110,7 +110,7 @@ fn rules_004_beats_stop_and_go_and_lookahead_beats_both_on_the_first_outer_wall(
             Ok(strand_job::gcode::GcodeSegment { segment: s, line: 0, tags: Default::default() })
         });
         // Start at the wall's first point.
-        let bed = BedTransform::new(&strand_job::bed::BedConfig { tilt: 0.0, offset: [0.0; 3], frame: None }).unwrap();
+        let bed = BedTransform::new(&strand_job::bed::BedConfig { tilt: 0.0, offset: [0.0; 3], frame: None, mesh: None }).unwrap();
         let shifted = program.map(move |r: Result<strand_job::gcode::GcodeSegment, strand_job::gcode::GcodeError>| {
             r.map(|mut g| {
                 g.segment.end -= start;

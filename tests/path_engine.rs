@@ -432,7 +432,7 @@ fn advances_seen(config: &ExtruderConfig, advances: [f64; 3]) {
 #[test]
 fn an_inclined_bed_maps_points_and_keeps_the_nozzle_normal_to_it() {
     let alpha = 45f64.to_radians();
-    let bed = BedTransform::new(&BedConfig { tilt: alpha, offset: [0.5, 0.0, 0.1], frame: None }).unwrap();
+    let bed = BedTransform::new(&BedConfig { tilt: alpha, offset: [0.5, 0.0, 0.1], frame: None, mesh: None }).unwrap();
     let p = bed.point(&Vector3::new(0.0, 0.01, 0.0));
     assert!((p - Vector3::new(0.5, 0.01 * alpha.cos(), 0.1 + 0.01 * alpha.sin())).norm() < 1e-15);
     let nozzle = bed.tool_orientation() * Vector3::z();
@@ -444,7 +444,7 @@ fn an_inclined_bed_maps_points_and_keeps_the_nozzle_normal_to_it() {
     };
     let mapped = bed.segment(&s);
     assert!((mapped.orientation * Vector3::z() + bed.normal()).norm() < 1e-15);
-    assert!(BedTransform::new(&BedConfig { tilt: 2.0, offset: [0.0; 3], frame: None }).is_err());
+    assert!(BedTransform::new(&BedConfig { tilt: 2.0, offset: [0.0; 3], frame: None, mesh: None }).is_err());
 }
 
 /// Slic3r 1.3's cyl20 perimeter (short chords of an 8 mm circle, blended into large arcs) ending in

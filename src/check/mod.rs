@@ -216,6 +216,10 @@ pub struct CheckReport {
     /// Joint frames below the bed plane already at the start posture (a pedestal lower than the
     /// bed): not checked against the bed.
     pub unchecked_frames: Vec<String>,
+    /// `[bed.mesh]` in one line (grid, extent, heights, fade), if the config has one: the path
+    /// follows that surface, and the bed clearance is measured from it.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub bed_mesh: Option<String>,
     /// Ticks simulated.
     pub ticks: u64,
 }
@@ -426,6 +430,8 @@ pub fn check_job(
     let bed = BedTransform::new(&cfg.bed).map_err(|e| CheckError::Controller(e.to_string()))?;
     let bed_origin = bed.point(&Vector3::zeros());
     let bed_normal = (bed.point(&Vector3::z()) - bed_origin).normalize();
+    // Height (m) of a point in W above the bed: its plane, or the measured surface on it.
+    let above_bed = |w: &Vector3<f64>| (w - bed_origin).dot(&bed_normal) - bed.mesh().map_or(0.0, |m| m.height_at(w).0);
     let check = &cfg.check;
 
     let dt = cfg.controller.dt();
@@ -510,6 +516,7 @@ pub fn check_job(
         max_tcp_error_m: 0.0,
         max_base_lag_m: None,
         unchecked_frames: Vec::new(),
+        bed_mesh: cfg.bed.mesh.as_ref().map(|m| m.summary()),
         ticks: 0,
     };
     let frame_name = |k: usize| if k < n { joint_names[k].as_str() } else { "tcp" };
@@ -521,7 +528,7 @@ pub fn check_job(
         let count = model.frame_origins(&q, &mut frames);
         for k in 0..count - 1 {
             let w = mount_position + mount_orientation * frames[k];
-            if (w - bed_origin).dot(&bed_normal) < check.bed_clearance {
+            if above_bed(&w) < check.bed_clearance {
                 checked_frames[k] = false;
                 report.unchecked_frames.push(frame_name(k).to_string());
             }
@@ -641,7 +648,7 @@ pub fn check_job(
                 continue;
             }
             let w = d.base.position + d.base.orientation * frames[k];
-            let height = (w - bed_origin).dot(&bed_normal);
+            let height = above_bed(&w);
             let clearance = if k + 1 == count { -1e-6 } else { check.bed_clearance };
             if height < clearance {
                 findings.note(ProblemKind::BelowBed, Severity::Error, (None, Some(frame_name(k))), here, height, smaller);
@@ -827,6 +834,9 @@ impl CheckReport {
         let _ = writeln!(s, "  TCP error  max {:.4} mm on the path", self.max_tcp_error_m * 1e3);
         if let Some(lag) = self.max_base_lag_m {
             let _ = writeln!(s, "  base       setpoint at most {:.2} mm behind its plan", lag * 1e3);
+        }
+        if let Some(m) = &self.bed_mesh {
+            let _ = writeln!(s, "  bed mesh   {m}");
         }
         if !self.unchecked_frames.is_empty() {
             let _ = writeln!(s, "  bed        not checked (below the bed at the start posture): {}", self.unchecked_frames.join(", "));

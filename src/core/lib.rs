@@ -38,9 +38,9 @@ pub use controller::{
 };
 pub use extrude::{Extruder, ExtruderCommand, ExtruderConfig, HeaterSource};
 pub use path::{
-    AxisLimits, Geometry, HeatRequest, HeatWait, Heater, InvalidPathConfig, InvalidSegment, MAX_ARC_SWEEP, MAX_TEMPERATURE, Motion,
-    OPEN_BAND, PathConfig, PathEngine, PathPoint, PathSample, PathStats, PlanningMode, Segment, SegmentError, SegmentFlags, SegmentKind,
-    arc_geometry, distance_to_arc, distance_to_segment,
+    AxisLimits, BedMesh, BedMeshConfig, Geometry, HeatRequest, HeatWait, Heater, InvalidPathConfig, InvalidSegment, MAX_ARC_SWEEP,
+    MAX_TEMPERATURE, MESH_COUNT, MeshAlgorithm, Motion, OPEN_BAND, PathConfig, PathEngine, PathPoint, PathSample, PathStats, PlanningMode,
+    Segment, SegmentError, SegmentFlags, SegmentKind, arc_geometry, distance_to_arc, distance_to_segment,
 };
 pub use positioner::{Carries, Positioner, PositionerError};
 pub use setting::InvalidSetting;

@@ -3,7 +3,9 @@
 //! `robot_state_publisher` would publish it (`/tf`), the joints against their limits
 //! (`/joints/normalized`), and three marker channels: the queued path ahead of the tool
 //! (`/path/ahead`), the path the tool has followed (`/path/executed`) and the bead it has laid
-//! (`/bead`, coloured by the TCP error). The log writer thread runs it, decimated
+//! (`/bead`, coloured by the TCP error), and the bed's measured surface (`/bed/mesh`, `[bed.mesh]`
+//! as a grid of lines coloured from its lowest to its highest point, once per file and latched).
+//! The log writer thread runs it, decimated
 //! (`[view] tf_rate_hz`, `marker_rate_hz`), and its messages go to the MCAP and to the live view
 //! alike, so a log opened afterwards draws the same scene.
 //!
@@ -45,17 +47,20 @@ pub(crate) enum SceneTopic {
     PathExecuted,
     /// `visualization_msgs/msg/MarkerArray`: the bead.
     Bead,
+    /// `visualization_msgs/msg/MarkerArray`: the bed mesh (only with `[bed.mesh]`).
+    BedMesh,
 }
 
 impl SceneTopic {
     /// Every scene channel.
-    pub(crate) const ALL: [SceneTopic; 6] = [
+    pub(crate) const ALL: [SceneTopic; 7] = [
         SceneTopic::RobotDescription,
         SceneTopic::Tf,
         SceneTopic::JointsNormalized,
         SceneTopic::PathAhead,
         SceneTopic::PathExecuted,
         SceneTopic::Bead,
+        SceneTopic::BedMesh,
     ];
 
     /// Its topic.
@@ -67,6 +72,7 @@ impl SceneTopic {
             SceneTopic::PathAhead => "/path/ahead",
             SceneTopic::PathExecuted => "/path/executed",
             SceneTopic::Bead => "/bead",
+            SceneTopic::BedMesh => "/bed/mesh",
         }
     }
 
@@ -294,13 +300,15 @@ pub(crate) struct Scene {
     ahead_start: Option<[f64; 3]>,
     executed: Trail,
     bead: Trail,
+    /// The bed mesh's grid lines (W) and their colours, if the config has a mesh.
+    bed_mesh: Vec<(Vec<[f64; 3]>, Vec<Rgba>)>,
     cdr: CdrWriter,
 }
 
 impl Scene {
     /// From the robot's URDF text and chain. An URDF that does not parse leaves `/tf` empty (the
     /// model was built from the same text, so it does).
-    pub(crate) fn new(urdf: &str, model: &RobotModel, cfg: &ViewConfig) -> Scene {
+    pub(crate) fn new(urdf: &str, model: &RobotModel, cfg: &ViewConfig, bed_mesh: Option<&strand_core::BedMesh>) -> Scene {
         let chain: Vec<&str> = model.joints().iter().map(|j| j.name.as_str()).collect();
         let joints = urdf_rs::read_from_string(urdf)
             .map(|robot| {
@@ -340,8 +348,20 @@ impl Scene {
             ahead_start: None,
             executed: Trail::new(cfg.history_points),
             bead: Trail::new(cfg.history_points),
+            bed_mesh: bed_mesh.map(mesh_lines).unwrap_or_default(),
             cdr: CdrWriter::new(),
         }
+    }
+
+    /// `/bed/mesh`: the bed's measured surface as grid lines (sent once per file, and to each live
+    /// client that subscribes), or `None` without a mesh.
+    pub(crate) fn bed_mesh(&mut self, stamp_ns: u64) -> Option<&[u8]> {
+        if self.bed_mesh.is_empty() {
+            return None;
+        }
+        let lines = self.bed_mesh.iter().enumerate().map(|(k, (p, c))| (k as i32, p, c));
+        encode_strips(&mut self.cdr, stamp_ns, "bed_mesh", PATH_WIDTH, lines);
+        Some(self.cdr.bytes())
     }
 
     /// `/robot_description`: the URDF (sent once per file, and to each live client that subscribes).
@@ -521,6 +541,34 @@ impl Scene {
     }
 }
 
+/// The mesh's grid lines in W: one along x per probed row, one along y per probed column, four
+/// points a cell, coloured from blue (the lowest height) to red (the highest).
+fn mesh_lines(mesh: &strand_core::BedMesh) -> Vec<(Vec<[f64; 3]>, Vec<Rgba>)> {
+    let c = mesh.config();
+    let (nx, ny) = c.counts();
+    let (lo, hi) = c.range();
+    let colour = |z: f64| -> Rgba {
+        let t = if hi > lo { ((z - lo) / (hi - lo)) as f32 } else { 0.5 };
+        [t, 0.2, 1.0 - t, 1.0]
+    };
+    let at = |a: f64, b: f64| [c.min[0] + a * (c.max[0] - c.min[0]), c.min[1] + b * (c.max[1] - c.min[1])];
+    let line = |along_x: bool, k: usize| {
+        let (n, across) = if along_x { (nx, k as f64 / (ny - 1) as f64) } else { (ny, k as f64 / (nx - 1) as f64) };
+        let samples = 4 * (n - 1);
+        let mut points = Vec::with_capacity(samples + 1);
+        let mut colours = Vec::with_capacity(samples + 1);
+        for i in 0..=samples {
+            let u = i as f64 / samples as f64;
+            let [x, y] = if along_x { at(u, across) } else { at(across, u) };
+            let p = mesh.surface_point(x, y);
+            points.push([p.x, p.y, p.z]);
+            colours.push(colour(mesh.height(x, y)));
+        }
+        (points, colours)
+    };
+    (0..ny).map(|j| line(true, j)).chain((0..nx).map(|i| line(false, i))).collect()
+}
+
 /// Green (0) through yellow to red (1 and above).
 fn error_colour(x: f64) -> Rgba {
     let x = if x.is_finite() { x.clamp(0.0, 1.0) as f32 } else { 1.0 };
@@ -640,6 +688,38 @@ mod tests {
         let mut history: Vec<(i32, Vec<[f64; 3]>)> = trail.history.iter().map(|(i, p, _)| (*i, p.clone())).collect();
         history.push((trail.id, trail.points.clone()));
         assert_eq!(history, drawn.into_iter().collect::<Vec<_>>());
+    }
+
+    /// `/bed/mesh`: a line per probed row and column, every point on the surface in W, the lowest
+    /// blue and the highest red.
+    #[test]
+    fn the_bed_mesh_is_drawn_on_its_surface() {
+        let cfg = strand_core::BedMeshConfig {
+            min: [0.0, 0.0],
+            max: [0.1, 0.05],
+            points: vec![vec![0.0, 1e-4, 3e-4], vec![-2e-4, 0.0, 1e-4]],
+            algorithm: strand_core::MeshAlgorithm::Bicubic,
+            fade_start: 1e-3,
+            fade_end: 10e-3,
+            fade_target: None,
+        };
+        let rotation = geom::rpy(0.0, 0.1, 0.5);
+        let origin = Vector3::new(0.45, 0.0, 0.2);
+        let mesh = strand_core::BedMesh::new(&cfg, origin, rotation).unwrap();
+        let lines = mesh_lines(&mesh);
+        assert_eq!(lines.len(), 2 + 3);
+        assert_eq!(lines[0].0.len(), 4 * 2 + 1);
+        assert_eq!(lines[2].0.len(), 4 + 1);
+        for (points, colours) in &lines {
+            assert_eq!(points.len(), colours.len());
+            for p in points {
+                let (surface, above) = mesh.height_at(&Vector3::from(*p));
+                assert!((above - surface).abs() < 1e-12, "{p:?}");
+            }
+        }
+        // Row 1 (y = 0.05) starts at the lowest node, row 0 ends at the highest.
+        assert_eq!(lines[1].1[0], [0.0, 0.2, 1.0, 1.0]);
+        assert_eq!(*lines[0].1.last().unwrap(), [1.0, 0.2, 0.0, 1.0]);
     }
 
     #[test]

@@ -73,6 +73,8 @@ pub struct LogContext {
     /// from `CLOCK_MONOTONIC` when the writer starts (a live run). A log rewritten from another
     /// keeps that one's.
     pub clock_offset_ns: Option<i128>,
+    /// The bed's measured surface (`[bed.mesh]`), drawn on `/bed/mesh`.
+    pub bed_mesh: Option<strand_core::BedMesh>,
 }
 
 impl LogContext {
@@ -92,6 +94,7 @@ impl LogContext {
                 .map(|j| j.name.clone())
                 .collect(),
             clock_offset_ns: None,
+            bed_mesh: strand_job::bed::BedTransform::new(&cfg.bed).ok().and_then(|b| b.mesh().cloned()),
         }
     }
 }
@@ -386,7 +389,7 @@ impl LiveTap {
         let mut channels = Vec::with_capacity(CHANNELS);
         for (topic, name, text) in channel_list() {
             let replay = match topic {
-                t if t == SceneTopic::RobotDescription.topic() => strand_view::Replay::Last,
+                t if t == SceneTopic::RobotDescription.topic() || t == SceneTopic::BedMesh.topic() => strand_view::Replay::Last,
                 t if t == SceneTopic::Bead.topic() || t == SceneTopic::PathExecuted.topic() => strand_view::Replay::History,
                 _ => strand_view::Replay::None,
             };
@@ -450,7 +453,7 @@ impl WriterThread {
             cdr: CdrWriter::new(),
             last_measured: None,
             bytes_closed: 0,
-            scene: Scene::new(&ctx.urdf_text, &ctx.model, &ctx.view),
+            scene: Scene::new(&ctx.urdf_text, &ctx.model, &ctx.view, ctx.bed_mesh.as_ref()),
             live: None,
             next_history_ns: 0,
             next_derived_ns: 0,
@@ -624,6 +627,10 @@ impl WriterThread {
             let now = unix_now_ns();
             let index = live.channels[Channel::Scene(SceneTopic::RobotDescription).index()];
             live.view.publish(index, now, self.scene.robot_description());
+            let index = live.channels[Channel::Scene(SceneTopic::BedMesh).index()];
+            if let Some(mesh) = self.scene.bed_mesh(now) {
+                live.view.publish(index, now, mesh);
+            }
         }
     }
 
@@ -652,6 +659,11 @@ impl WriterThread {
             let description = Channel::Scene(SceneTopic::RobotDescription).index();
             let header = MessageHeader { channel_id: f.channels[description], sequence: 0, log_time, publish_time: log_time };
             f.mcap.write_to_known_channel(&header, self.scene.robot_description()).map_err(|e| LogError::io(&f.path, e))?;
+            let mesh = Channel::Scene(SceneTopic::BedMesh).index();
+            let header = MessageHeader { channel_id: f.channels[mesh], ..header };
+            if let Some(bytes) = self.scene.bed_mesh(log_time) {
+                f.mcap.write_to_known_channel(&header, bytes).map_err(|e| LogError::io(&f.path, e))?;
+            }
         }
         // The derived channels go to the file at `derived_rate_hz` (on the tick's own time, so a
         // replay of the log decimates the same way); `/status` also whenever its state changes.

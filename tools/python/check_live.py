@@ -146,7 +146,7 @@ def main() -> int:
     compared = 0
     for topic, stats in topics.items():
         for sample in stats.get("samples", []) + [{"log_time": stats.get("first_log_time"), "message": stats.get("first")}]:
-            if topic == "/robot_description" or sample["message"] is None:
+            if topic in ("/robot_description", "/bed/mesh") or sample["message"] is None:
                 continue
             candidates = by_time.get((topic, sample["log_time"]), [])
             if topic in TRAILS and not any(close(sample["message"], c) for c in candidates):

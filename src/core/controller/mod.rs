@@ -38,7 +38,7 @@ use super::base_setpoint::BaseSetpoint;
 use super::extrude::Extruder;
 use super::following::FollowingWatch;
 use super::kin::{Clik, ClikStep, JointVector, MAX_JOINTS, PathVelocity, RobotModel, TcpTarget};
-use super::path::{AxisLimits, Motion, PathEngine, PathSample, SegmentError, SegmentFlags, SegmentKind};
+use super::path::{AxisLimits, Motion, PathEngine, PathSample, SegmentError, SegmentFlags, SegmentKind, rest_sample};
 use super::positioner::{Positioner, PositionerError};
 use strand_wire::MAX_EXTERNAL_AXES;
 
@@ -149,7 +149,8 @@ impl Controller {
         settings.controller.validate()?;
         settings.base.validate()?;
         let dt = settings.controller.dt();
-        let engine = PathEngine::new(&settings.path, dt, Vector3::zeros(), UnitQuaternion::identity())?;
+        let mut engine = PathEngine::new(&settings.path, dt, Vector3::zeros(), UnitQuaternion::identity())?;
+        engine.set_bed_mesh(settings.bed_mesh.clone());
         let extruder = Extruder::new(&settings.extruder, dt).map_err(ControllerError::Extruder)?;
         let clik = Clik::new(settings.clik)?;
         let joints = CellJoints::new(&model, None);
@@ -608,14 +609,16 @@ impl Controller {
             let axes_now = self.axes_command();
             let first: FirstPoint = if segment.kind == SegmentKind::Line && !segment.extrudes() && segment.filament == 0.0 {
                 let axes = segment.axes.unwrap_or(axes_now);
+                // Where the tool must be (W): the travel's end on the bed's measured surface.
+                let end = self.engine.to_world(&segment.end);
                 let there = self.command.known && axes == axes_now && {
                     let (p, q) = self.tool_world(now_ns);
-                    (p - segment.end).norm() <= self.cfg.approach_position_tolerance
+                    (p - end).norm() <= self.cfg.approach_position_tolerance
                         && (q * Vector3::z()).angle(&(segment.orientation * Vector3::z())) <= self.cfg.approach_orientation_tolerance
                 };
                 // Already there (a job following another at the same point): no approach at all.
                 let lift = if there { 0.0 } else { self.cfg.approach_lift };
-                (segment.end - (segment.orientation * Vector3::z()) * lift, segment.orientation, axes)
+                (self.engine.to_world(&(segment.end - (segment.orientation * Vector3::z()) * lift)), segment.orientation, axes)
             } else if self.command.known {
                 let (p, q) = self.tool_world(now_ns);
                 (p, q, axes_now)
@@ -629,7 +632,7 @@ impl Controller {
             // approach replaced); a new job reads it from its start again (or from
             // `Command::ProgressOffset`: a resumed job).
             self.base_lead_in = if segment.kind == SegmentKind::Line && !segment.extrudes() && segment.filament == 0.0 {
-                (segment.end - first.0).norm()
+                (segment.end - self.engine.to_program(&first.0)).norm()
             } else {
                 0.0
             };
@@ -637,7 +640,7 @@ impl Controller {
             // A job may open with a standstill (a slicer's first retraction, `G10`, a `G4`): it
             // stands wherever the tool is, whatever point the program had in mind.
             if matches!(segment.kind, SegmentKind::Dwell | SegmentKind::Heat) {
-                segment.end = first.0;
+                segment.end = self.engine.to_program(&first.0);
             }
         }
         match self.engine.push(&segment) {
@@ -692,6 +695,7 @@ impl Controller {
     /// The heat segments kept before the job's first move, into the path at `at` (m, W: the
     /// job's first point, where the tool will stand for them), in order.
     fn flush_pre_heat(&mut self, at: Vector3<f64>) {
+        let at = self.engine.to_program(&at);
         for k in 0..self.pre_heat_len {
             let segment = super::path::Segment { end: at, ..self.pre_heat[k] };
             // The queue was just emptied: it has room for these few.
@@ -1170,30 +1174,6 @@ impl LayerCount {
     }
 }
 
-/// A path sample of a tool at rest, extruding nothing (what the extruder sees outside a job).
-fn rest_sample() -> PathSample {
-    PathSample {
-        position: Vector3::zeros(),
-        velocity: Vector3::zeros(),
-        acceleration: Vector3::zeros(),
-        orientation: UnitQuaternion::identity(),
-        angular_velocity: Vector3::zeros(),
-        s: 0.0,
-        speed: 0.0,
-        path_acceleration: 0.0,
-        path_jerk: 0.0,
-        seq: 0,
-        source_line: 0,
-        flags: SegmentFlags::default(),
-        flow: 0.0,
-        dwell_filament_rate: 0.0,
-        pressure_advance: None,
-        motion: Motion::Idle,
-        axes: [0.0; MAX_EXTERNAL_AXES],
-        axes_velocity: [0.0; MAX_EXTERNAL_AXES],
-    }
-}
-
 #[cfg(test)]
 mod tests {
     //! The stall watchdog end to end: a path engine frozen mid-job (as a planner bug would leave
@@ -1237,6 +1217,7 @@ mod tests {
             path: PathConfig::default(),
             extruder: ExtruderConfig::default(),
             base: BaseConfig::default(),
+            bed_mesh: None,
         };
         let urdf = include_str!("../../../config/robots/iiwa7.urdf");
         let model = RobotModel::from_urdf_str(urdf, "iiwa7.urdf", "world", "iiwa_link_ee")

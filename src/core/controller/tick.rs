@@ -10,7 +10,7 @@ use strand_wire::{FaultCode, JobOutcome, RejectReason, RunState};
 use crate::base::{BaseConfig, BaseState};
 use crate::extrude::ExtruderConfig;
 use crate::kin::{ClikConfig, InvalidClikConfig};
-use crate::path::{InvalidPathConfig, PathConfig};
+use crate::path::{BedMesh, InvalidPathConfig, PathConfig};
 use crate::setting::InvalidSetting;
 
 /// Segments a [`TickInput`] carries at most (the shell keeps the rest for the next tick).
@@ -452,4 +452,6 @@ pub struct ControllerSettings {
     pub extruder: ExtruderConfig,
     /// `[base]`.
     pub base: BaseConfig,
+    /// `[bed.mesh]` on the bed it was probed on: the path follows the bed's measured surface.
+    pub bed_mesh: Option<BedMesh>,
 }

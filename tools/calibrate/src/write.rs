@@ -57,14 +57,31 @@ impl ConfigEdit {
     }
 
     fn section(&mut self, name: &str) -> Result<&mut Table, CalibrationError> {
+        self.table(&[name])
+    }
+
+    /// The table at `path` (`["bed", "mesh"]` is `[bed.mesh]`), made if missing.
+    fn table(&mut self, path: &[&str]) -> Result<&mut Table, CalibrationError> {
         let file = self.file.display().to_string();
-        let item = self.doc.entry(name).or_insert_with(|| Item::Table(Table::new()));
-        item.as_table_mut().ok_or_else(|| CalibrationError::Config { file, message: format!("{name} is not a [section]") })
+        let mut table = self.doc.as_table_mut();
+        for (k, name) in path.iter().enumerate() {
+            let item = table.entry(name).or_insert_with(|| Item::Table(Table::new()));
+            table = item.as_table_mut().ok_or_else(|| CalibrationError::Config {
+                file: file.clone(),
+                message: format!("[{}] is not a section", path[..=k].join(".")),
+            })?;
+        }
+        Ok(table)
     }
 
     /// Sets `[section] key = value`, keeping the comment after an existing value.
-    fn set(&mut self, section: &str, key: &str, mut value: Value) -> Result<(), CalibrationError> {
-        let table = self.section(section)?;
+    fn set(&mut self, section: &str, key: &str, value: Value) -> Result<(), CalibrationError> {
+        self.set_at(&[section], key, value)
+    }
+
+    /// Sets `key = value` in the table at `path`, keeping the comment after an existing value.
+    fn set_at(&mut self, path: &[&str], key: &str, mut value: Value) -> Result<(), CalibrationError> {
+        let table = self.table(path)?;
         if let Some(old) = table.get(key).and_then(Item::as_value) {
             *value.decor_mut() = old.decor().clone();
         } else {
@@ -125,6 +142,40 @@ impl ConfigEdit {
         Ok(())
     }
 
+    /// Sets `[bed.mesh]`'s grid: `min` and `max` (m), `points` (m, one row per y, written one row a
+    /// line), and `algorithm` when given; its other keys (the fade) are kept.
+    pub fn set_bed_mesh(
+        &mut self,
+        min: &[f64; 2],
+        max: &[f64; 2],
+        points: &[Vec<f64>],
+        algorithm: Option<&str>,
+    ) -> Result<(), CalibrationError> {
+        let path = ["bed", "mesh"];
+        let new = self.doc.get("bed").and_then(|b| b.get("mesh")).is_none();
+        self.set_at(&path, "min", array(min, DECIMALS))?;
+        if new {
+            // At the end of the file: right after `[bed]` it would come between that section's
+            // commented-out keys and the operator, who might uncomment one into the mesh.
+            let last = self.doc.as_table().iter().filter_map(|(_, i)| i.as_table()).filter_map(Table::position).max().unwrap_or(0);
+            self.table(&path)?.set_position(Some(last + 1));
+        }
+        self.set_at(&path, "max", array(max, DECIMALS))?;
+        let mut rows = Array::new();
+        for row in points {
+            let mut r = array(row, DECIMALS);
+            r.decor_mut().set_prefix("\n    ");
+            rows.push_formatted(r);
+        }
+        rows.set_trailing("\n");
+        rows.set_trailing_comma(true);
+        self.set_at(&path, "points", Value::Array(rows))?;
+        if let Some(a) = algorithm {
+            self.set_at(&path, "algorithm", Value::from(a))?;
+        }
+        Ok(())
+    }
+
     /// The edited text.
     pub fn text(&self) -> String {
         self.doc.to_string()
@@ -164,6 +215,22 @@ mod tests {
         assert!(out.contains("frame = { xyz = [0.5, 0.01, 0.2], rpy = [0.001, -0.002, 0.3] }"), "{out}");
         assert!(!out.contains("\ntilt"), "{out}");
         assert!(out.contains("[check]\nx = 1\n"), "{out}");
+    }
+
+    #[test]
+    fn a_bed_mesh_goes_into_its_table_one_row_a_line_keeping_the_fade() {
+        let text =
+            "[bed]\nframe = { xyz = [0.5, 0.0, 0.2], rpy = [0.0, 0.0, 0.0] }\n\n[bed.mesh]\nfade_end = 0.008  # m\nmin = [0.0, 0.0]\n";
+        let mut e = edit(text);
+        e.set_bed_mesh(&[0.01, 0.02], &[0.19, 0.18], &[vec![0.0001, -0.0000004], vec![0.00025, 0.0]], Some("bicubic")).unwrap();
+        let out = e.text();
+        assert!(out.contains("fade_end = 0.008  # m\nmin = [0.01, 0.02]\n"), "{out}");
+        assert!(out.contains("points = [\n    [0.0001, 0.0],\n    [0.00025, 0.0],\n]\n"), "{out}");
+        let parsed: toml_edit::DocumentMut = out.parse().unwrap();
+        assert_eq!(parsed["bed"]["mesh"]["algorithm"].as_str(), Some("bicubic"));
+        let mut e = edit("robot = \"r.toml\"\n");
+        e.set_bed_mesh(&[0.0, 0.0], &[0.1, 0.1], &[vec![0.0; 2], vec![0.0; 2]], None).unwrap();
+        assert!(e.text().contains("[bed.mesh]\nmin = [0.0, 0.0]"), "{}", e.text());
     }
 
     #[test]

@@ -11,7 +11,7 @@ use nalgebra::{Rotation3, UnitQuaternion, Vector3};
 use serde::{Deserialize, Serialize};
 
 use strand_core::kin::geom;
-use strand_core::{InvalidSetting, Segment, SegmentKind};
+use strand_core::{BedMesh, BedMeshConfig, InvalidSetting, Segment, SegmentKind};
 
 /// `[bed]`: where the print bed is in W: its full pose (`frame`), or an offset and a tilt about x.
 #[derive(Clone, Debug, Default, Deserialize, Serialize, PartialEq)]
@@ -24,6 +24,10 @@ pub struct BedConfig {
     /// The bed's full pose in W (`strand calibrate frame`); replaces `tilt` and `offset`.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub frame: Option<BedFrame>,
+    /// `[bed.mesh]`: the bed's measured surface over the frame (`strand calibrate mesh`), which the
+    /// path follows, faded out with height.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub mesh: Option<BedMeshConfig>,
 }
 
 /// `[bed] frame = { xyz, rpy }`: the bed frame's pose in W.
@@ -46,11 +50,12 @@ impl BedConfig {
 
 /// The map from bed coordinates (G-code) to W: `p_W = xyz + R·p_bed`, with R the frame's rotation
 /// (`R(x, α)` for a tilt).
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq)]
 pub struct BedTransform {
     rotation: Rotation3<f64>,
     offset: Vector3<f64>,
     tool: UnitQuaternion<f64>,
+    mesh: Option<BedMesh>,
 }
 
 impl BedTransform {
@@ -88,7 +93,8 @@ impl BedTransform {
         // our bed rotation R applied in W (R(x, α) for 004's tilt), the nozzle is normal to the bed
         // for R·R(y, π).
         let tool = UnitQuaternion::from_rotation_matrix(&(rotation * flip));
-        Ok(BedTransform { rotation, offset, tool })
+        let mesh = config.mesh.as_ref().map(|m| BedMesh::new(m, offset, rotation)).transpose()?;
+        Ok(BedTransform { rotation, offset, tool, mesh })
     }
 
     /// The identity: a flat bed at the origin of W.
@@ -96,9 +102,20 @@ impl BedTransform {
         BedTransform::new(&BedConfig::default()).expect("the flat bed is valid")
     }
 
+    /// The bed's measured surface on this bed (`[bed.mesh]`), if the config has one: the path
+    /// engine applies it ([`strand_core::PathEngine::set_bed_mesh`]); the segments stay flat.
+    pub fn mesh(&self) -> Option<&BedMesh> {
+        self.mesh.as_ref()
+    }
+
     /// The default tool orientation on this bed (nozzle along the bed's inward normal).
     pub fn tool_orientation(&self) -> UnitQuaternion<f64> {
         self.tool
+    }
+
+    /// The bed frame's orientation in W (its z axis the normal).
+    pub fn rotation(&self) -> Rotation3<f64> {
+        self.rotation
     }
 
     /// The bed's unit normal in W (pointing away from the bed, towards the nozzle).
@@ -109,6 +126,11 @@ impl BedTransform {
     /// A point from bed coordinates to W (Eq. 9).
     pub fn point(&self, p: &Vector3<f64>) -> Vector3<f64> {
         self.offset + self.rotation * p
+    }
+
+    /// A point from W to bed coordinates (m): Eq. 9's inverse.
+    pub fn to_bed(&self, p: &Vector3<f64>) -> Vector3<f64> {
+        self.rotation.inverse() * (p - self.offset)
     }
 
     /// A segment from bed coordinates to W. Orientations given in bed coordinates are rotated with
@@ -131,7 +153,7 @@ mod tests {
 
     #[test]
     fn an_old_tilt_and_offset_is_the_frame_it_names() {
-        let old = BedConfig { tilt: 0.3, offset: [0.45, -0.1, 0.2], frame: None };
+        let old = BedConfig { tilt: 0.3, offset: [0.45, -0.1, 0.2], frame: None, mesh: None };
         let new = BedConfig { frame: Some(BedFrame { xyz: [0.45, -0.1, 0.2], rpy: [0.3, 0.0, 0.0] }), ..BedConfig::default() };
         let (a, b) = (BedTransform::new(&old).unwrap(), BedTransform::new(&new).unwrap());
         for p in [Vector3::new(0.0, 0.0, 0.0), Vector3::new(0.1, 0.02, 0.003), Vector3::new(-0.05, 0.2, 0.0)] {
@@ -157,7 +179,7 @@ mod tests {
 
     #[test]
     fn a_frame_with_a_tilt_or_offset_is_refused_naming_both() {
-        let cfg = BedConfig { tilt: 0.1, offset: [0.0; 3], frame: Some(BedFrame::default()) };
+        let cfg = BedConfig { tilt: 0.1, offset: [0.0; 3], frame: Some(BedFrame::default()), mesh: None };
         let e = BedTransform::new(&cfg).unwrap_err();
         assert!(e.message.contains("[bed] frame replaces tilt and offset"), "{}", e.message);
         let cfg = BedConfig { frame: Some(BedFrame { xyz: [f64::NAN, 0.0, 0.0], rpy: [0.0; 3] }), ..BedConfig::default() };

@@ -38,7 +38,7 @@ pub struct TiltOptions {
 
 /// The job's segments on the tilted bed (the bed origin stays at the origin).
 pub(crate) fn tilt_job(job: &std::path::Path, alpha: f64) -> Result<(Vec<Segment>, Vec<String>)> {
-    let bed = BedTransform::new(&BedConfig { tilt: alpha, offset: [0.0; 3], frame: None })
+    let bed = BedTransform::new(&BedConfig { tilt: alpha, offset: [0.0; 3], frame: None, mesh: None })
         .map_err(|e| ToolError::Usage(e.message.replace("[bed] tilt", "--angle")))?;
     let mut parser = parse_file(job, GcodeOptions { first_seq: 1, ..GcodeOptions::for_path(job) })?;
     let mut out = Vec::new();

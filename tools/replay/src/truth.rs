@@ -29,17 +29,21 @@ pub struct Truth {
     /// The nozzle tip on the part (m, W, in the work frame at home, where a job's points are):
     /// with a positioner, brought back from where its actual axes carry the part; else `tcp`.
     pub tcp_part: [f64; 3],
+    /// The nozzle tip's height above the true bed (m, along the bed's normal): above the sim's
+    /// `[bed]` surface if it has one, else above the service config's bed plane. NaN in a file
+    /// from before the column.
+    pub bed_gap: f64,
 }
 
 impl Truth {
     /// The CSV header of [`Truth::csv_row`].
-    pub const CSV_HEADER: &'static str = "time_ns,tcp_x,tcp_y,tcp_z,base_x,base_y,base_z,base_theta,base_plan_x,base_plan_y,flow_cmd_m3s,flow_actual_m3s,thrust_saturation,tcp_part_x,tcp_part_y,tcp_part_z";
+    pub const CSV_HEADER: &'static str = "time_ns,tcp_x,tcp_y,tcp_z,base_x,base_y,base_z,base_theta,base_plan_x,base_plan_y,flow_cmd_m3s,flow_actual_m3s,thrust_saturation,tcp_part_x,tcp_part_y,tcp_part_z,bed_gap";
 
     /// One CSV row (SI units; f64 printed exactly so the reader gets the same bits).
     pub fn csv_row(&self) -> String {
         let t = self;
         format!(
-            "{},{:?},{:?},{:?},{:?},{:?},{:?},{:?},{:?},{:?},{:?},{:?},{:?},{:?},{:?},{:?}",
+            "{},{:?},{:?},{:?},{:?},{:?},{:?},{:?},{:?},{:?},{:?},{:?},{:?},{:?},{:?},{:?},{:?}",
             t.time_ns,
             t.tcp[0],
             t.tcp[1],
@@ -55,7 +59,8 @@ impl Truth {
             t.thrust_saturation,
             t.tcp_part[0],
             t.tcp_part[1],
-            t.tcp_part[2]
+            t.tcp_part[2],
+            t.bed_gap
         )
     }
 }
@@ -87,6 +92,7 @@ pub fn read_truth(path: &Path) -> Result<Vec<Truth>> {
             thrust_saturation: f(12)?,
             // A file from before the column: no positioner, the part is where W is.
             tcp_part: if rec.len() > 15 { [f(13)?, f(14)?, f(15)?] } else { [f(1)?, f(2)?, f(3)?] },
+            bed_gap: if rec.len() > 16 { f(16)? } else { f64::NAN },
         });
     }
     Ok(rows)

@@ -21,6 +21,38 @@ pub struct SimConfig {
     pub tracker: TrackerConfig,
     /// The free-flying base; absent for a fixed-base robot.
     pub flyer: Option<FlyerConfig>,
+    /// The bed's true surface, which the controller does not know (it knows `[bed.mesh]` if the
+    /// cell was probed); absent: the bed is the plane of the service config's `[bed]`.
+    pub bed: Option<BedSurfaceConfig>,
+}
+
+/// `[bed]`: the true bed's height (m) above the service config's bed plane, on a grid in the bed
+/// frame (the layout of `[bed.mesh]`: `min`, `max`, `points`, one row per y; bicubic between
+/// the heights, the edge's height past them). A warped, tilted bed for the mesh to correct.
+#[derive(Clone, Debug, PartialEq, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct BedSurfaceConfig {
+    /// The grid's lower corner (x, y), bed frame (m).
+    pub min: [f64; 2],
+    /// The grid's upper corner (x, y), bed frame (m).
+    pub max: [f64; 2],
+    /// Heights at the nodes (m): one row per y from `min` to `max`, one value per x.
+    pub points: Vec<Vec<f64>>,
+}
+
+impl BedSurfaceConfig {
+    /// As the core's mesh (bicubic, never faded), the one interpolation both sides share.
+    pub fn as_mesh(&self) -> strand_core::BedMeshConfig {
+        strand_core::BedMeshConfig {
+            min: self.min,
+            max: self.max,
+            points: self.points.clone(),
+            algorithm: strand_core::MeshAlgorithm::Bicubic,
+            fade_start: 0.0,
+            fade_end: 0.0,
+            fade_target: Some(0.0),
+        }
+    }
 }
 
 impl Default for SimConfig {
@@ -31,6 +63,7 @@ impl Default for SimConfig {
             extruder: ExtruderPlantConfig::default(),
             tracker: TrackerConfig::default(),
             flyer: None,
+            bed: None,
         }
     }
 }
@@ -219,6 +252,10 @@ impl SimConfig {
         let range = |key: &str, v: f64, lo: f64, hi: f64| {
             if v.is_finite() && v >= lo && v <= hi { Ok(()) } else { Err(invalid(format!("{key} = {v}: must lie in [{lo}, {hi}]"))) }
         };
+        if let Some(bed) = &self.bed {
+            strand_core::BedMesh::new(&bed.as_mesh(), nalgebra::Vector3::zeros(), nalgebra::Rotation3::identity())
+                .map_err(|e| invalid(e.message.replace("[bed.mesh]", "[bed]")))?;
+        }
         let j = &self.joints;
         if j.latency_ticks > 64 {
             return Err(invalid(format!("joints.latency_ticks = {}: must lie in [0, 64]", j.latency_ticks)));

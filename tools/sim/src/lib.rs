@@ -84,6 +84,9 @@ pub struct Sim {
     extruder_command: (f64, f64),
     /// The nozzle's last two positions in the base frame (m) for the arm's own acceleration.
     tcp_history: [Vector3<f64>; 2],
+    /// The bed: the service config's plane and the sim's true surface on it.
+    bed: strand_job::BedTransform,
+    bed_surface: Option<strand_core::BedMesh>,
     truth: Truth,
 }
 
@@ -125,7 +128,17 @@ impl Sim {
             }
             _ => None,
         };
+        let bed = cfg.bed_transform()?;
+        let bed_surface = match &sim.bed {
+            Some(surface) => Some(
+                strand_core::BedMesh::new(&surface.as_mesh(), bed.point(&Vector3::zeros()), bed.rotation())
+                    .map_err(|e| ToolError::Usage(e.message.replace("[bed.mesh]", "sim [bed]")))?,
+            ),
+            None => None,
+        };
         let mut sim = Sim {
+            bed,
+            bed_surface,
             joints: JointPlant::new(&limits, &sim.joints, dt, &start),
             positioner,
             extruder: ExtruderPlant::new(&sim.extruder, cfg.extruder.filament_diameter, dt),
@@ -231,7 +244,11 @@ impl Sim {
         let t = (self.time_ns - self.start_ns) as f64 * 1e-9;
         let planned = self.flyer.as_ref().map_or([p.x, p.y, self.mount_yaw], |f| f.planned(t));
         let on_part = self.tcp_on_part();
+        // The bed is on the part (with a positioner, in its frame at home).
+        let on_bed = self.bed.to_bed(&on_part);
+        let surface = self.bed_surface.as_ref().map_or(0.0, |m| m.height(on_bed.x, on_bed.y));
         Truth {
+            bed_gap: on_bed.z - surface,
             time_ns: self.time_ns,
             tcp: [tcp.x, tcp.y, tcp.z],
             tcp_part: [on_part.x, on_part.y, on_part.z],

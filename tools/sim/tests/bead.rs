@@ -197,3 +197,77 @@ mod calibrate {
         }
     }
 }
+
+/// The bed mesh end to end (DAYONE item 3): the sim's bed tilted and warped, probed (a probe's
+/// points, with noise) into `[bed.mesh]` by `strand calibrate mesh`'s fit, and a first layer
+/// printed on it with the mesh and without: on the truth, the nozzle's height above the real
+/// surface while it extrudes.
+mod bed_mesh {
+    use super::closed_loop::{configs, run};
+    use nalgebra::Vector3;
+    use strand_calibrate::mesh::{MeshGrid, solve_mesh};
+    use strand_core::{BedMeshConfig, MeshAlgorithm};
+    use strand_sim::config::BedSurfaceConfig;
+
+    /// The true bed (m above the config's bed plane, bed frame): 0.4 mm of tilt across 100 mm of x,
+    /// 0.15 mm across y, and a 0.25 mm saddle-and-bowl warp.
+    fn truth(x: f64, y: f64) -> f64 {
+        let (u, v) = ((x - 0.12) / 0.06, (y - 0.115) / 0.05);
+        4e-3 * (x - 0.12) - 1.5e-3 * (y - 0.115) + 0.15e-3 * (u * u + v * v) - 0.1e-3 * u * v + 0.05e-3 * (3.0 * u).sin()
+    }
+
+    /// A first layer (0.3 mm) of lines across the probed area, and a travel between each.
+    fn first_layer() -> String {
+        let mut g = String::from("G21\nG90\nM83\nG1 Z0.3 F3000\nG1 X90 Y95 F6000\n");
+        for k in 0..5 {
+            let y = 95.0 + 10.0 * k as f64;
+            let (from, to) = if k % 2 == 0 { (90.0, 150.0) } else { (150.0, 90.0) };
+            g.push_str(&format!("G1 X{from} Y{y} F6000\nG1 X{to} Y{y} E2.4 F2400\n"));
+        }
+        g
+    }
+
+    /// Worst |nozzle height above the true bed − 0.3 mm| (m) while extruding, and the count of rows.
+    fn first_layer_error(cfg: &strand::config::Config, sim: &strand_sim::config::SimConfig) -> (f64, usize) {
+        let r = run(&first_layer(), cfg, sim);
+        let rows: Vec<f64> =
+            r.truth.iter().zip(&r.commanded).filter(|(_, rate)| **rate > 0.0).map(|(t, _)| (t.bed_gap - 0.3e-3).abs()).collect();
+        (rows.iter().copied().fold(0.0, f64::max), rows.len())
+    }
+
+    #[test]
+    fn a_probed_mesh_takes_a_warped_tilted_bed_out_of_the_first_layer() {
+        let (mut cfg, mut sim) = configs();
+        // The sim's bed: the truth on a 25 × 21 grid (2.5 mm), wider than the print.
+        let (min, max) = ([0.06, 0.065], [0.18, 0.165]);
+        let points = (0..21).map(|j| (0..25).map(|i| truth(min[0] + 0.005 * i as f64, min[1] + 0.005 * j as f64)).collect()).collect();
+        sim.bed = Some(BedSurfaceConfig { min, max, points });
+        let (warped, rows) = first_layer_error(&cfg, &sim);
+        // A probe's points: a 5 × 5 grid over the print's area, each with up to 5 µm of noise.
+        let probes: Vec<Vector3<f64>> = (0..25)
+            .map(|k| {
+                let (x, y) = (0.085 + 0.0175 * (k % 5) as f64, 0.09 + 0.0125 * (k / 5) as f64);
+                Vector3::new(x, y, truth(x, y) + 5e-6 * ((k as f64 * 1.7).sin()))
+            })
+            .collect();
+        let fit = solve_mesh(&probes, MeshGrid { algorithm: MeshAlgorithm::Bicubic, counts: [5, 5], bounds: None }).unwrap();
+        cfg.bed.mesh = Some(BedMeshConfig {
+            min: fit.min,
+            max: fit.max,
+            points: fit.points,
+            algorithm: MeshAlgorithm::Bicubic,
+            fade_start: 1e-3,
+            fade_end: 10e-3,
+            fade_target: None,
+        });
+        let (meshed, meshed_rows) = first_layer_error(&cfg, &sim);
+        eprintln!(
+            "first layer height error: {:.3} mm on the warped bed, {:.3} mm with the mesh ({rows} and {meshed_rows} rows)",
+            warped * 1e3,
+            meshed * 1e3
+        );
+        assert!(rows > 5000 && meshed_rows > 5000, "{rows} {meshed_rows}");
+        assert!(warped > 0.25e-3, "the warp shows without the mesh: {warped}");
+        assert!(meshed <= 0.05e-3, "with the mesh the first layer is within 0.05 mm of its height: {meshed}");
+    }
+}

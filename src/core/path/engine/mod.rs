@@ -54,6 +54,7 @@
 use nalgebra::{UnitQuaternion, Vector3};
 use rsruckig::prelude::*;
 
+use super::bed_mesh::BedMesh;
 use super::config::{InvalidPathConfig, PathConfig, PlanningMode};
 use super::geometry::{Geometry, PathPoint, arc_geometry};
 use super::profile::{Braking, PathState, Trapezoid};
@@ -172,6 +173,31 @@ pub struct PathSample {
     pub axes: [f64; MAX_EXTERNAL_AXES],
     /// Their velocities (rad/s or m/s).
     pub axes_velocity: [f64; MAX_EXTERNAL_AXES],
+}
+
+/// A path sample of a tool at rest at the origin, extruding nothing (what the extruder sees
+/// outside a job).
+pub(crate) fn rest_sample() -> PathSample {
+    PathSample {
+        position: Vector3::zeros(),
+        velocity: Vector3::zeros(),
+        acceleration: Vector3::zeros(),
+        orientation: UnitQuaternion::identity(),
+        angular_velocity: Vector3::zeros(),
+        s: 0.0,
+        speed: 0.0,
+        path_acceleration: 0.0,
+        path_jerk: 0.0,
+        seq: 0,
+        source_line: 0,
+        flags: SegmentFlags::default(),
+        flow: 0.0,
+        dwell_filament_rate: 0.0,
+        pressure_advance: None,
+        motion: Motion::Idle,
+        axes: [0.0; MAX_EXTERNAL_AXES],
+        axes_velocity: [0.0; MAX_EXTERNAL_AXES],
+    }
 }
 
 /// Counters for status and tests.
@@ -390,6 +416,9 @@ pub struct PathEngine {
     stats: PathStats,
     /// Stop on the path and stay there (pause or controlled stop).
     held: bool,
+    /// The bed's measured surface: samples out and start points in are in W, the plan in the
+    /// program's space ([`BedMesh`]).
+    bed_mesh: Option<BedMesh>,
     /// Test only: the executor stands still with its work left, as a planner bug would make it.
     #[cfg(test)]
     frozen: bool,
@@ -449,6 +478,7 @@ impl PathEngine {
             candidate: Trajectory::new(None),
             stats: PathStats::default(),
             held: false,
+            bed_mesh: None,
             #[cfg(test)]
             frozen: false,
         })
@@ -463,6 +493,7 @@ impl PathEngine {
 
     /// As [`reset_at`](Self::reset_at), with the external axes at `axes` (rad or m).
     pub(crate) fn reset_with_axes(&mut self, start: Vector3<f64>, orientation: UnitQuaternion<f64>, axes: [f64; MAX_EXTERNAL_AXES]) {
+        let start = self.to_program(&start);
         self.last_axes = axes;
         self.last_piece_axes = axes;
         self.intake.head = self.intake.tail;
@@ -700,7 +731,7 @@ impl PathEngine {
     pub fn step(&mut self, speed_scale: f64) -> PathSample {
         #[cfg(test)]
         if self.frozen {
-            return self.sample();
+            return self.sample_in_world();
         }
         #[cfg(debug_assertions)]
         let before = (self.state, self.progress().1);
@@ -715,7 +746,38 @@ impl PathEngine {
         self.advance();
         #[cfg(debug_assertions)]
         self.debug_assert_progress(before);
-        self.sample()
+        self.sample_in_world()
+    }
+
+    /// This tick's sample, moved onto the bed's measured surface when there is a mesh.
+    fn sample_in_world(&mut self) -> PathSample {
+        let mut sample = self.sample();
+        if let Some(mesh) = &self.bed_mesh {
+            mesh.apply(&mut sample.position, &mut sample.velocity, &mut sample.acceleration);
+        }
+        sample
+    }
+
+    /// Sets the bed's measured surface (`[bed.mesh]`): from the next sample on, every point put
+    /// out is corrected by it and every start point given is read as in W ([`BedMesh`]). Set it
+    /// before the first job (a change mid-path would jump by the difference).
+    pub fn set_bed_mesh(&mut self, mesh: Option<BedMesh>) {
+        self.bed_mesh = mesh;
+    }
+
+    /// The bed mesh, if one is set.
+    pub fn bed_mesh(&self) -> Option<&BedMesh> {
+        self.bed_mesh.as_ref()
+    }
+
+    /// A point of the program (m) in W: itself without a bed mesh.
+    pub fn to_world(&self, p: &Vector3<f64>) -> Vector3<f64> {
+        self.bed_mesh.as_ref().map_or(*p, |m| m.to_world(p))
+    }
+
+    /// A point in W (m) in the program's space: itself without a bed mesh.
+    pub fn to_program(&self, p: &Vector3<f64>) -> Vector3<f64> {
+        self.bed_mesh.as_ref().map_or(*p, |m| m.to_program(p))
     }
 
     /// The progress measure (path position in m plus completed dwell time in s): it never
