@@ -8,6 +8,7 @@
 //! Which file a tool reads when none (or only a name) is given: [`locate`] (the search order, and
 //! the copy of `config/` built into the binary).
 
+pub mod board;
 pub mod check;
 pub mod driver;
 pub mod locate;
@@ -22,6 +23,7 @@ use thiserror::Error;
 
 use crate::io::rt::RealtimeConfig;
 use crate::io::runner::ServiceConfig;
+use board::BoardConfig;
 use check::CheckConfig;
 use driver::DriverConfig;
 use log::LogConfig;
@@ -315,6 +317,9 @@ pub struct Config {
     pub path: PathConfig,
     /// Extrusion synchronisation.
     pub extruder: ExtruderConfig,
+    /// `[extruder.board]`: the Klipper board that drives the extruder and the hot end (`strand-mcu`),
+    /// if the cell has one.
+    pub extruder_board: Option<BoardConfig>,
     /// Print bed pose and tilt.
     pub bed: BedConfig,
     /// Robot base: fixed mount or tracked.
@@ -395,10 +400,11 @@ impl<R> ConfigFile<R> {
         Ok(())
     }
 
-    fn into_config(self, file: &Path, robot: RobotConfig) -> Config {
+    fn into_config(self, file: &Path, robot: RobotConfig, extruder_board: Option<BoardConfig>) -> Config {
         Config {
             file: file.to_path_buf(),
             robot,
+            extruder_board,
             clik: self.clik,
             controller: self.controller,
             path: self.path,
@@ -455,16 +461,19 @@ impl Config {
     /// value is TOML — `0.5`, `true`, `[1, 2]`, `"text"` — or else taken as a string), as `strand
     /// run --set` and the demo use them. Errors name the override.
     pub fn load_with(path: &Path, overrides: &[String]) -> Result<Self, ConfigError> {
-        let raw: ConfigFile<PathBuf> = if overrides.is_empty() {
+        let mut table: toml::Table = read_toml(path)?;
+        let board = board::take(&mut table).map_err(|m| ConfigError::new(path, m.message))?;
+        let raw: ConfigFile<PathBuf> = if overrides.is_empty() && board.is_none() {
+            // From the text, so that an error names its line.
             read_toml(path)?
         } else {
-            let mut table: toml::Table = read_toml(path)?;
             for o in overrides {
                 apply_override(&mut table, o).map_err(|m| ConfigError::new(path, format!("--set {o:?}: {m}")))?;
             }
+            let with = if overrides.is_empty() { "" } else { "with --set: " };
             toml::Value::Table(table)
                 .try_into()
-                .map_err(|e: toml::de::Error| ConfigError::new(path, format!("with --set: {}", e.to_string().trim_end())))?
+                .map_err(|e: toml::de::Error| ConfigError::new(path, format!("{with}{}", e.to_string().trim_end())))?
         };
         let mut raw = raw;
         raw.base.fold_mount().map_err(|m| ConfigError::new(path, m.to_string()))?;
@@ -475,7 +484,7 @@ impl Config {
             return Err(ConfigError::new(path, format!("robot: no robot file at {}", robot_path.display())));
         }
         let robot = RobotConfig::load(&robot_path)?;
-        Ok(raw.into_config(path, robot))
+        Ok(raw.into_config(path, robot, board))
     }
 
     /// The configuration in force, as one self-contained TOML text: every section with its values
@@ -499,21 +508,28 @@ impl Config {
             view: self.view.clone(),
             thermal: self.thermal.clone(),
         };
-        toml::to_string(&file).expect("every config value is representable in TOML")
+        let mut table = toml::Table::try_from(&file).expect("every config value is representable in TOML");
+        if let Some(b) = &self.extruder_board {
+            board::put(&mut table, b);
+        }
+        toml::to_string(&table).expect("every config value is representable in TOML")
     }
 
     /// Reads an [`effective_toml`](Config::effective_toml) text with the URDF it used. `origin`
     /// names where the text came from (the log file) in errors.
     pub fn from_effective(origin: &Path, text: &str, urdf_text: &str) -> Result<Self, ConfigError> {
+        let effective = |e: String| ConfigError::new(origin, format!("effective config: {}", e.trim_end()));
+        let mut table: toml::Table = toml::from_str(text).map_err(|e: toml::de::Error| effective(e.to_string()))?;
+        let board = board::take(&mut table).map_err(|m| effective(m.message))?;
         let mut raw: ConfigFile<RobotConfig> =
-            toml::from_str(text).map_err(|e| ConfigError::new(origin, format!("effective config: {}", e.to_string().trim_end())))?;
+            toml::Value::Table(table).try_into().map_err(|e: toml::de::Error| effective(e.to_string()))?;
         raw.base.fold_mount().map_err(|m| ConfigError::new(origin, m.to_string()))?;
         raw.validate(origin)?;
         let mut robot = raw.robot.clone();
         robot.file = origin.join("robot");
         robot.urdf_text = urdf_text.to_string();
         robot.check()?;
-        Ok(raw.into_config(origin, robot))
+        Ok(raw.into_config(origin, robot, board))
     }
 
     /// The sections the controller core uses.

@@ -426,6 +426,27 @@ fn check_config(config: Option<&Path>) -> ExitCode {
                 "service: prefix {}, clock {:?}, {} Hz, base {:?}",
                 cfg.service.prefix, cfg.service.clock, cfg.controller.rate_hz, cfg.base.mode
             );
+            if let Some(b) = &cfg.extruder_board {
+                println!(
+                    "extruder board (strand-mcu): {}, step {} dir {}, {} microsteps, {:.4} mm/turn; heater {} thermistor {}, max {} °C; temperatures {}",
+                    b.serial.display(),
+                    b.step_pin,
+                    b.dir_pin,
+                    b.microsteps,
+                    b.rotation_distance * 1e3,
+                    b.heater_pin,
+                    b.thermistor_pin,
+                    b.max_temp,
+                    if cfg.extruder.heater == strand_core::HeaterSource::Wire {
+                        "acted on"
+                    } else {
+                        "NOT acted on: set [extruder] heater = \"wire\""
+                    }
+                );
+            }
+            if let Some(m) = &cfg.bed.mesh {
+                println!("bed mesh: {}", m.summary());
+            }
             ExitCode::SUCCESS
         }
         Err(e) => {

@@ -270,3 +270,46 @@ fn an_implausible_measurement_is_refused_and_goes_stale() {
     assert_eq!(out.status.fault, FaultCode::TemperatureLost as u32, "at the first extruding segment");
     assert_eq!(out.status.executing_seq, 3);
 }
+
+/// The heaters' owner switched the hot end off for a fault (a board's verify_heater): mid-print the
+/// service faults `HeaterFault` with the heaters off and nothing pushed after it; idle, the same;
+/// after ClearFault a board that still says so faults again.
+#[test]
+fn a_heater_fault_reported_by_its_owner_stops_the_job_and_keeps_the_heaters_off() {
+    let mut cell = wire_cell(0.2);
+    let mut plant = ThermalModel::new(&fast_thermal());
+    cell.send(&job_after(&[heat(1, false, ipc::HeatWait::Heating, 210.0)]));
+    cell.control(Command::Start, 0.0);
+    // Heat up and print until the square's second side.
+    let mut printing = false;
+    for _ in 0..30_000 {
+        let out = tick(&mut cell, &mut plant);
+        if out.status.executing_seq >= 4 && out.extruder.filament_rate > 0.0 {
+            printing = true;
+            break;
+        }
+    }
+    assert!(printing, "the job printed before the fault");
+    let faulty = |cell: &Cell, plant: &ThermalModel| {
+        let mut s = plant.state(cell.tick + 1, cell.now_ns());
+        s.flags |= heater_flags::FAULT;
+        s
+    };
+    cell.heater_state = Some(faulty(&cell, &plant));
+    let out = cell.step();
+    assert_eq!(out.status.fault, FaultCode::HeaterFault as u32);
+    assert_eq!((out.heater.hot_end_target, out.heater.bed_target), (0.0, 0.0));
+    assert_eq!(out.status.job_outcome, JobOutcome::Faulted as u32);
+    cell.heater_state = None;
+    let out = cell.run_until(5_000, |o| o.status.run_state == RunState::Fault as u32).expect("braked to a halt");
+    assert_eq!(out.extruder.filament_rate.max(0.0), 0.0, "nothing pushed after the fault");
+    // Cleared while the board still reports the fault: faulted again, idle or not.
+    cell.control(Command::ClearFault, 0.0);
+    cell.heater_state = Some(faulty(&cell, &plant));
+    let out = cell.step();
+    assert_eq!(out.status.fault, FaultCode::HeaterFault as u32);
+    // With no temperature source the flag means nothing to the service.
+    let mut none = Cell::iiwa();
+    none.heater_state = Some(faulty(&none, &plant));
+    assert_eq!(none.step().status.fault, 0);
+}

@@ -519,6 +519,25 @@ fn the_effective_config_reads_back_to_the_same_values() {
     let back = Config::from_effective(Path::new("x.mcap"), &text, &cfg.robot.urdf_text).unwrap();
     assert_eq!(back.controller_settings(), cfg.controller_settings());
     assert_eq!(back.robot.build_model().unwrap().dof(), 7);
+    assert_eq!(back, Config { file: back.file.clone(), robot: back.robot.clone(), ..cfg.clone() });
+    // A board and a bed mesh travel with it.
+    let with = config(|c| {
+        c.extruder_board = Some(
+            toml::from_str(
+                "serial = \"/dev/ttyACM0\"\nstep_pin = \"gpio11\"\ndir_pin = \"gpio10\"\nmicrosteps = 16\nrotation_distance = 0.0226\n\
+                 heater_pin = \"gpio23\"\nthermistor_pin = \"gpio26\"\nthermistor = { type = \"beta\", t0 = 25.0, r0 = 100000.0, beta = 3950.0 }\n\
+                 pid_kp = 22.2\npid_ki = 1.08\npid_kd = 114.0\nmax_temp = 280.0\n",
+            )
+            .unwrap(),
+        );
+        c.bed.mesh = Some(toml::from_str("min = [0.0, 0.0]\nmax = [0.1, 0.1]\npoints = [[0.0, 0.0001], [-0.0001, 0.0002]]\n").unwrap());
+    });
+    let with_text = with.effective_toml();
+    assert!(with_text.contains("[extruder.board]"), "{with_text}");
+    let again = Config::from_effective(Path::new("x.mcap"), &with_text, &with.robot.urdf_text).unwrap();
+    assert_eq!(again.extruder_board, with.extruder_board);
+    assert_eq!(again.bed.mesh, with.bed.mesh);
+    assert_eq!(again.controller_settings(), with.controller_settings());
     let broken = text.replace("rate_hz = 4000.0", "rate_hz = 40.0");
     let err = Config::from_effective(Path::new("x.mcap"), &broken, &cfg.robot.urdf_text).unwrap_err();
     assert!(err.to_string().contains("rate_hz"), "{err}");

@@ -114,6 +114,8 @@ class HeaterFlags(enum.IntFlag):
     BED = 2
     #: (Status only) the service acts on temperatures ([extruder] heater = "wire").
     ACTING = 4
+    #: (HeaterState only) the owner switched a heater off for a fault: the service faults HEATER_FAULT.
+    FAULT = 8
 
 
 class SegmentFlags(enum.IntFlag):
@@ -196,6 +198,7 @@ class FaultCode(enum.IntEnum):
     TCP_ERROR_LIMIT = 8
     COLD_EXTRUSION = 9
     TEMPERATURE_LOST = 10
+    HEATER_FAULT = 11
 
 
 class RejectReason(enum.IntEnum):

@@ -409,6 +409,9 @@ pub mod heater_flags {
     /// (`Status` only) the service acts on temperatures (`[extruder] heater = "wire"`): it holds
     /// at waits and refuses cold extrusion. Without it, targets are passed on and waits skipped.
     pub const ACTING: u32 = 4;
+    /// (`HeaterState` only) the owner has switched a heater off for a fault (it does not heat as
+    /// commanded, or its thermistor is out of range): the service faults `HeaterFault`.
+    pub const FAULT: u32 = 8;
 }
 
 /// Measured heater temperatures, from whoever owns the heaters: strand-sim's thermal model today,
@@ -611,6 +614,10 @@ wire_enum! {
         /// No [`HeaterState`] within `[extruder] temperature_timeout` while a hold or an extruding
         /// move needed the temperature (the heater's owner went silent or stopped measuring).
         TemperatureLost = 10,
+        /// The heaters' owner switched a heater off and said so ([`heater_flags::FAULT`] in a
+        /// [`HeaterState`]): it could not reach or hold its target within bounds (Klipper's
+        /// verify_heater), or its thermistor left its range. The job stops; the heaters stay off.
+        HeaterFault = 11,
     }
 }
 

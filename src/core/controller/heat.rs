@@ -18,6 +18,9 @@
 //!   With `heater = "none"` nothing is measured: targets are passed on, every wait is skipped
 //!   and reported ([`Event::HeatWaitSkipped`](super::Event::HeatWaitSkipped)), nothing is
 //!   checked — never a silent pretence of having waited.
+//! - **The owner's faults are the service's.** A `HeaterState` that says the owner switched a
+//!   heater off ([`heater_flags::FAULT`]: Klipper's verify_heater, a thermistor out of range)
+//!   faults `HeaterFault` (with `heater = "wire"`), whether a job runs or not.
 //! - **Faults turn the heaters off**: every fault and emergency stop sets both targets to 0, as
 //!   Marlin's kill and Klipper's shutdown do.
 //!
@@ -77,6 +80,9 @@ pub(super) struct Heat {
     wait: Option<ActiveWait>,
     /// The extruding segment last checked for a cold hot end.
     checked_seq: Option<u64>,
+    /// The heaters' owner reported a heater switched off for a fault ([`heater_flags::FAULT`]),
+    /// not yet turned into the service's fault.
+    owner_fault: bool,
 }
 
 fn index(h: Heater) -> usize {
@@ -101,6 +107,7 @@ impl Heat {
             len: 0,
             wait: None,
             checked_seq: None,
+            owner_fault: false,
         }
     }
 
@@ -112,6 +119,7 @@ impl Heat {
     /// clock, not on the stamp of another process's); false if a temperature is not finite or
     /// outside [`PLAUSIBLE`] (a broken or shorted thermistor): ignored, so it goes stale.
     pub(super) fn measure(&mut self, h: &ipc::HeaterState, now_ns: u64) -> bool {
+        self.owner_fault |= h.flags & heater_flags::FAULT != 0;
         let mut ok = true;
         for (i, bit, t) in [(0, heater_flags::HOT_END, h.hot_end), (1, heater_flags::BED, h.bed)] {
             if h.flags & bit != 0 {
@@ -182,6 +190,10 @@ impl Heat {
     /// One tick, after the path's: targets the path has reached, the wait (released when
     /// settled), and the guards. `sample` is this tick's path sample while the path runs.
     pub(super) fn step(&mut self, engine: &mut PathEngine, sample: Option<&PathSample>, now_ns: u64) -> HeatVerdict {
+        if std::mem::take(&mut self.owner_fault) && self.acting() {
+            // Whatever the job does: the heater is off and will not come back by itself.
+            return HeatVerdict::Fault(FaultCode::HeaterFault);
+        }
         let mut verdict = HeatVerdict::Fine;
         if let Some(s) = sample {
             while self.len > 0 && self.pending[self.head].0 <= s.seq {

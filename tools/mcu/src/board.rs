@@ -88,12 +88,17 @@ impl ExtruderBoard {
         let freq = mcu.clock_freq();
         let adc_max = mcu.dict.constant_f64("ADC_MAX")?;
         let pwm_max = mcu.dict.constant_f64("PWM_MAX")?;
-        let thermistor = cfg.thermistor();
+        let thermistor = crate::config::thermistor(&cfg);
         let mut b = Self {
             sc: StepCompress::new((cfg.max_step_error * freq) as u64),
             gen_: StepGenerator::new(cfg.full_steps_per_rotation, cfg.microsteps, cfg.rotation_distance),
             pid: Pid::new(cfg.pid_kp, cfg.pid_ki, cfg.pid_kd, cfg.max_power, cfg.smooth_time),
-            check: HeaterCheck::new(cfg.min_temp, cfg.max_temp),
+            check: {
+                let mut c = HeaterCheck::new(cfg.min_temp, cfg.max_temp);
+                (c.hysteresis, c.max_error, c.heating_gain, c.check_gain_time) =
+                    (cfg.hysteresis, cfg.max_error, cfg.heating_gain, cfg.check_gain_time);
+                c
+            },
             thermistor,
             target: 0.0,
             readings: Vec::new(),
@@ -313,6 +318,18 @@ impl ExtruderBoard {
             )?;
         }
         Ok(())
+    }
+
+    /// Switches the heater off: target 0 and a zero duty at once (scheduled just ahead of the MCU's
+    /// clock, as every heater update), not at the next temperature report.
+    pub fn heater_off(&mut self) -> Result<(), McuError> {
+        self.target = 0.0;
+        let at = self.mcu.clock_now() + (0.1 * self.mcu.clock_freq()) as u64;
+        self.mcu.send(
+            QUEUE_PWM,
+            &[("oid", Value::Int(HEATER_OID.into())), ("clock", Value::Int(i64::from(at as u32))), ("value", Value::Int(0))],
+        )?;
+        self.mcu.poll(0.0).map(|_| ())
     }
 
     /// Sends every pending step now.

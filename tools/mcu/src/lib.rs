@@ -14,7 +14,9 @@
 //! - [`thermal`]: thermistor conversion, Klipper's PID and heater verification.
 //! - [`mcu`]: the connection: open, identify, clock sync, send/receive.
 //! - [`board`]: the extruder board: configuration, stepper and heater over an [`mcu::Mcu`].
-//! - [`config`]: the board's configuration section.
+//! - [`config`]: the board's configuration section (`[extruder.board]`, owned by the service config).
+//! - [`process`]: strand-mcu's process: the service's extruder and heater commands to the board,
+//!   its temperatures (and faults) back.
 //! - [`fake`]: a fake Klipper MCU on a pty for tests.
 
 pub mod board;
@@ -23,6 +25,7 @@ pub mod config;
 pub mod dictionary;
 pub mod fake;
 pub mod mcu;
+pub mod process;
 pub mod stepcompress;
 pub mod thermal;
 pub mod transport;

@@ -44,6 +44,10 @@ fn board_cfg(fake: &FakeMcu) -> BoardConfig {
         smooth_time: 1.0,
         min_temp: 0.0,
         max_temp: 280.0,
+        hysteresis: 5.0,
+        max_error: 120.0,
+        heating_gain: 2.0,
+        check_gain_time: 20.0,
     }
 }
 
