@@ -103,6 +103,11 @@ pub struct FakeReport {
     pub fresh: Vec<bool>,
     /// Per channel ([`run_channels`]): the cycles it sent and got its answer in time.
     pub channel_in_time: Vec<u64>,
+    /// When the first cycle's packet went out (ns, `CLOCK_MONOTONIC`): `axes[k]` is the robot at
+    /// `start_ns + k · period_ns` (what a cell test lines the axes up with the other devices by).
+    pub start_ns: u64,
+    /// The cycle (ns).
+    pub period_ns: u64,
 }
 
 impl std::fmt::Debug for FakeReport {
@@ -262,6 +267,7 @@ pub fn run_channels(channels: &mut [FakeChannel<'_>], opts: &FakeOptions, stop: 
     let mut answers = vec![0u32; n];
     let all_answered = |answers: &[u32], sent: &[bool]| sent.iter().any(|s| *s) && sent.iter().zip(answers).all(|(s, a)| !*s || *a > 0);
     let t0 = monotonic_ns() + period_ns;
+    (report.start_ns, report.period_ns) = (t0, period_ns);
     let mut k = 0u64;
     sleep_until(t0);
     report.fresh.push(true);
