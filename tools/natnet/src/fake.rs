@@ -24,11 +24,11 @@ use strand::io::clock::monotonic_ns;
 use crate::protocol::{self, DataConnection, Description, Frame, RigidBodyDescription, RigidBodyPose, ServerInfo, Version};
 
 /// A trajectory: time since the fake started (s) → position (m) and orientation (x, y, z, w) in
-/// Motive's world.
-pub type Trajectory = fn(f64) -> ([f64; 3], [f64; 4]);
+/// Motive's world. A closure, so that a simulator can stream the pose its plant is really in.
+pub type Trajectory = std::sync::Arc<dyn Fn(f64) -> ([f64; 3], [f64; 4]) + Send + Sync>;
 
 /// What the fake is.
-#[derive(Clone, Debug)]
+#[derive(Clone)]
 pub struct FakeConfig {
     /// The NatNet version it streams (3.0 to 4.2).
     pub version: Version,
@@ -48,6 +48,18 @@ pub struct FakeConfig {
     pub silent: bool,
     /// The first body's trajectory.
     pub trajectory: Trajectory,
+}
+
+impl std::fmt::Debug for FakeConfig {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("FakeConfig")
+            .field("version", &self.version)
+            .field("bodies", &self.bodies)
+            .field("multicast", &self.multicast)
+            .field("rate_hz", &self.rate_hz)
+            .field("latency", &self.latency)
+            .finish_non_exhaustive()
+    }
 }
 
 /// A frame as sent, for the test.

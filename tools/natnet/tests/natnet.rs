@@ -35,7 +35,7 @@ fn fake(version: Version, multicast: Option<(Ipv4Addr, u16)>) -> FakeConfig {
         latency: 0.004,
         untracked: 0..0,
         silent: false,
-        trajectory,
+        trajectory: std::sync::Arc::new(trajectory),
     }
 }
 

@@ -9,6 +9,10 @@
 //! `ThermalModel`) heats toward the targets of the latest `HeaterCommand` and publishes what its
 //! thermistors read as `HeaterState` every 10 ms of sim time, stamped with the sim's clock — the
 //! messages a Klipper extruder board's process will exchange with the service.
+//!
+//! With `--motive PORT` the base's tracker is OptiTrack: the sim serves the base's true pose over
+//! NatNet (strand-natnet's fake Motive, in this process) and `strand-natnet` publishes it, as in a
+//! cell with a real Motive.
 
 use std::fs::File;
 use std::io::{BufWriter, Write};
@@ -42,6 +46,41 @@ pub struct SimOptions {
     pub exit_after_silence: f64,
     /// Lockstep: longest wait for the answer to one JointState before cycling on (s).
     pub answer_timeout: f64,
+    /// Be OptiTrack instead of publishing base poses: a NatNet server (unicast, on 127.0.0.1 at
+    /// this command port) streams the base's true pose as the service config's `[tracker]
+    /// rigid_body` at the sim config's tracker rate and latency, for `strand-natnet` to publish.
+    /// Needs `realtime` (NatNet's stamps are `CLOCK_MONOTONIC`, as the sim's clock then is).
+    pub motive: Option<u16>,
+}
+
+/// The base's true pose as Motive would stream it (Z up, as `[tracker] up_axis = "z"`): a short
+/// history on `CLOCK_MONOTONIC` (ns) that the NatNet server reads at each frame's mid-exposure.
+type PoseHistory = std::sync::Arc<std::sync::Mutex<std::collections::VecDeque<(u64, [f64; 3], [f64; 4])>>>;
+
+/// Starts the NatNet server of [`SimOptions::motive`] streaming `history`.
+fn start_motive(port: u16, cfg: &Config, sim_cfg: &SimConfig, history: &PoseHistory) -> Result<strand_natnet::fake::FakeMotive> {
+    use strand_natnet::fake::{FakeConfig, FakeMotive};
+    let body = cfg.tracker.as_ref().map_or_else(|| "base".to_string(), |t| t.rigid_body.clone());
+    let (h, started) = (history.clone(), monotonic_ns());
+    let trajectory = move |t: f64| {
+        let at = started + (t.max(0.0) * 1e9) as u64;
+        let h = h.lock().unwrap_or_else(|e| e.into_inner());
+        // The pose at or just before the frame's mid-exposure (the newest if it is later).
+        let i = h.partition_point(|(ns, _, _)| *ns <= at);
+        h.get(i.saturating_sub(1)).map_or(([0.0; 3], [0.0, 0.0, 0.0, 1.0]), |(_, p, q)| (*p, *q))
+    };
+    let fake = FakeConfig {
+        version: strand_natnet::protocol::Version([4, 1, 0, 0]),
+        bodies: vec![(body, 1)],
+        multicast: None,
+        rate_hz: sim_cfg.tracker.rate_hz,
+        clock_hz: 10_000_000,
+        latency: sim_cfg.tracker.latency,
+        untracked: 0..0,
+        silent: false,
+        trajectory: std::sync::Arc::new(trajectory),
+    };
+    FakeMotive::start(fake, port).map_err(|e| ToolError::Usage(format!("--motive {port}: {e}")))
 }
 
 /// Runs the plant against the service named by `opts.prefix` (None: the config's) until `stop` is
@@ -56,10 +95,27 @@ pub fn run(opts: &SimOptions, cfg: &Config, sim_cfg: &SimConfig, stop: &AtomicBo
     let prefix = opts.prefix.clone().unwrap_or_else(|| cfg.service.prefix.clone());
     // A flyer without a trajectory by the clock is the base controller the service's
     // `BaseCommand` is for.
+    let motive_poses: Option<PoseHistory> = opts.motive.map(|_| Default::default());
+    let _motive = match (opts.motive, &motive_poses) {
+        (Some(port), Some(h)) => {
+            if !opts.realtime {
+                return Err(ToolError::Usage("--motive needs --realtime: NatNet's stamps are the wall's monotonic clock".into()));
+            }
+            Some(start_motive(port, cfg, sim_cfg, h)?)
+        }
+        _ => None,
+    };
     let ports = ClientPorts::open(
         &ServiceNames::new(&prefix),
         "strand-sim",
-        ClientRoles { driver: true, tracker: true, monitor: true, base: sim.takes_base_commands(), heater: true, ..Default::default() },
+        ClientRoles {
+            driver: true,
+            tracker: opts.motive.is_none(),
+            monitor: true,
+            base: sim.takes_base_commands(),
+            heater: true,
+            ..Default::default()
+        },
     )?;
     let truth_path = opts.truth.clone().unwrap_or_default();
     let mut truth_out = match &opts.truth {
@@ -96,8 +152,20 @@ pub fn run(opts: &SimOptions, cfg: &Config, sim_cfg: &SimConfig, stop: &AtomicBo
         // Tracking first: the JointState that follows wakes the service, which then drains both.
         poses.clear();
         sim.base_poses(&mut pose_seq, &mut poses);
-        for p in &poses {
-            ports.send_base_pose(p)?;
+        match &motive_poses {
+            None => {
+                for p in &poses {
+                    ports.send_base_pose(p)?;
+                }
+            }
+            Some(h) => {
+                let (p, q) = sim.base_pose();
+                let mut h = h.lock().unwrap_or_else(|e| e.into_inner());
+                h.push_back((sim.time_ns(), [p.x, p.y, p.z], [q.i, q.j, q.k, q.w]));
+                while h.len() > 2000 {
+                    h.pop_front();
+                }
+            }
         }
         state_seq += 1;
         let js = sim.joint_state(state_seq);

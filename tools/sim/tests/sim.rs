@@ -75,13 +75,7 @@ fn the_free_flyer_prints_a_truss_while_its_base_drifts() {
     // base pushed by the residual field, the arm's reaction and the filament tension while its PID
     // holds station. A small truss (one 20 mm panel, 210 mm of strand at 20 mm/s) made by strand-plan.
     let dir = temp_dir("sim", "free-flyer");
-    let job = dir.join("truss.gcode");
-    let out = Command::new(bin("strand-plan"))
-        .args(["truss", "--length", "0.02", "--width", "0.02", "--pitch", "0.02", "--speed", "0.02", "-o"])
-        .arg(&job)
-        .output()
-        .unwrap();
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let job = small_truss(&dir);
     // The cell's own approach speed (0.3 of the joint limits), not the other tests' FAST_APPROACH: at full
     // speed the arm's reaction kicks the floating base 1.7 mm, and the alpha-beta estimate (alpha 0.04 at
     // 120 Hz) overshoots it by 0.4 mm for a second into the path: 0.58 mm worst, 0.60 on a loaded CI
@@ -115,8 +109,7 @@ fn the_free_flyer_prints_a_truss_while_its_base_drifts() {
 fn a_moving_base_print_survives_a_pause_and_a_feed_override_where_the_arm_reaches_furthest() {
     // 150 s of robot time and its replay: 13 s optimised, 220 s unoptimised. CI runs it in its
     // release stage; a debug build runs it with STRAND_DEBUG_CELLS=1.
-    if cfg!(debug_assertions) && std::env::var_os("STRAND_DEBUG_CELLS").is_none_or(|v| v != "1") {
-        eprintln!("skipped in a debug build (cargo test --release -p strand-sim --test sim a_moving_base, or STRAND_DEBUG_CELLS=1)");
+    if skipped_in_debug("a_moving_base") {
         return;
     }
     let dir = temp_dir("sim", "moving-base-operator");
@@ -206,8 +199,7 @@ fn a_moving_base_print_survives_a_pause_and_a_feed_override_where_the_arm_reache
 fn the_turntable_cell_prints_the_helix_cylinder_through_a_pause_and_a_feed_override_with_the_bead_on_the_part() {
     // 360 s of robot time and its replay: 8 s optimised, minutes unoptimised. CI runs it in
     // its release stage; a debug build runs it with STRAND_DEBUG_CELLS=1.
-    if cfg!(debug_assertions) && std::env::var_os("STRAND_DEBUG_CELLS").is_none_or(|v| v != "1") {
-        eprintln!("skipped in a debug build (cargo test --release -p strand-sim --test sim the_turntable, or STRAND_DEBUG_CELLS=1)");
+    if skipped_in_debug("the_turntable") {
         return;
     }
     // cells/kr6-turntable: the KR 6 beside a rotary table, its default job the 600 mm cylinder as
@@ -251,6 +243,123 @@ fn the_turntable_cell_prints_the_helix_cylinder_through_a_pause_and_a_feed_overr
     assert!(json_f64(&r, &["bead", "all", "p50"]) < 0.02, "{}", r["bead"]);
     assert!(json_f64(&r, &["bead", "all", "beyond_10pct"]) < 0.04, "{}", r["bead"]);
     assert!(json_f64(&r, &["bead", "blob_m3"]) < 0.002 * json_f64(&r, &["bead", "melt_m3"]), "{}", r["bead"]);
+}
+
+/// CELL item 5: the bundled cell `config/cells/free-flyer-optitrack.toml` with every process of
+/// it — the service on the robot's clock, strand-sim as the arm and the free flyer *and* as Motive
+/// (`--motive`: a NatNet server streaming the flyer's true pose; the sim publishes no base pose of
+/// its own), strand-natnet publishing what Motive streams, strand-feed — on the truss of the
+/// free-flyer test above, in real time (NatNet's stamps are the wall's clock). The job finishes on
+/// the poses strand-natnet published, and the bead (the demo's metric, the sim's truth) holds.
+#[test]
+fn the_free_flyer_cell_prints_on_the_base_pose_optitrack_streams() {
+    if skipped_in_debug("the_free_flyer_cell") {
+        return;
+    }
+    let dir = temp_dir("sim", "free-flyer-optitrack");
+    let job = small_truss(&dir);
+    let config = "config/cells/free-flyer-optitrack.toml";
+    let prefix = format!("strand/optitrack-{}", std::process::id());
+    let port = std::net::UdpSocket::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port();
+    let logged = |c: &mut Command, name: &str| {
+        c.current_dir(root()).env("RUST_LOG", "warn").stdout(Stdio::null()).stderr(std::fs::File::create(dir.join(name)).unwrap());
+    };
+    let log = dir.join("run.mcap");
+    let mut service = Command::new(bin("strand"));
+    service.args(["run", "--clock", "robot", "--config", config, "--prefix", &prefix, "--log"]).arg(&log);
+    logged(&mut service, "service.log");
+    let mut service = Reaped(service.spawn().unwrap());
+    let monitor =
+        ClientPorts::open(&ServiceNames::new(&prefix), "test-monitor", ClientRoles { monitor: true, ..Default::default() }).unwrap();
+    wait_for(&monitor, 30, "the service ticking without a robot", |s| s.tick > 3);
+    let truth = dir.join("truth.csv");
+    let mut sim = Command::new(bin("strand-sim"));
+    sim.args(["--config", config, "--sim", "config/sim/free-flyer.toml", "--prefix", &prefix, "--realtime", "--motive"])
+        .arg(port.to_string())
+        .arg("--truth")
+        .arg(&truth);
+    logged(&mut sim, "sim.log");
+    let mut sim = Reaped(sim.spawn().unwrap());
+    let mut natnet = Command::new(bin("strand-natnet"));
+    natnet
+        .args(["--config", config, "--prefix", &prefix, "--set", &format!("tracker.command_port={port}"), "--stats"])
+        .arg(dir.join("natnet.json"));
+    logged(&mut natnet, "natnet.log");
+    let mut natnet = Reaped(natnet.spawn().unwrap());
+    let said = |dir: &Path| {
+        ["service.log", "sim.log", "natnet.log", "feed.log"]
+            .iter()
+            .map(|f| format!("--- {f}:\n{}", std::fs::read_to_string(dir.join(f)).unwrap_or_default()))
+            .collect::<Vec<_>>()
+            .join("\n")
+    };
+    let mut feed = Command::new(bin("strand-feed"));
+    feed.arg(&job).args(["--config", config, "--prefix", &prefix, "--quiet", "--wait-service", "20"]);
+    logged(&mut feed, "feed.log");
+    let mut feed = Reaped(feed.spawn().unwrap());
+    let code = exit_code_within(&mut feed, 120, &monitor);
+    let status = monitor.latest_status();
+    assert_eq!(code, Some(0), "strand-feed: {status:?}\n{}", said(&dir));
+    natnet.signal(libc::SIGTERM);
+    assert_eq!(natnet.wait_until(Instant::now() + Duration::from_secs(10)), Some(0), "{}", said(&dir));
+    service.signal(libc::SIGTERM);
+    let _ = service.wait_until(Instant::now() + Duration::from_secs(20));
+    sim.signal(libc::SIGTERM);
+    let _ = sim.wait_until(Instant::now() + Duration::from_secs(10));
+    let stats: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(dir.join("natnet.json")).unwrap()).unwrap();
+    let published = stats["counters"]["published"].as_u64().unwrap();
+    let log = strand::log::reader::LogFile::open(&log).unwrap();
+    let truth = strand_replay::truth::read_truth(&truth).unwrap();
+    let bead = strand_replay::bead::measure(&log, &truth, None).unwrap();
+    // The base's poses came from Motive through strand-natnet: as many as the tracker's rate.
+    let mut poses = 0u64;
+    let mut outcome = None;
+    for tick in log.ticks() {
+        let tick = tick.unwrap();
+        poses += tick.input.base_poses().len() as u64;
+        if tick.output.status.job_outcome == JobOutcome::Finished as u32 {
+            outcome = Some(JobOutcome::Finished);
+        }
+    }
+    let base_moved = truth.iter().map(|t| (t.base[0] - truth[0].base[0]).hypot(t.base[1] - truth[0].base[1])).fold(0.0, f64::max);
+    eprintln!(
+        "free-flyer-optitrack: strand-natnet published {published} poses, the service took {poses}; the base moved {:.2} mm; bead {} bins: \
+         p50 {:.1} %, p95 {:.1} %, {:.2} % beyond ±10 %; natnet {}",
+        base_moved * 1e3,
+        bead.all.bins,
+        100.0 * bead.all.p50,
+        100.0 * bead.all.p95,
+        100.0 * bead.all.beyond_10pct,
+        stats
+    );
+    assert_eq!(outcome, Some(JobOutcome::Finished), "{}", said(&dir));
+    assert!(published > 1000 && poses > 1000, "{published} published, {poses} taken");
+    assert!(base_moved > 0.5e-3, "the base moved under the arm: {base_moved}");
+    assert!(bead.all.bins > 150, "{} bins", bead.all.bins);
+    assert!(bead.all.p50 < 0.03, "bead p50 {}", bead.all.p50);
+    assert!(bead.all.beyond_10pct < 0.10, "{} of the bins beyond ±10 %", bead.all.beyond_10pct);
+}
+
+/// A cell test that only an optimised build runs in real time (CI's release stage): true, saying
+/// so, in a debug build unless `STRAND_DEBUG_CELLS=1`.
+fn skipped_in_debug(filter: &str) -> bool {
+    let skip = cfg!(debug_assertions) && std::env::var_os("STRAND_DEBUG_CELLS").is_none_or(|v| v != "1");
+    if skip {
+        eprintln!("skipped in a debug build (cargo test --release -p strand-sim --test sim {filter}, or STRAND_DEBUG_CELLS=1)");
+    }
+    skip
+}
+
+/// A small truss made by strand-plan (one 20 mm panel, 210 mm of strand at 20 mm/s), in `dir`.
+fn small_truss(dir: &Path) -> std::path::PathBuf {
+    let job = dir.join("truss.gcode");
+    let out = Command::new(bin("strand-plan"))
+        .args(["truss", "--length", "0.02", "--width", "0.02", "--pitch", "0.02", "--speed", "0.02", "-o"])
+        .arg(&job)
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    job
 }
 
 fn spawn(mut c: Command) -> Reaped {

@@ -54,6 +54,10 @@ struct Cli {
     /// Lockstep: longest wait for the answer to one JointState before cycling on (s).
     #[arg(long, default_value_t = 0.05)]
     answer_timeout: f64,
+    /// Be OptiTrack: serve the base's true pose over NatNet (unicast, 127.0.0.1, this command
+    /// port) for strand-natnet, instead of publishing base poses. Needs --realtime.
+    #[arg(long, value_name = "PORT", requires = "realtime")]
+    motive: Option<u16>,
 }
 
 static STOP: AtomicBool = AtomicBool::new(false);
@@ -97,6 +101,7 @@ fn main() -> ExitCode {
         stats: cli.stats,
         exit_after_silence: cli.exit_after_silence,
         answer_timeout: cli.answer_timeout,
+        motive: cli.motive,
     };
     match run(&opts, &cfg, &sim_cfg, &STOP) {
         Ok(()) => ExitCode::SUCCESS,
