@@ -290,7 +290,14 @@ impl BaseState {
 
     /// Maps a base-frame position and orientation into W.
     pub fn base_to_world(&self, position_b: &Vector3<f64>, orientation_b: &UnitQuaternion<f64>) -> (Vector3<f64>, UnitQuaternion<f64>) {
-        (self.position + self.orientation * position_b, self.orientation * orientation_b)
+        (self.point_to_world(position_b), self.orientation * orientation_b)
+    }
+
+    /// Maps a base-frame position (m) into W (m): [`BaseState::base_to_world`]'s position, for a
+    /// caller with no orientation to map (the tick's TCPs: a rotation matrix turned into a
+    /// quaternion only to be dropped costs tens of nanoseconds).
+    pub fn point_to_world(&self, position_b: &Vector3<f64>) -> Vector3<f64> {
+        self.position + self.orientation * position_b
     }
 
     fn is_finite(&self) -> bool {

@@ -10,7 +10,8 @@
 //!
 //! - The controller: [`Controller::step`]`(&`[`TickInput`]`) -> `[`TickOutput`], built from
 //!   [`ControllerSettings`] (the `[controller]`, `[clik]`, `[path]`, `[extruder]` and `[base]`
-//!   configs) and a [`kin::RobotModel`].
+//!   configs) and a [`kin::RobotModel`]; [`Controller::step_probed`] is the same tick telling a
+//!   [`TickProbe`] as each [`TickStage`] ends (the bench's stage timing).
 //! - The path engine on its own ([`PathEngine`]), for the offline tools that time a job with the
 //!   controller's own per-tick code, and the [`Segment`] it takes.
 //! - Kinematics ([`kin`]): the chain, FK, Jacobians, manipulability and the CLIK, for the tools and
@@ -34,7 +35,7 @@ mod thermal;
 pub use base::{BaseConfig, BaseEstimator, BaseMode, BaseState, EstimatorKind, MAX_WINDOW, MountPose, PoseRejection};
 pub use controller::{
     Controller, ControllerConfig, ControllerError, ControllerSettings, CycleCounters, Event, MAX_BASE_POSES_PER_TICK,
-    MAX_CONTROLS_PER_TICK, MAX_EVENTS, MAX_SEGMENTS_PER_TICK, TickDiagnostics, TickInput, TickOutput,
+    MAX_CONTROLS_PER_TICK, MAX_EVENTS, MAX_SEGMENTS_PER_TICK, TickDiagnostics, TickInput, TickOutput, TickProbe, TickStage,
 };
 pub use extrude::{Extruder, ExtruderCommand, ExtruderConfig, HeaterSource};
 pub use path::{

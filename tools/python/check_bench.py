@@ -45,11 +45,21 @@ def main():
             assert r["missed"] * 100 <= r["samples"], f"latency: {r['missed']} states unanswered"
         elif mode == "tick":
             assert r["allocations"] == 0, r
+            # Every stage of Controller::step (14), timed inside it, and what none accounts for.
             names = [s["name"] for s in r["stages"]]
-            assert len(names) == 6, names
+            assert len(names) == 14, names
             for s in r["stages"]:
                 check_dist(f"tick stage {s['name']}", s)
                 assert s["allocations"] == 0, s
+            check_dist("tick log enqueue", r["log_enqueue"])
+            assert r["log_enqueue"]["allocations"] == 0, r["log_enqueue"]
+            for k in ("probe_lap_ns", "stage_sum_ns", "remainder_ns"):
+                assert isinstance(r[k], int), (k, r[k])
+            for side in ("kdl", "pinocchio"):
+                if r.get(side) is not None:
+                    for k, rnd in enumerate(r[side]["rounds"]):
+                        check_dist(f"tick {side} round {k + 1}", rnd)
+                    assert r[side]["p50_ratio"] > 0, r[side]
             shell = r.get("shell")
             if shell is not None:
                 # The runner's stages over iceoryx2: from the second tick on nothing allocates, the

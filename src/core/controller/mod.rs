@@ -37,7 +37,7 @@ use super::base::{BaseEstimator, BaseState};
 use super::base_setpoint::BaseSetpoint;
 use super::extrude::Extruder;
 use super::following::FollowingWatch;
-use super::kin::{Clik, ClikStep, JointVector, MAX_JOINTS, PathVelocity, RobotModel, TcpTarget};
+use super::kin::{Clik, ClikStep, Frame, JointVector, MAX_JOINTS, PathVelocity, RobotModel, TcpTarget};
 use super::path::{AxisLimits, Motion, PathEngine, PathSample, SegmentError, SegmentFlags, SegmentKind, rest_sample};
 use super::positioner::{Positioner, PositionerError};
 use strand_wire::MAX_EXTERNAL_AXES;
@@ -46,12 +46,15 @@ mod approach;
 mod command;
 mod heat;
 mod intake;
+mod probe;
 mod tick;
 
 use approach::{Approach, ApproachStep, FirstPoint};
 use command::{CellJoints, JointCommandStage};
 use heat::{Heat, HeatVerdict};
 use intake::Intake;
+use probe::NoProbe;
+pub use probe::{TickProbe, TickStage};
 pub use tick::{
     ControllerConfig, ControllerError, ControllerSettings, CycleCounters, Event, MAX_BASE_POSES_PER_TICK, MAX_CONTROLS_PER_TICK,
     MAX_EVENTS, MAX_SEGMENTS_PER_TICK, TickDiagnostics, TickInput, TickOutput,
@@ -277,13 +280,15 @@ impl Controller {
 
     /// One control tick.
     pub fn step(&mut self, input: &TickInput) -> TickOutput {
+        self.step_probed(input, &mut NoProbe)
+    }
+
+    /// [`step`](Self::step), telling `probe` as each of its stages ends ([`TickStage`], in that
+    /// order): the same tick to the bit, for a bench that times the stages.
+    pub fn step_probed<P: TickProbe>(&mut self, input: &TickInput, probe: &mut P) -> TickOutput {
+        // `diagnostics.base` is the base at the command's time, set below.
         let mut out = TickOutput {
-            diagnostics: TickDiagnostics {
-                base: self.base.at(input.time_ns),
-                clik_scale: 1.0,
-                path_scale: 1.0,
-                ..TickDiagnostics::default()
-            },
+            diagnostics: TickDiagnostics { clik_scale: 1.0, path_scale: 1.0, ..TickDiagnostics::default() },
             ..TickOutput::default()
         };
         self.transition_count = 0;
@@ -311,29 +316,39 @@ impl Controller {
         {
             self.begin_stop(FaultCode::None);
         }
+        probe.stage_done(TickStage::Intake);
         self.supervise(input.time_ns, &mut out);
+        probe.stage_done(TickStage::Supervise);
 
         // The command takes effect at the next tick: targets and the base pose are for then.
         let t_cmd = input.time_ns + self.dt_ns;
         let base = self.base.at(t_cmd);
         out.diagnostics.base = base;
-        let q_des = self.motion(&base, &mut out);
+        probe.stage_done(TickStage::BaseEstimate);
+        let q_des = self.motion(&base, &mut out, probe);
+        probe.stage_done(TickStage::Clik);
         self.final_stage(&q_des, &mut out);
+        probe.stage_done(TickStage::CommandLimits);
         self.step_heat(input.time_ns, &mut out);
+        probe.stage_done(TickStage::Heat);
         self.after_motion(input.time_ns, &mut out);
+        probe.stage_done(TickStage::RunState);
         self.step_base_setpoint();
+        probe.stage_done(TickStage::BaseSetpoint);
 
-        let (p_cmd_b, q_cmd_b) = {
-            let f = self.model.forward_kinematics(&self.command.q);
-            (f.translation.vector, UnitQuaternion::from_rotation_matrix(&f.rotation))
-        };
-        out.diagnostics.tcp_command_world = base.base_to_world(&p_cmd_b, &q_cmd_b).0;
-        self.watch_tcp_error(input, &base, (&p_cmd_b, &q_cmd_b), &mut out);
-        self.fill_outputs(input, &mut out);
+        // The command's TCP; its FK and Jacobian are the next tick's CLIK's (it starts from this
+        // command), computed once for both.
+        let tcp_cmd_b = self.clik.kinematics_ahead(&self.model, &self.command.q).tcp;
+        out.diagnostics.tcp_command_world = base.point_to_world(&tcp_cmd_b.translation.vector);
+        probe.stage_done(TickStage::CommandKinematics);
+        self.watch_tcp_error(input, &base, &tcp_cmd_b, &mut out);
+        probe.stage_done(TickStage::FollowingWatch);
+        self.fill_outputs(input, &mut out, probe);
         for k in 0..self.transition_count as usize {
             let (from, to) = self.transitions[k];
             out.push(Event::StateChanged { from, to });
         }
+        probe.stage_done(TickStage::Outputs);
         out
     }
 
@@ -778,8 +793,9 @@ impl Controller {
         }
     }
 
-    /// The joint positions this tick wants, before the final stage.
-    fn motion(&mut self, base: &BaseState, out: &mut TickOutput) -> JointVector {
+    /// The joint positions this tick wants, before the final stage. On the path, `probe` hears
+    /// the path sample and the base correction end (the caller, the CLIK).
+    fn motion<P: TickProbe>(&mut self, base: &BaseState, out: &mut TickOutput, probe: &mut P) -> JointVector {
         if !self.command.known {
             return self.command.q;
         }
@@ -820,6 +836,7 @@ impl Controller {
             }
             RunState::Running | RunState::Pausing | RunState::Paused | RunState::Stopping => {
                 let sample = self.engine.step(self.speed_scale);
+                probe.stage_done(TickStage::PathSample);
                 let target_w = TcpTarget {
                     position: sample.position,
                     orientation: sample.orientation,
@@ -842,6 +859,7 @@ impl Controller {
                     path_b = PathVelocity { linear: path.linear_velocity, angular: path.angular_velocity };
                     target_b = target;
                 }
+                probe.stage_done(TickStage::BaseCorrection);
                 let mut step = self.clik.step_on_path(&self.model, &self.command.q, &target_b, &path_b, self.dt);
                 self.place_axes(&mut step.q, &axes);
                 self.speed_scale = step.path_scale;
@@ -1002,13 +1020,7 @@ impl Controller {
     /// while the path runs, the commanded TCP against the path target and (with a joint state fresh
     /// this tick) the measured TCP against the recent path, both through the estimated base pose.
     /// A trip latches `TcpErrorLimit` in the same tick, so this tick's extruder command is already off.
-    fn watch_tcp_error(
-        &mut self,
-        input: &TickInput,
-        base: &BaseState,
-        (p_cmd_b, q_cmd_b): (&Vector3<f64>, &UnitQuaternion<f64>),
-        out: &mut TickOutput,
-    ) {
+    fn watch_tcp_error(&mut self, input: &TickInput, base: &BaseState, tcp_cmd_b: &Frame, out: &mut TickOutput) {
         let following = matches!(self.state, RunState::Running | RunState::Pausing | RunState::Paused | RunState::Stopping)
             && !self.settling
             && !self.stop_by_brake
@@ -1022,22 +1034,27 @@ impl Controller {
         // axes, so a table or track that falls behind its command shows as what it does to the
         // bead. Without, in W as the diagnostics have them.
         let arm = self.joints.arm();
-        // The TCP (p, r in B) at joints `q` on the part.
-        let on_part = |p: &Vector3<f64>, r: &UnitQuaternion<f64>, q: &JointVector| -> Vector3<f64> {
-            let mut p = *p;
+        // The TCP (its pose `f` in B) at joints `q` on the part.
+        let on_part = |f: &Frame, q: &JointVector| -> Vector3<f64> {
+            let mut p = f.translation.vector;
             if let Some(positioner) = &self.positioner {
                 let axes = std::array::from_fn(|i| if arm + i < self.joints.dof() { q[arm + i] } else { 0.0 });
-                p = positioner.to_home(&p, r, &axes).0;
+                p = positioner.to_home(&p, &UnitQuaternion::from_rotation_matrix(&f.rotation), &axes).0;
             }
-            base.base_to_world(&p, r).0
+            base.point_to_world(&p)
         };
+        // The measured joints' FK: the CLIK's own when they are the command it started from (a
+        // simulator's or a driver's echo), else computed here.
         let measured = (self.last_state_ns == Some(input.time_ns)).then(|| {
-            let f = self.model.forward_kinematics(&self.q_measured);
-            on_part(&f.translation.vector, &UnitQuaternion::from_rotation_matrix(&f.rotation), &self.q_measured)
+            let f = match self.clik.kinematics_at(&self.model, &self.q_measured) {
+                Some(state) => state.tcp,
+                None => self.model.forward_kinematics(&self.q_measured),
+            };
+            on_part(&f, &self.q_measured)
         });
         let d = &out.diagnostics;
         let (target, commanded) = match (&self.positioner, self.last_sample) {
-            (Some(_), Some(sample)) => (sample.position, on_part(p_cmd_b, q_cmd_b, &self.command.q)),
+            (Some(_), Some(sample)) => (sample.position, on_part(tcp_cmd_b, &self.command.q)),
             _ => (d.tcp_target_world, d.tcp_command_world),
         };
         let (error, trips) = self.following.observe(input.time_ns, &target, &commanded, measured.as_ref());
@@ -1075,7 +1092,8 @@ impl Controller {
         }
     }
 
-    fn fill_outputs(&mut self, input: &TickInput, out: &mut TickOutput) {
+    /// The tick's outputs; `probe` hears the joint command's part of them and the extrusion end.
+    fn fill_outputs<P: TickProbe>(&mut self, input: &TickInput, out: &mut TickOutput, probe: &mut P) {
         let n = self.joints.dof();
         self.out_seq += 1;
         let seq = self.out_seq;
@@ -1092,6 +1110,7 @@ impl Controller {
             jc.velocity[i] = self.command.qd[i];
             jc.acceleration[i] = self.command.qdd[i];
         }
+        probe.stage_done(TickStage::Outputs);
         let mut e = self.extruder_command();
         if e.filament_rate > 0.0
             && let Some(code) = self.heat.push_fault(input.time_ns)
@@ -1114,6 +1133,7 @@ impl Controller {
                 | (if e.retracted { ipc::extruder_flags::RETRACTED } else { 0 }),
             _reserved: 0,
         };
+        probe.stage_done(TickStage::Extrusion);
         let stats = self.engine.stats();
         let sample = self.last_sample;
         out.status = ipc::Status {

@@ -271,7 +271,13 @@ pub struct Clik {
     /// Steps since `svd_start` was last made orthonormal again (count).
     svd_start_age: u32,
     level_starts: LevelStarts,
-    state: ChainState,
+    /// FK and Jacobian in two slots: `states[current]` at the q of the last step, the other one
+    /// computed ahead ([`Clik::kinematics_ahead`]) for the next.
+    states: [ChainState; 2],
+    /// The slot of the last step.
+    current: usize,
+    /// The joints each slot was computed at (rad or m; the chain's, spare entries 0), if any.
+    keys: [Option<JointVector>; 2],
 }
 
 /// Steps between two re-orthonormalisations of the SVD warm start (count). Jacobi rotations keep it
@@ -403,7 +409,9 @@ impl Clik {
             svd_start: identity_start(),
             svd_start_age: 0,
             level_starts: LevelStarts::identity(),
-            state: ChainState::new(0),
+            states: [ChainState::new(0); 2],
+            current: 0,
+            keys: [None; 2],
         })
     }
 
@@ -429,7 +437,29 @@ impl Clik {
 
     /// FK and Jacobian at the q of the last step (before it moved).
     pub fn last_state(&self) -> &ChainState {
-        &self.state
+        &self.states[self.current]
+    }
+
+    /// FK and Jacobian of `model` at `q` (rad or m), computed now and kept for the next step: a step
+    /// from the same joints, to the bit, takes them instead of computing them again. The controller
+    /// asks for the TCP of its new command at the end of a tick, and the next tick's CLIK starts from
+    /// that command: one FK a tick serves both. `model` must be the one the next step is given.
+    /// The result is the step's own computation ([`RobotModel::kinematics`] at the same joints), so
+    /// a step is the same to the bit with or without it.
+    pub fn kinematics_ahead(&mut self, model: &RobotModel, q: &JointVector) -> &ChainState {
+        let key = chain_joints(model, q);
+        let slot = 1 - self.current;
+        model.kinematics(&key, &mut self.states[slot]);
+        self.keys[slot] = Some(key);
+        &self.states[slot]
+    }
+
+    /// FK and Jacobian at `q` (rad or m) if the last step or [`Clik::kinematics_ahead`] computed
+    /// them at the same joints, to the bit: what the controller's watchdog takes for the measured
+    /// joints when they are the command it echoes (a simulator, a driver's echo).
+    pub fn kinematics_at(&self, model: &RobotModel, q: &JointVector) -> Option<&ChainState> {
+        let key = chain_joints(model, q);
+        (0..2).find(|&slot| self.keys[slot].is_some_and(|k| same_bits(&k, &key))).map(|slot| &self.states[slot])
     }
 
     /// One tick: from the current command `q` (rad or m) towards `target`, over `dt` seconds.
@@ -469,9 +499,17 @@ impl Clik {
             && target.position.iter().chain(target.linear_velocity.iter()).chain(target.angular_velocity.iter()).all(|x| x.is_finite())
             && target.orientation.coords.iter().all(|x| x.is_finite());
 
-        // 1. Kinematics at q_k: FK, task Jacobian, its SVD (warm start from the last tick).
-        model.kinematics(&q, &mut self.state);
-        let state = &self.state;
+        // 1. Kinematics at q_k: FK, task Jacobian, its SVD (warm start from the last tick). The FK
+        //    and Jacobian were computed ahead when the controller asked for its command's TCP.
+        let ahead = 1 - self.current;
+        if self.keys[ahead].is_some_and(|k| same_bits(&k, &q)) {
+            self.current = ahead;
+        } else {
+            model.kinematics(&q, &mut self.states[self.current]);
+            self.keys[self.current] = Some(q);
+        }
+        self.keys[1 - self.current] = None;
+        let state = &self.states[self.current];
         let tj = TaskJacobian::new(state, cfg.task);
         let m = tj.m;
         let s0 = svd(&tj.rows, m, n, &self.svd_start);
@@ -610,6 +648,21 @@ impl Clik {
         }
         b
     }
+}
+
+/// `q` (rad or m) as the chain reads it: its joints, the spare entries 0 (as [`Clik::sanitize`]
+/// leaves them).
+fn chain_joints(model: &RobotModel, q: &JointVector) -> JointVector {
+    let mut key = *q;
+    for i in model.dof()..MAX_JOINTS {
+        key[i] = 0.0;
+    }
+    key
+}
+
+/// The same joints to the bit (not `==`: 0.0 and −0.0 are equal, and give other bits downstream).
+fn same_bits(a: &JointVector, b: &JointVector) -> bool {
+    a.iter().zip(b.iter()).all(|(x, y)| x.to_bits() == y.to_bits())
 }
 
 /// How [`Clik::sanitize`] had to repair the joint input.
@@ -1000,6 +1053,71 @@ fn damped_solve(s: &Svd, rhs: &[f64; MAX_TASK], qd0: &JointVector, eps: f64, lam
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The FK and Jacobian computed ahead are the step's own: [`RobotModel::kinematics`]'s TCP is
+    /// [`RobotModel::forward_kinematics`]'s to the bit (the controller's command TCP and watchdog
+    /// took the latter before they shared the former), and a CLIK given them ahead steps to the
+    /// bit as one that computes them itself, on chains of 6 and 7 joints.
+    #[test]
+    fn kinematics_computed_ahead_change_no_bit() {
+        let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        let robots = [
+            (include_str!("../../../config/robots/iiwa7.urdf"), "world", "iiwa_link_ee"),
+            (include_str!("../../../config/robots/kr6r900.urdf"), "base_link", "flange"),
+            (include_str!("../../../config/robots/ur5e.urdf"), "base_link", "tool0"),
+        ];
+        for (urdf, root, tip) in robots {
+            let model = RobotModel::from_urdf_str(urdf, "robot.urdf", root, tip).unwrap();
+            let n = model.dof();
+            let mut state = ChainState::new(n);
+            let mut seed = 0x2545_F491_4F6C_DD1Du64;
+            let mut random = move || {
+                seed ^= seed << 13;
+                seed ^= seed >> 7;
+                seed ^= seed << 17;
+                (seed >> 11) as f64 / (1u64 << 53) as f64
+            };
+            for _ in 0..2_000 {
+                let mut q = JointVector::zeros();
+                for i in 0..n {
+                    let l = model.limits(i);
+                    q[i] = l.lower + (l.upper - l.lower) * random();
+                }
+                model.kinematics(&q, &mut state);
+                let f = model.forward_kinematics(&q);
+                assert_eq!(bits(state.tcp.translation.vector.as_slice()), bits(f.translation.vector.as_slice()));
+                assert_eq!(bits(state.tcp.rotation.matrix().as_slice()), bits(f.rotation.matrix().as_slice()));
+            }
+            // Two solvers along the same moving target: one told the kinematics ahead, one not.
+            let start = model.middle_configuration();
+            let tcp = model.forward_kinematics(&start);
+            let (mut plain, mut ahead) = (Clik::new(ClikConfig::default()).unwrap(), Clik::new(ClikConfig::default()).unwrap());
+            let (mut q_plain, mut q_ahead) = (start, start);
+            for k in 0..3_000 {
+                let t = k as f64 * 1e-3;
+                let target = TcpTarget {
+                    position: tcp.translation.vector + nalgebra::Vector3::new(0.02 * (5.0 * t).sin(), 0.02 * (1.0 - (5.0 * t).cos()), 0.0),
+                    orientation: nalgebra::UnitQuaternion::from_rotation_matrix(&tcp.rotation),
+                    linear_velocity: nalgebra::Vector3::new(0.1 * (5.0 * t).cos(), 0.1 * (5.0 * t).sin(), 0.0),
+                    angular_velocity: nalgebra::Vector3::zeros(),
+                };
+                if k % 7 != 3 {
+                    // Now and then not: the step then computes them itself.
+                    let shared = ahead.kinematics_ahead(&model, &q_ahead).tcp;
+                    assert_eq!(
+                        bits(shared.translation.vector.as_slice()),
+                        bits(model.forward_kinematics(&q_ahead).translation.vector.as_slice())
+                    );
+                }
+                let (a, b) = (plain.step(&model, &q_plain, &target, 1e-3), ahead.step(&model, &q_ahead, &target, 1e-3));
+                assert_eq!(bits(a.q.as_slice()), bits(b.q.as_slice()), "step {k}");
+                assert_eq!(bits(a.qd.as_slice()), bits(b.qd.as_slice()), "step {k}");
+                assert_eq!((a.sigma_min.to_bits(), a.position_error.to_bits()), (b.sigma_min.to_bits(), b.position_error.to_bits()));
+                assert!(ahead.kinematics_at(&model, &q_ahead).is_some(), "the last step's joints are known");
+                (q_plain, q_ahead) = (a.q, b.q);
+            }
+        }
+    }
 
     /// The warm start re-orthonormalised every [`ORTHONORMALIZE_EVERY`] steps stays orthonormal to
     /// 1e-13 at every step of 200,000 of a smoothly moving 6 × 7 matrix (measured: 3.6e-14).

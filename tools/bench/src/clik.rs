@@ -49,6 +49,10 @@ pub struct Round {
     /// Largest distance between the tool point after a tick and that tick's target (m); ours leaves
     /// out the three ticks after the table wraps (see `strand_round`).
     pub max_position_error_m: f64,
+    /// A baseline that times several of its library's solvers (KDL's): each one's p50 (ns); the
+    /// figures above are the fastest's.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub solvers: Vec<(String, u64)>,
 }
 
 /// The report.
@@ -118,13 +122,15 @@ fn strand_round(model: &RobotModel, solver: &mut Clik, targets: &[TcpTarget], q0
     }
     all.extend_from_slice(&samples);
     let (cost, mean_ns) = dist(&mut samples);
-    Round { cost, mean_ns, max_position_error_m: worst }
+    Round { cost, mean_ns, max_position_error_m: worst, solvers: Vec::new() }
 }
 
-/// The Pinocchio bench's JSON line.
+/// A baseline bench's JSON line (`benches/pinocchio/`, `benches/kdl/`): its library's version and
+/// its per-tick cost.
 #[derive(Deserialize)]
-struct PinocchioLine {
-    pinocchio_version: String,
+struct BaselineLine {
+    #[serde(alias = "pinocchio_version", alias = "kdl_version")]
+    version: String,
     ticks: u64,
     p50_ns: u64,
     p99_ns: u64,
@@ -133,28 +139,34 @@ struct PinocchioLine {
     max_ns: u64,
     mean_ns: f64,
     max_position_error_m: f64,
+    /// KDL's bench: its two solvers' p50s (ns).
+    #[serde(default)]
+    pinv_p50_ns: Option<u64>,
+    #[serde(default)]
+    wdls_p50_ns: Option<u64>,
 }
 
-/// One round of Pinocchio's bench, as a child process.
-fn pinocchio_round(bin: &std::path::Path, urdf: &std::path::Path, ticks: usize) -> Result<(Round, String)> {
+/// One round of a baseline's CLIK bench (Pinocchio's, KDL's), as a child process given the URDF
+/// and the tick count: its cost and its library's version.
+pub(crate) fn baseline_round(bin: &std::path::Path, urdf: &std::path::Path, ticks: usize) -> Result<(Round, String)> {
     let out = Command::new(bin)
         .arg(urdf)
         .arg(ticks.to_string())
         .output()
-        .map_err(|e| ToolError::Measurement(format!("cannot run the Pinocchio bench {}: {e}", bin.display())))?;
+        .map_err(|e| ToolError::Measurement(format!("cannot run the baseline bench {}: {e}", bin.display())))?;
     if !out.status.success() {
         return Err(ToolError::Measurement(format!(
-            "the Pinocchio bench {} failed ({}): {}",
+            "the baseline bench {} failed ({}): {}",
             bin.display(),
             out.status,
             String::from_utf8_lossy(&out.stderr).trim()
         )));
     }
     let text = String::from_utf8_lossy(&out.stdout);
-    let line: PinocchioLine = text
+    let line: BaselineLine = text
         .lines()
         .find_map(|l| serde_json::from_str(l).ok())
-        .ok_or_else(|| ToolError::Measurement(format!("the Pinocchio bench printed no result line: {text}")))?;
+        .ok_or_else(|| ToolError::Measurement(format!("the baseline bench printed no result line: {text}")))?;
     let cost = Dist {
         samples: line.ticks,
         p50_ns: line.p50_ns,
@@ -163,10 +175,14 @@ fn pinocchio_round(bin: &std::path::Path, urdf: &std::path::Path, ticks: usize) 
         p9999_ns: line.p9999_ns,
         max_ns: line.max_ns,
     };
-    Ok((Round { cost, mean_ns: line.mean_ns, max_position_error_m: line.max_position_error_m }, line.pinocchio_version))
+    let solvers = [("pinv", line.pinv_p50_ns), ("wdls", line.wdls_p50_ns)]
+        .into_iter()
+        .filter_map(|(name, p50)| p50.map(|p| (name.to_string(), p)))
+        .collect();
+    Ok((Round { cost, mean_ns: line.mean_ns, max_position_error_m: line.max_position_error_m, solvers }, line.version))
 }
 
-fn median(mut v: Vec<f64>) -> Option<f64> {
+pub(crate) fn median(mut v: Vec<f64>) -> Option<f64> {
     if v.is_empty() {
         return None;
     }
@@ -193,7 +209,7 @@ pub fn run(opts: &ClikOptions) -> Result<ClikReport> {
         let mut solver = Clik::new(clik_config)?;
         strand.push(strand_round(&model, &mut solver, &targets, &q0, opts.ticks.max(1), &mut all));
         if let Some(bin) = &opts.pinocchio {
-            let (round, v) = pinocchio_round(bin, &urdf, opts.ticks.max(1))?;
+            let (round, v) = baseline_round(bin, &urdf, opts.ticks.max(1))?;
             pinocchio.push(round);
             version = Some(v);
         }

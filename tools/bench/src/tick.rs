@@ -1,14 +1,19 @@
-//! `strand-bench tick`: what one controller tick costs, stage by stage, while it prints 004's box:
-//! path sample (the path engine's step), base correction (the base estimate at the tick and the
-//! world → base map of the target), FK + task Jacobian, the CLIK solve (damped SVD inverse, null
-//! space, limits; it does its own FK and Jacobian, counted again here), extrusion, and the log
-//! enqueue; and `Controller::step` whole. The stages are the controller's own parts driven in the
-//! controller's order on the same job; the whole step runs a real `Controller` beside them.
-//! Allocations are counted per stage by the binary's counting allocator: the aim is 0.
+//! `strand-bench tick`: what one controller tick costs, stage by stage, while it prints 004's box.
+//!
+//! The stages are the controller's own ([`TickStage`]: intake, supervision, base estimate, path
+//! sample, base correction, CLIK, command limits, heat, run state, base setpoint, the command's FK
+//! and Jacobian, the following-error watchdog, extrusion, outputs), timed inside a real
+//! `Controller::step` by the probe it calls as each one ends ([`Controller::step_probed`]): every
+//! piece of the tick's work is in one of them. `Controller::step` whole runs unprobed in a second
+//! controller given the same inputs (the two must decide the same to the bit, or the run fails), and
+//! the remainder — the whole step's p50 less the stages' p50s, each net of the probe's own cost (an
+//! empty lap's p50) — is printed, so that nothing can hide in "the rest". The log enqueue, after
+//! the step, is timed on its own. Allocations are counted per stage by the binary's counting
+//! allocator: the aim is 0. With `--pinocchio` and `--kdl` the baselines' CLIK ticks run between
+//! rounds of ours, and the ratios are the medians of the rounds'.
 
 use std::path::PathBuf;
 
-use nalgebra::UnitQuaternion;
 use serde::Serialize;
 use strand::config::Config;
 use strand::io::clock::monotonic_ns;
@@ -16,16 +21,12 @@ use strand::io::histogram::Histogram;
 use strand::io::runner::{StatusEvent, segments_per_tick, take_controls, take_segments};
 use strand::log::messages::TickTiming;
 use strand::log::writer::{LogContext, Logger};
-use strand_core::BaseEstimator;
-use strand_core::Extruder;
-use strand_core::kin::{ChainState, Clik, PathVelocity, TaskJacobian, TcpTarget};
-use strand_core::{Controller, MAX_SEGMENTS_PER_TICK, TickInput};
-use strand_core::{PathEngine, Segment};
+use strand_core::{Controller, MAX_SEGMENTS_PER_TICK, TickInput, TickOutput, TickProbe, TickStage};
 use strand_ipc as ipc;
 
-use super::{BENCH_JOB, Dist, bench_job};
+use super::clik::{Round, baseline_round, median};
+use super::{Dist, bench_job};
 use strand_cli::error::{Result, ToolError};
-use strand_feed::load_segments;
 
 /// What to run.
 #[derive(Clone, Debug)]
@@ -34,6 +35,8 @@ pub struct TickOptions {
     pub config: PathBuf,
     /// Ticks to measure.
     pub iterations: u64,
+    /// Rounds the ticks are split into, with the baselines' benches run between them (count).
+    pub rounds: usize,
     /// Repository root (the job).
     pub root: PathBuf,
     /// Reads the calling thread's allocation count (the binary's counting allocator).
@@ -44,6 +47,10 @@ pub struct TickOptions {
     /// Pace the shell's ticks at this rate (Hz), sleeping between them as the runner does, so each
     /// tick starts with the caches its sleep left; 0: back to back (everything hot).
     pub shell_rate: f64,
+    /// Pinocchio's DLS CLIK bench (`benches/pinocchio/build.sh`): the CLIK stage's baseline.
+    pub pinocchio: Option<PathBuf>,
+    /// KDL's CLIK bench (`benches/kdl/build.sh`): the whole step's baseline.
+    pub kdl: Option<PathBuf>,
 }
 
 /// One stage's cost and allocations.
@@ -56,6 +63,22 @@ pub struct Stage {
     pub cost: Dist,
     /// Allocations over all measured ticks (count; must be 0).
     pub allocations: u64,
+}
+
+/// A baseline's CLIK tick, run between our rounds.
+#[derive(Clone, Debug, Serialize)]
+pub struct Baseline {
+    /// The library and its version.
+    pub name: String,
+    /// Its rounds.
+    pub rounds: Vec<Round>,
+    /// The median over the rounds of (ours / its) at p50, for what it is compared with (the whole
+    /// step for KDL; the CLIK stage, and the CLIK stage with the command's FK and Jacobian, for
+    /// Pinocchio).
+    pub p50_ratio: f64,
+    /// For Pinocchio: the same with the command's FK + Jacobian stage added to the CLIK stage (what
+    /// Pinocchio's tick does itself). None for KDL.
+    pub p50_ratio_with_fk: Option<f64>,
 }
 
 /// The report; `--json` prints it as one object.
@@ -71,13 +94,26 @@ pub struct TickReport {
     pub iterations: u64,
     /// Ticks of them on the path (printing or travelling).
     pub running_ticks: u64,
-    /// `Controller::step`, whole (ns).
+    /// `Controller::step`, whole, unprobed (ns).
     #[serde(flatten)]
     pub total: Dist,
     /// Allocations in `Controller::step` over all ticks (count; must be 0).
     pub allocations: u64,
-    /// Per stage, in the controller's order.
+    /// Per stage, in the controller's order ([`TickStage::ALL`]), from the probed step (ns; each
+    /// with one lap of the probe in it).
     pub stages: Vec<Stage>,
+    /// What one lap of the probe costs by itself: the p50 of empty laps (ns).
+    pub probe_lap_ns: u64,
+    /// The stages' p50s added up, each less `probe_lap_ns` (ns).
+    pub stage_sum_ns: i64,
+    /// The whole step's p50 less `stage_sum_ns` (ns): what no stage accounts for.
+    pub remainder_ns: i64,
+    /// The log enqueue after the step (`Logger::push`; ns).
+    pub log_enqueue: Stage,
+    /// KDL's CLIK tick against the whole step (with `--kdl`).
+    pub kdl: Option<Baseline>,
+    /// Pinocchio's DLS tick against the CLIK stage (with `--pinocchio`).
+    pub pinocchio: Option<Baseline>,
     /// Allocations over whole runner ticks, receive and publish included, after the first (count; with
     /// `--shell`; the first tick's, when the ports connect, are `shell.first_tick_allocations`).
     pub runner_allocations: Option<u64>,
@@ -88,125 +124,199 @@ pub struct TickReport {
     pub histograms: Vec<(String, Histogram)>,
 }
 
-/// Runs the stages and the whole step for `iterations` ticks.
+/// The bench's [`TickProbe`]: the time (ns) and allocations of each stage of one tick.
+struct StageClock {
+    allocations: fn() -> u64,
+    last_ns: u64,
+    last_allocations: u64,
+    ns: [u64; STAGES],
+    allocated: [u64; STAGES],
+    ended: [bool; STAGES],
+}
+
+/// The controller's stages (count).
+const STAGES: usize = TickStage::ALL.len();
+
+impl StageClock {
+    fn new(allocations: fn() -> u64) -> Self {
+        StageClock { allocations, last_ns: 0, last_allocations: 0, ns: [0; STAGES], allocated: [0; STAGES], ended: [false; STAGES] }
+    }
+
+    /// A tick begins now.
+    fn start(&mut self) {
+        (self.ns, self.allocated, self.ended) = ([0; STAGES], [0; STAGES], [false; STAGES]);
+        self.last_allocations = (self.allocations)();
+        self.last_ns = monotonic_ns();
+    }
+}
+
+impl TickProbe for StageClock {
+    fn stage_done(&mut self, stage: TickStage) {
+        let now = monotonic_ns();
+        let count = (self.allocations)();
+        let i = stage.index();
+        self.ns[i] += now - self.last_ns;
+        self.allocated[i] += count - self.last_allocations;
+        self.ended[i] = true;
+        (self.last_ns, self.last_allocations) = (now, count);
+    }
+}
+
+/// The probe's own cost: the p50 of laps with no work between them (ns).
+fn empty_lap_ns(allocations: fn() -> u64) -> u64 {
+    let mut clock = StageClock::new(allocations);
+    let mut laps = Histogram::new();
+    for _ in 0..20_000 {
+        clock.start();
+        for stage in TickStage::ALL {
+            clock.stage_done(stage);
+        }
+        for i in 0..STAGES {
+            laps.record(clock.ns[i]);
+        }
+    }
+    laps.percentile(50.0)
+}
+
+/// The two controllers decided the same (joint command, extruder, status, diagnostics), to the bit.
+fn same_decisions(a: &TickOutput, b: &TickOutput) -> bool {
+    let bits = |o: &TickOutput| {
+        let (j, e, d) = (&o.joint_command, &o.extruder, &o.diagnostics);
+        let mut v: Vec<u64> = j.position.iter().chain(&j.velocity).chain(&j.acceleration).map(|x| x.to_bits()).collect();
+        v.extend([e.motor_speed, e.filament_rate, o.status.tcp_error, d.tcp_error, d.sigma_min].map(f64::to_bits));
+        v.extend(d.tcp_command_world.iter().chain(d.tcp_target_world.iter()).map(|x| x.to_bits()));
+        v.extend([o.status.run_state as u64, o.status.fault as u64, o.event_count as u64]);
+        v
+    };
+    bits(a) == bits(b)
+}
+
+/// Runs the stages and the whole step for `iterations` ticks, in rounds with the baselines.
 pub fn run(opts: &TickOptions) -> Result<TickReport> {
     let cfg = Config::load(&opts.config)?;
     let model = cfg.robot.build_model()?;
     let n = model.dof();
-    let dt = 1.0 / cfg.controller.rate_hz;
-    let dt_ns = (dt * 1e9).round() as u64;
+    let dt_ns = (1e9 / cfg.controller.rate_hz).round() as u64;
     let alloc = opts.allocations;
+    let urdf = cfg.robot.urdf_path();
 
-    // The stages, set up as the controller sets them up.
-    let mut q = model.middle_configuration();
-    for (i, v) in cfg.service.initial_joints.iter().enumerate().take(n) {
-        q[i] = *v;
-    }
-    let estimator = BaseEstimator::new(&cfg.base);
-    let start_b = model.forward_kinematics(&q);
-    let (start_w, start_q) =
-        estimator.at(0).base_to_world(&start_b.translation.vector, &UnitQuaternion::from_rotation_matrix(&start_b.rotation));
-    let mut engine = PathEngine::new(&cfg.path, dt, start_w, start_q)?;
-    let mut clik = Clik::new(cfg.clik)?;
-    let mut extruder = Extruder::new(&cfg.extruder, dt)?;
-    let mut state = ChainState::new(n);
-    let (segments, _) = load_segments(&opts.root.join(BENCH_JOB), &cfg.bed_transform()?)?;
-    let segments: Vec<Segment> = segments.into_iter().map(|(s, _)| s).collect();
-    let mut next_core = 0usize;
-
-    // The whole controller, on the same job over the wire types, with its log.
+    // Two controllers on the same job over the wire types: one timed whole, one by stage.
     let mut ctl = Controller::new(&cfg.controller_settings(), model.clone())?;
+    let mut probed = Controller::new(&cfg.controller_settings(), model.clone())?;
     let job = bench_job(&opts.root, &cfg)?;
     let log_path = std::env::temp_dir().join(format!("strand-bench-tick-{}.mcap", std::process::id()));
     let logger = Logger::start_at(&cfg.log, LogContext::new(&cfg, &model), &log_path)?;
     let mut input = TickInput::new(0, 0);
+    let start = model.middle_configuration();
     let mut q_ctl = [0.0; ipc::MAX_JOINTS];
-    q_ctl[..n].copy_from_slice(&q.as_slice()[..n]);
+    for (i, v) in q_ctl.iter_mut().enumerate().take(n) {
+        *v = cfg.service.initial_joints.get(i).copied().unwrap_or(start[i]);
+    }
     let (mut next_wire, mut free) = (0usize, 0u32);
 
-    const NAMES: [&str; 6] =
-        ["path sample", "base correction", "FK + Jacobian", "CLIK (own FK, SVD, null space, limits)", "extrusion", "log enqueue"];
-    let mut cost: [Histogram; 6] = Default::default();
-    let mut allocs = [0u64; 6];
-    let mut total = Histogram::new();
-    let mut total_allocs = 0u64;
-    let mut scale = 1.0;
+    let mut cost: [Histogram; STAGES] = Default::default();
+    let mut allocs = [0u64; STAGES];
+    let mut clock = StageClock::new(alloc);
+    let (mut total, mut log_cost) = (Histogram::new(), Histogram::new());
+    let (mut total_allocs, mut log_allocs) = (0u64, 0u64);
     let mut running_ticks = 0u64;
     let mut time_ns = 0u64;
-    for tick in 0..opts.iterations {
-        time_ns += dt_ns;
-        // Keep the engine fed (outside the measurement), as the controller's intake does.
-        while next_core < segments.len() && engine.free_space() > 0 {
-            engine.push(&segments[next_core]).map_err(|e| ToolError::Measurement(format!("segment {}: {e:?}", segments[next_core].seq)))?;
-            next_core += 1;
+    let rounds = opts.rounds.max(1);
+    let per_round = opts.iterations.div_ceil(rounds as u64);
+    // Per round: the whole step's and the CLIK's p50 (ours), and the baselines' rounds.
+    let (mut step_p50, mut clik_p50, mut clik_fk_p50) = (Vec::new(), Vec::new(), Vec::new());
+    let (mut kdl, mut pinocchio) = ((String::new(), Vec::new()), (String::new(), Vec::new()));
+    let mut tick = 0u64;
+    for _ in 0..rounds {
+        let (mut round_step, mut round_clik, mut round_clik_fk) = (Histogram::new(), Histogram::new(), Histogram::new());
+        while tick < opts.iterations && tick < per_round * (step_p50.len() as u64 + 1) {
+            time_ns += dt_ns;
+            input.reset(tick, time_ns);
+            input.joint_state =
+                Some(ipc::JointState { seq: tick + 1, stamp_ns: time_ns, dof: n as u32, position: q_ctl, ..Default::default() });
+            if tick == 0 {
+                input.push_control(&ipc::Control {
+                    seq: 1,
+                    stamp_ns: time_ns,
+                    command: ipc::Command::Start as u32,
+                    value: 0.0,
+                    _reserved: 0,
+                });
+                free = 64;
+            }
+            while free > 0 && next_wire < job.segments.len() && (input.segment_count as usize) < MAX_SEGMENTS_PER_TICK {
+                input.push_segment(&job.segments[next_wire]);
+                next_wire += 1;
+                free -= 1;
+            }
+            // The stages, then the whole step on the same input.
+            clock.start();
+            let staged = probed.step_probed(&input, &mut clock);
+            for i in 0..STAGES {
+                if clock.ended[i] {
+                    cost[i].record(clock.ns[i]);
+                    allocs[i] += clock.allocated[i];
+                }
+            }
+            let ci = TickStage::Clik.index();
+            if clock.ended[TickStage::PathSample.index()] {
+                round_clik.record(clock.ns[ci]);
+                round_clik_fk.record(clock.ns[ci] + clock.ns[TickStage::CommandKinematics.index()]);
+            }
+            let (t0, a0) = (monotonic_ns(), alloc());
+            let out = ctl.step(&input);
+            let (t1, a1) = (monotonic_ns(), alloc());
+            total.record(t1 - t0);
+            round_step.record(t1 - t0);
+            total_allocs += a1 - a0;
+            if !same_decisions(&out, &staged) {
+                return Err(ToolError::Measurement(format!("tick {tick}: the probed step decided otherwise than the step")));
+            }
+            let (t, a) = (monotonic_ns(), alloc());
+            logger.push(&input, &out, &TickTiming { wake_lateness_ns: 0, step_ns: t1 - t0, tick_ns: t1 - t0 });
+            log_cost.record(monotonic_ns() - t);
+            log_allocs += alloc() - a;
+            if out.joint_command.valid == 1 {
+                q_ctl = out.joint_command.position;
+            }
+            free = out.status.queue_free.saturating_sub(64);
+            running_ticks += (out.status.run_state == ipc::RunState::Running as u32) as u64;
+            tick += 1;
         }
-        let mut stage = 0;
-        let mut t = monotonic_ns();
-        let mut a = alloc();
-        let mut lap = |stage: &mut usize, t: &mut u64, a: &mut u64| {
-            let (now, count) = (monotonic_ns(), alloc());
-            cost[*stage].record(now - *t);
-            allocs[*stage] += count - *a;
-            *stage += 1;
-            (*t, *a) = (monotonic_ns(), alloc());
-        };
-        // The job's heat waits: no heaters in this bench, released at once.
-        engine.release_wait();
-        let sample = engine.step(scale);
-        lap(&mut stage, &mut t, &mut a);
-        let base = estimator.at(time_ns + dt_ns);
-        let target_w = TcpTarget {
-            position: sample.position,
-            orientation: sample.orientation,
-            linear_velocity: sample.velocity,
-            angular_velocity: sample.angular_velocity,
-        };
-        let target_b = base.world_to_base(&target_w);
-        let r_bw = base.orientation.inverse();
-        let path_b = PathVelocity { linear: r_bw * sample.velocity, angular: r_bw * sample.angular_velocity };
-        lap(&mut stage, &mut t, &mut a);
-        model.kinematics(&q, &mut state);
-        std::hint::black_box(TaskJacobian::new(&state, cfg.clik.task));
-        lap(&mut stage, &mut t, &mut a);
-        let step = clik.step_on_path(&model, &q, &target_b, &path_b, dt);
-        lap(&mut stage, &mut t, &mut a);
-        std::hint::black_box(extruder.step(&sample));
-        lap(&mut stage, &mut t, &mut a);
-        scale = step.path_scale;
-        q = step.q;
-
-        // The whole step, then its log record.
-        input.reset(tick, time_ns);
-        input.joint_state =
-            Some(ipc::JointState { seq: tick + 1, stamp_ns: time_ns, dof: n as u32, position: q_ctl, ..Default::default() });
-        if tick == 0 {
-            input.push_control(&ipc::Control { seq: 1, stamp_ns: time_ns, command: ipc::Command::Start as u32, value: 0.0, _reserved: 0 });
-            free = 64;
+        step_p50.push(round_step.percentile(50.0) as f64);
+        clik_p50.push(round_clik.percentile(50.0) as f64);
+        clik_fk_p50.push(round_clik_fk.percentile(50.0) as f64);
+        let baseline_ticks = per_round.clamp(1, 200_000) as usize;
+        for (bin, (version, rounds)) in [(&opts.kdl, &mut kdl), (&opts.pinocchio, &mut pinocchio)] {
+            if let Some(bin) = bin {
+                let (round, v) = baseline_round(bin, &urdf, baseline_ticks)?;
+                rounds.push(round);
+                *version = v;
+            }
         }
-        while free > 0 && next_wire < job.segments.len() && (input.segment_count as usize) < MAX_SEGMENTS_PER_TICK {
-            input.push_segment(&job.segments[next_wire]);
-            next_wire += 1;
-            free -= 1;
-        }
-        let (t0, a0) = (monotonic_ns(), alloc());
-        let out = ctl.step(&input);
-        let (t1, a1) = (monotonic_ns(), alloc());
-        total.record(t1 - t0);
-        total_allocs += a1 - a0;
-        let (t, a) = (monotonic_ns(), alloc());
-        logger.push(&input, &out, &TickTiming { wake_lateness_ns: 0, step_ns: t1 - t0, tick_ns: t1 - t0 });
-        cost[5].record(monotonic_ns() - t);
-        allocs[5] += alloc() - a;
-        if out.joint_command.valid == 1 {
-            q_ctl = out.joint_command.position;
-        }
-        free = out.status.queue_free.saturating_sub(64);
-        running_ticks += (out.status.run_state == ipc::RunState::Running as u32) as u64;
     }
     discard(logger);
+    let ratio = |ours: &[f64], theirs: &[Round]| median(ours.iter().zip(theirs).map(|(a, b)| a / b.cost.p50_ns as f64).collect());
+    let kdl = opts.kdl.as_ref().map(|_| Baseline {
+        name: format!("KDL {}", kdl.0),
+        p50_ratio: ratio(&step_p50, &kdl.1).unwrap_or(f64::NAN),
+        p50_ratio_with_fk: None,
+        rounds: kdl.1.clone(),
+    });
+    let pinocchio = opts.pinocchio.as_ref().map(|_| Baseline {
+        name: format!("Pinocchio {}", pinocchio.0),
+        p50_ratio: ratio(&clik_p50, &pinocchio.1).unwrap_or(f64::NAN),
+        p50_ratio_with_fk: ratio(&clik_fk_p50, &pinocchio.1),
+        rounds: pinocchio.1.clone(),
+    });
     let shell = if opts.shell { Some(shell(opts, &cfg, &model)?) } else { None };
+    let names: Vec<&str> = TickStage::ALL.iter().map(|s| s.name()).collect();
     let mut histograms = vec![("Controller::step".to_string(), total.clone())];
-    histograms.extend(NAMES.iter().zip(cost.iter()).map(|(n, h)| (n.to_string(), h.clone())));
+    histograms.extend(names.iter().zip(cost.iter()).map(|(n, h)| (n.to_string(), h.clone())));
+    let stages = stages(&names, &cost, &allocs);
+    let probe_lap_ns = empty_lap_ns(alloc);
+    let stage_sum_ns = stages.iter().map(|s| s.cost.p50_ns as i64 - probe_lap_ns as i64).sum::<i64>();
+    let total = Dist::of(&total);
     Ok(TickReport {
         histograms,
         mode: "tick",
@@ -214,9 +324,15 @@ pub fn run(opts: &TickOptions) -> Result<TickReport> {
         dof: n,
         iterations: opts.iterations,
         running_ticks,
-        total: Dist::of(&total),
+        remainder_ns: total.p50_ns as i64 - stage_sum_ns,
+        total,
         allocations: total_allocs,
-        stages: stages(&NAMES, &cost, &allocs),
+        stages,
+        probe_lap_ns,
+        stage_sum_ns,
+        log_enqueue: Stage { name: "log enqueue (after the step)".to_string(), cost: Dist::of(&log_cost), allocations: log_allocs },
+        kdl,
+        pinocchio,
         runner_allocations: shell.as_ref().map(|s| s.allocations),
         shell,
     })
@@ -422,13 +538,13 @@ fn discard(logger: Logger) {
     }
 }
 
-/// Writes the report as a table.
 impl TickReport {
-    /// The benchmark's rules: sane distributions and no allocation in `Controller::step` or any
-    /// stage (the tick path must not allocate).
+    /// The benchmark's rules: sane distributions and no allocation in `Controller::step`, any stage
+    /// or the log enqueue (the tick path must not allocate).
     pub fn check(&self) -> Result<()> {
         self.total.check("Controller::step")?;
-        let allocating: Vec<&str> = self.stages.iter().filter(|s| s.allocations > 0).map(|s| s.name.as_str()).collect();
+        let allocating: Vec<&str> =
+            self.stages.iter().chain([&self.log_enqueue]).filter(|s| s.allocations > 0).map(|s| s.name.as_str()).collect();
         if self.allocations > 0 || !allocating.is_empty() {
             return Err(ToolError::Measurement(format!(
                 "the tick allocated: Controller::step {} times; stages {allocating:?}",
@@ -445,11 +561,37 @@ pub fn print(r: &TickReport) {
         "strand-bench tick: {} ({} joints), {} ticks of 004's box, {} of them on the path",
         r.robot, r.dof, r.iterations, r.running_ticks
     );
-    println!("{} {:>7}", Dist::header("stage"), "allocs");
+    println!("{} {:>7}", Dist::header("stage of Controller::step (probed)"), "allocs");
     for s in &r.stages {
         println!("{} {:>7}", s.cost.row(&s.name), s.allocations);
     }
-    println!("{} {:>7}", r.total.row("Controller::step (whole)"), r.allocations);
+    println!("{} {:>7}", r.total.row("Controller::step (whole, unprobed)"), r.allocations);
+    println!(
+        "stages' p50s added up, each less the probe's own lap ({} ns): {:.2} µs; the step's p50 {:.2} µs; remainder {:+.2} µs",
+        r.probe_lap_ns,
+        r.stage_sum_ns as f64 * 1e-3,
+        r.total.p50_ns as f64 * 1e-3,
+        r.remainder_ns as f64 * 1e-3
+    );
+    println!("{} {:>7}", r.log_enqueue.cost.row(&r.log_enqueue.name), r.log_enqueue.allocations);
+    for (b, what) in [(&r.kdl, "Controller::step"), (&r.pinocchio, "CLIK stage")] {
+        if let Some(b) = b {
+            let p50s: Vec<String> = b.rounds.iter().map(|x| format!("{:.2}", x.cost.p50_ns as f64 * 1e-3)).collect();
+            print!("{} CLIK tick p50 by round: {} µs; {what} / it: {:.2}×", b.name, p50s.join(", "), b.p50_ratio);
+            if let Some(fk) = b.p50_ratio_with_fk {
+                print!(" ({fk:.2}× with the command's FK + Jacobian, which its tick does itself)");
+            }
+            println!(" (median of the rounds)");
+            if let Some(first) = b.rounds.first().filter(|r| r.solvers.len() > 1) {
+                let each: Vec<String> = first
+                    .solvers
+                    .iter()
+                    .map(|(name, p50)| format!("{name} {:.2} µs ({:.2}×)", *p50 as f64 * 1e-3, r.total.p50_ns as f64 / *p50 as f64))
+                    .collect();
+                println!("  its solvers in the first round (p50, and {what}'s p50 over all rounds against it): {}", each.join(", "));
+            }
+        }
+    }
     if let Some(sh) = &r.shell {
         let pace = if sh.rate_hz > 0.0 { format!("paced at {} Hz", sh.rate_hz) } else { "back to back".to_string() };
         println!("shell: the runner's tick over iceoryx2 ports, {} ticks {pace} (a feeder and a driver in this process)", sh.iterations);

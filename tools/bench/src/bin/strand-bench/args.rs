@@ -74,8 +74,9 @@ pub(crate) enum Mode {
         #[arg(long, conflicts_with = "driver")]
         cpu: Option<usize>,
     },
-    /// Cost per stage of a controller tick printing the box (path sample, base correction, FK +
-    /// Jacobian, CLIK, extrusion, log enqueue) and of the whole step; allocations counted (must be 0).
+    /// Cost per stage of a controller tick printing the box (every stage of `Controller::step`, timed
+    /// inside it, and the remainder), of the whole step and of the log enqueue; allocations counted
+    /// (must be 0); with `--kdl` and `--pinocchio`, their CLIK ticks between rounds of ours.
     Tick {
         /// The robot (a name under config/, or a config file).
         #[arg(long, default_value = "iiwa7")]
@@ -83,6 +84,15 @@ pub(crate) enum Mode {
         /// Ticks to measure.
         #[arg(long, default_value_t = 100_000)]
         iterations: u64,
+        /// Rounds the ticks are split into, the baselines' benches run between them.
+        #[arg(long, default_value_t = 3)]
+        rounds: usize,
+        /// Pinocchio's DLS CLIK bench (benches/pinocchio/build.sh): the CLIK stage against its tick.
+        #[arg(long)]
+        pinocchio: Option<PathBuf>,
+        /// KDL's CLIK bench (benches/kdl/build.sh): the whole step against its tick.
+        #[arg(long)]
+        kdl: Option<PathBuf>,
         /// Print one JSON object instead of the table.
         #[arg(long)]
         json: bool,

@@ -116,10 +116,13 @@ fn main() -> ExitCode {
                 r.latency.check("latency")?;
                 r.baseline.check("ping-pong")
             }
-            Mode::Tick { robot, iterations, json, png, shell, shell_rate } => {
+            Mode::Tick { robot, iterations, rounds, pinocchio, kdl, json, png, shell, shell_rate } => {
                 let opts = tick::TickOptions {
                     config: robot_config(&robot)?,
                     iterations,
+                    rounds,
+                    pinocchio,
+                    kdl,
                     root: strand_bench::repo_root()?,
                     allocations,
                     shell,
