@@ -11,10 +11,8 @@
 
 use std::process::Command;
 
-use strand::log::cdr::decode;
 use strand::log::messages::Tick;
 use strand::log::reader::LogFile;
-use strand::log::topics;
 use strand_ipc::{HeatHold, JobOutcome, heater_flags};
 use strand_testkit::{bin, root, square_program, temp_dir};
 
@@ -61,8 +59,8 @@ fn m109_holds_the_printing_cell_until_the_hot_end_has_settled() {
     let mut finished = false;
     let mut ticks = 0u64;
     let mut seen_hold_after_bed = false;
-    for m in log.channel(topics::TICK) {
-        let t: Tick = decode(&m.data).unwrap();
+    for t in log.ticks() {
+        let t: Tick = t.unwrap();
         ticks += 1;
         if let Some(prev) = last_ns {
             dt = (t.input.time_ns - prev) as f64 * 1e-9;

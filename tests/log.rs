@@ -31,7 +31,17 @@ fn log_cfg(f: impl FnOnce(&mut LogConfig)) -> LogConfig {
 /// Steps a cell, logging every tick; the writer is given time so nothing is dropped.
 fn step_logged(cell: &mut Cell, logger: &Logger) -> TickOutput {
     cell.step_observed(&mut |i: &TickInput, o: &TickOutput| {
-        logger.push(i, o, &TickTiming { wake_lateness_ns: 1000 + i.tick % 7, step_ns: 5000, tick_ns: 9000 });
+        logger.push(
+            i,
+            o,
+            &TickTiming {
+                wake_lateness_ns: 1000 + i.tick % 7,
+                step_ns: 5000,
+                tick_ns: 9000,
+                receive_ns: 700 + i.tick % 3,
+                command_ns: 6000,
+            },
+        );
     })
 }
 
@@ -201,8 +211,9 @@ fn every_record_type_round_trips_bit_for_bit() {
         assert_eq!(back.output.status.heat_hold_band.map(f64::to_bits), t.output.status.heat_hold_band.map(f64::to_bits));
         assert_eq!(bytes(&back), bytes(&t));
     }
-    // Whole ticks from a real run: each decodes to the same bytes and the same fields.
-    let (path, ticks) = eventful_log();
+    // Whole ticks from a real run (regenerated with the full record): each decodes to the same
+    // bytes and the same fields.
+    let (path, ticks) = eventful_log_regenerated();
     let log = LogFile::open(&path).unwrap();
     assert!(log.finished);
     let mut n = 0;
@@ -254,34 +265,37 @@ fn the_derived_channels_go_to_the_file_at_their_rate_and_regenerate_at_every_tic
         if m.channel.topic == topics::STATUS {
             status_at.insert(m.log_time);
         }
-        if m.channel.topic == topics::TICK {
-            let t: Tick = decode(&m.data).unwrap();
-            let s = &t.output.status;
-            let now = (s.run_state, s.fault, s.job_outcome, s.executing_layer);
-            if state != Some(now) {
-                changes += 1;
-                tick_at.push(m.log_time);
-            }
-            state = Some(now);
+    }
+    // The run's ticks and their log times, from its regenerated copy (the same times).
+    let (full_path, _) = eventful_log_regenerated();
+    let full = LogFile::open(&full_path).unwrap();
+    for m in full.channel(topics::TICK) {
+        let t: Tick = decode(&m.data).unwrap();
+        let s = &t.output.status;
+        let now = (s.run_state, s.fault, s.job_outcome, s.executing_layer);
+        if state != Some(now) {
+            changes += 1;
+            tick_at.push(m.log_time);
         }
+        state = Some(now);
     }
     // Every change of state has its /status, at its tick's time.
     for t in &tick_at {
         changes_logged += status_at.contains(t) as u64;
     }
     assert_eq!(changes_logged, changes, "every change of run state, fault, outcome or layer is in /status");
-    // The replay record every tick; the derived channels at 100 Hz of the 1 kHz ticks.
+    // The replay record every tick; the derived channels at their rate (10 Hz) of the 1 kHz ticks.
     let expected = ticks as f64 * derived_hz / rate_hz;
-    assert_eq!(counts[topics::TICK], ticks);
+    assert_eq!(log.records().count() as u64, ticks);
+    assert!(!counts.contains_key(topics::TICK), "the compact record only: {counts:?}");
     for t in [topics::EXTRUDER, topics::TCP_TARGET, topics::BASE_ESTIMATED, topics::JOINT_COMMAND] {
         let n = counts[t] as f64;
         assert!((n - expected).abs() <= 2.0 + 0.01 * expected, "{t}: {n} messages, {expected:.0} expected");
     }
     let status = counts[topics::STATUS] as f64;
     assert!(status >= expected - 2.0 && status <= expected + changes as f64 + 2.0, "/status {status}");
-    // Regenerated: every channel at every tick again, the same replay records.
-    let (full, _) = eventful_log_regenerated();
-    let full = LogFile::open(&full).unwrap();
+    // Regenerated: every channel at every tick again, the same ticks (inputs and timings as the
+    // compact record holds them, outputs as it recomputes them), with the full record.
     let mut full_counts = std::collections::BTreeMap::<String, u64>::new();
     for m in full.messages() {
         *full_counts.entry(m.channel.topic.clone()).or_default() += 1;
@@ -289,8 +303,12 @@ fn the_derived_channels_go_to_the_file_at_their_rate_and_regenerate_at_every_tic
     for t in [topics::TICK, topics::STATUS, topics::EXTRUDER, topics::TCP_TARGET, topics::BASE_ESTIMATED] {
         assert_eq!(full_counts[t], ticks, "{t}");
     }
-    let same = log.channel(topics::TICK).zip(full.channel(topics::TICK)).all(|(a, b)| a.data == b.data && a.log_time == b.log_time);
-    assert!(same, "the replay records and their times are the run's");
+    let mut same = 0;
+    for (t, m) in log.ticks().zip(full.channel(topics::TICK)) {
+        assert_eq!(bytes(&t.unwrap()), m.data.as_ref());
+        same += 1;
+    }
+    assert_eq!(same, ticks, "the replay records are the run's");
     assert_eq!(verify(&[full]).unwrap(), Verdict::Identical { ticks });
     let bytes = |p: &Path| std::fs::metadata(p).unwrap().len() as f64;
     eprintln!(
@@ -388,7 +406,15 @@ fn a_file_cut_anywhere_is_recovered_up_to_its_last_closed_chunk() {
     let cfg = config(|_| {});
     let model = cfg.robot.build_model().unwrap();
     let path = dir.join("run.mcap");
-    let logger = Logger::start_at(&log_cfg(|c| c.chunk_bytes = 16 * 1024), LogContext::new(&cfg, &model), &path).unwrap();
+    let logger = Logger::start_at(
+        &log_cfg(|c| {
+            c.chunk_bytes = 4096;
+            c.chunk_interval = 0.005;
+        }),
+        LogContext::new(&cfg, &model),
+        &path,
+    )
+    .unwrap();
     let mut cell = Cell::new(&cfg, &IIWA_START);
     cell.send(&square_job(1, [0.45, 0.0, 0.3], 0.02, 1, 0.03));
     cell.control(Command::Start, 0.0);
@@ -435,7 +461,7 @@ fn a_file_cut_anywhere_is_recovered_up_to_its_last_closed_chunk() {
             assert_eq!(got.len(), all.len());
         }
         // With its config attachments intact, the recovered prefix replays identically.
-        if rec.attachments.len() == 2 && got.iter().any(|m| m.0 == topics::TICK) {
+        if rec.attachments.len() == 2 && got.iter().any(|m| m.0 == topics::TICKS) {
             assert!(matches!(verify(&[rec]).unwrap(), Verdict::Identical { .. }), "cut at {cut}");
         }
     }
@@ -447,7 +473,12 @@ fn rotated_parts_replay_together_and_a_later_part_alone_is_refused() {
     let cfg = config(|_| {});
     let model = cfg.robot.build_model().unwrap();
     let path = dir.join("run.mcap");
-    let logger = Logger::start_at(&log_cfg(|c| c.rotate_bytes = 1 << 16), LogContext::new(&cfg, &model), &path).unwrap();
+    // Every channel at every tick, so that 4 s of ticks fill several 64 KiB parts.
+    let rotating = log_cfg(|c| {
+        c.rotate_bytes = 1 << 16;
+        c.derived_rate_hz = 0.0;
+    });
+    let logger = Logger::start_at(&rotating, LogContext::new(&cfg, &model), &path).unwrap();
     let mut cell = Cell::new(&cfg, &IIWA_START);
     cell.send(&square_job(1, [0.45, 0.0, 0.3], 0.02, 1, 0.03));
     cell.control(Command::Start, 0.0);
@@ -464,7 +495,12 @@ fn rotated_parts_replay_together_and_a_later_part_alone_is_refused() {
         assert!(p.attachment("robot.urdf").is_some(), "every part is self-contained");
     }
     let second_first_tick: u64 = parts[1].meta("first_tick").unwrap().parse().unwrap();
-    assert_eq!(parts[1].ticks().next().unwrap().unwrap().input.tick, second_first_tick);
+    assert_eq!(parts[1].records().next().unwrap().unwrap().input.tick, second_first_tick);
+    // A later part alone holds its inputs, not the controller's state: its outputs need the parts
+    // before it.
+    let alone_err = parts[1].ticks().next().unwrap().unwrap_err().to_string();
+    assert!(alone_err.contains("its outputs need the parts before it"), "{alone_err}");
+    assert_eq!(strand::log::reader::ticks_of(&parts).count(), 4000);
     assert_eq!(verify(&parts).unwrap(), Verdict::Identical { ticks: 4000 });
     let alone = LogFile::open(&report.files[1]).unwrap();
     match verify(&[alone]) {
@@ -565,4 +601,123 @@ fn bad_segments_keep_their_reasons_in_the_log() {
         .flat_map(|t| t.output.events().to_vec())
         .any(|e| matches!(e, strand_core::Event::SegmentRejected { seq: 1, reason: ipc::RejectReason::NonFinite, field: "end" }));
     assert!(found);
+}
+
+#[test]
+fn the_compact_record_gives_back_every_bit_of_any_input() {
+    use strand::log::record::{BlockEncoder, LoggedOutput, decode_block, output_digest};
+    let (mut rng, mut noise) = (Rng(23), Rng(29));
+    let mut enc = BlockEncoder::new();
+    let mut ticks = Vec::new();
+    let mut scratch = CdrWriter::new();
+    for k in 0..700u64 {
+        let mut f = || random_f64(&mut rng);
+        let mut t = Tick::default();
+        t.input.tick = 1_000 + k;
+        t.input.time_ns = 5_000_000 + k * 1_000_000 + k % 3;
+        // Joint states come and go (the words of a missing one repeat the last), any bit pattern.
+        if k % 5 != 3 {
+            let mut js = ipc::JointState { seq: k, stamp_ns: t.input.time_ns - 17, dof: 7, flags: (k % 4) as u32, ..Default::default() };
+            for j in 0..ipc::MAX_JOINTS {
+                js.position[j] = if k % 50 == 7 { f() } else { 0.3 * j as f64 + 1e-4 * k as f64 + 2e-6 * noise.normal() };
+                js.velocity[j] = f();
+                js.robot_target[j] = -0.0;
+            }
+            t.input.joint_state = Some(js);
+        }
+        if k % 10 == 0 {
+            t.input.heater_state =
+                Some(ipc::HeaterState { seq: k / 10, stamp_ns: k, hot_end: f(), bed: f(), flags: 3, ..Default::default() });
+        }
+        if k % 97 == 5 {
+            t.input.push_segment(&ipc::Segment {
+                seq: k,
+                end: [f(), f(), f()],
+                axes: [f(), f()],
+                temperature: f(),
+                heater: 1,
+                ..Default::default()
+            });
+            t.input.push_control(&ipc::Control { seq: k, command: 3, value: f(), ..Default::default() });
+        }
+        for _ in 0..(k % 3) {
+            t.input.push_base_pose(&ipc::BasePose { seq: k, stamp_ns: k, position: [f(), f(), f()], orientation: [f(), f(), f(), f()] });
+        }
+        t.input.feeder_lost = k % 11 == 0;
+        t.input.cycle.overruns = k / 100;
+        t.input.cycle.worst_lateness_ns = noise.next_u64();
+        t.timing = TickTiming {
+            wake_lateness_ns: k % 13,
+            step_ns: 2000 + noise.next_u64() % 900,
+            tick_ns: u64::MAX - k,
+            receive_ns: 600,
+            command_ns: 0,
+        };
+        t.output.joint_command.position[0] = f();
+        t.output.status.tick = k;
+        if !enc.takes(&t) {
+            break;
+        }
+        enc.push(&t);
+        ticks.push(t);
+    }
+    assert_eq!(ticks.len(), 700);
+    let mut w = CdrWriter::new();
+    enc.finish(&mut w).unwrap();
+    assert!(enc.is_empty());
+    let records = decode_block(w.bytes()).unwrap();
+    assert_eq!(records.len(), ticks.len());
+    for (r, t) in records.iter().zip(&ticks) {
+        // The input and timing, bit for bit (a Tick's CDR with the logged output).
+        let back = Tick { input: *r.input, output: t.output, timing: r.timing };
+        assert_eq!(bytes(&back), bytes(t), "tick {}", t.input.tick);
+        assert_eq!(r.digest, output_digest(&mut scratch, &t.output));
+        match &r.output {
+            LoggedOutput::Keyframe(o) => assert_eq!(r.input.tick, 1_000, "{:?}", o.status.tick),
+            LoggedOutput::Digest(d) => assert_eq!(*d, r.digest),
+            LoggedOutput::Whole(_) => panic!("a block holds no whole record"),
+        }
+    }
+    // A tick that does not follow the block's last starts another block.
+    let mut gap = ticks[0];
+    gap.input.tick = 5;
+    let mut enc = BlockEncoder::new();
+    enc.push(&ticks[0]);
+    assert!(!enc.takes(&gap));
+    // A corrupted block is an error, never a panic.
+    for cut in [5, 20, w.bytes().len() / 2, w.bytes().len() - 1] {
+        assert!(decode_block(&w.bytes()[..cut]).is_err(), "cut at {cut}");
+    }
+}
+
+#[test]
+fn below_the_free_disk_floor_only_the_replay_record_is_written_and_it_replays() {
+    let dir = temp_dir("core", "floor");
+    let cfg = config(|_| {});
+    let model = cfg.robot.build_model().unwrap();
+    let path = dir.join("run.mcap");
+    // No disk has this much free: record-only from the first chunk on.
+    let logger = Logger::start_at(&log_cfg(|c| c.min_free_bytes = u64::MAX / 2), LogContext::new(&cfg, &model), &path).unwrap();
+    let mut cell = Cell::new(&cfg, &IIWA_START);
+    cell.send(&square_job(1, [0.45, 0.0, 0.3], 0.02, 1, 0.03));
+    cell.control(Command::Start, 0.0);
+    for _ in 0..2000 {
+        step_logged(&mut cell, &logger);
+    }
+    std::thread::sleep(std::time::Duration::from_millis(300));
+    assert_eq!(logger.state(), ipc::LogState::RecordOnly as u32);
+    let report = logger.finish();
+    assert_eq!((report.drops, report.ticks_written), (0, 2000));
+    let log = LogFile::open(&path).unwrap();
+    let mut counts = std::collections::BTreeMap::<String, u64>::new();
+    for m in log.messages() {
+        *counts.entry(m.channel.topic.clone()).or_default() += 1;
+    }
+    // Every tick and segment; of the derived channels at most what the first chunk held.
+    assert_eq!(log.records().count(), 2000);
+    assert!(counts.get(topics::SEGMENTS).copied().unwrap_or(0) > 0, "{counts:?}");
+    let derived = counts.get(topics::JOINT_COMMAND).copied().unwrap_or(0);
+    // (At 10 Hz the 2 s of ticks would have 200.)
+    assert!(derived < 50, "{derived} joint commands: the derived channels stopped ({counts:?})");
+    assert_eq!(verify(&[log]).unwrap(), Verdict::Identical { ticks: 2000 });
 }

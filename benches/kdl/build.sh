@@ -17,7 +17,10 @@ EXTRA_CXXFLAGS="${EXTRA_CXXFLAGS:-}"
 
 command -v "$CXX" >/dev/null 2>&1 || { echo "build.sh: $CXX not found (apt-get install -y g++)" >&2; exit 1; }
 if [ ! -f /usr/include/kdl/chainiksolvervel_pinv.hpp ]; then
-  apt-get install -y -qq liborocos-kdl-dev >&2 || { echo "build.sh: cannot install liborocos-kdl-dev" >&2; exit 1; }
+  # A fresh machine may have no package lists yet: update them once when the first try fails.
+  apt-get install -y -qq liborocos-kdl-dev >&2 \
+    || { apt-get update -qq >&2 && apt-get install -y -qq liborocos-kdl-dev >&2; } \
+    || { echo "build.sh: cannot install liborocos-kdl-dev" >&2; exit 1; }
 fi
 KDL_VERSION="$(dpkg-query -W -f='${Version}' liborocos-kdl-dev 2>/dev/null | sed 's/-.*//')"
 

@@ -17,6 +17,21 @@ pub enum LogCompression {
     None,
 }
 
+/// What the file keeps of each tick for replay (`[log] record`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Deserialize, Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum ReplayRecord {
+    /// `/strand/ticks` (`strand_msgs/msg/TickBlock`): every tick's input and timing whole, its output
+    /// as a 16-bit digest (whole for each block's first tick), blocks closed with each chunk. A
+    /// replay recomputes the outputs and checks every digest; readers get them by replaying. About a
+    /// fifth of `full` (default).
+    #[default]
+    Compact,
+    /// `/strand/tick` (`strand_msgs/msg/Tick`): every tick's input, output and timing whole, for
+    /// scripts that read the outputs without replaying (and logs a build cannot replay).
+    Full,
+}
+
 /// `[log]`: where and how ticks are written.
 #[derive(Clone, Debug, PartialEq, Deserialize, Serialize)]
 #[serde(deny_unknown_fields, default)]
@@ -42,12 +57,19 @@ pub struct LogConfig {
     pub rotate_seconds: f64,
     /// `fdatasync` after each chunk (survives a power loss, costs writer time).
     pub fsync: bool,
-    /// Rate (Hz) at which the file gets the channels the replay record (`/strand/tick`, always
-    /// every tick) already holds or derives: `/joint_states`, `/joint_command`, `/tcp/target`,
-    /// `/tcp/actual`, `/base/measured`, `/base/estimated`, `/base/command`, `/extruder`, `/heaters`, `/status`
-    /// (`/status` also on every change of run state, fault, job outcome or layer). 0: every tick.
-    /// `strand-replay regenerate` writes them at the full rate again from the replay record; the
-    /// live view is fed every tick either way (it keeps its own `[view] rates`).
+    /// The replay record: `"compact"` (inputs whole, outputs as digests; default) or `"full"`.
+    pub record: ReplayRecord,
+    /// Free space (bytes) on the log's disk below which only the replay record and the segments
+    /// are written (`LogState::RecordOnly`), so that a filling disk costs the viewing channels long
+    /// before it stops the log; checked at most once a second, resumed above 1.1 × this. 0: never.
+    pub min_free_bytes: u64,
+    /// Rate (Hz) at which the file gets the channels that follow from the replay record (always
+    /// every tick): `/joint_states`, `/joint_command`, `/tcp/target`, `/tcp/actual`,
+    /// `/base/measured`, `/base/estimated`, `/base/command`, `/extruder`, `/heaters`, `/status`
+    /// (`/status` also on every change of run state, fault, job outcome or layer), and the scene's
+    /// snapshots `/tf` and `/joints/normalized` (`/path/ahead` at most every 5 s). 0: every
+    /// tick. `strand-replay regenerate` writes them at the full rate again from the replay record;
+    /// the live view is fed every tick either way (it keeps its own `[view] rates`).
     pub derived_rate_hz: f64,
     /// With the robot clock, a tick whose record finds the queue full waits for a slot instead of
     /// dropping the record: for a simulator that clocks the service faster than real time (the
@@ -69,7 +91,9 @@ impl Default for LogConfig {
             rotate_bytes: 0,
             rotate_seconds: 0.0,
             fsync: false,
-            derived_rate_hz: 100.0,
+            record: ReplayRecord::Compact,
+            min_free_bytes: 1 << 30,
+            derived_rate_hz: 10.0,
             wait_when_full: false,
         }
     }

@@ -122,6 +122,11 @@ pub struct TickTiming {
     pub step_ns: u64,
     /// Wake-up to last publish (ns).
     pub tick_ns: u64,
+    /// Wake-up to every input drained: the receives (ns).
+    pub receive_ns: u64,
+    /// Wake-up to the joint command published, its event's notify included (ns; 0: no command).
+    /// On the robot clock a driver that outranks the service runs inside that notify.
+    pub command_ns: u64,
 }
 
 /// Receives every tick's input and output after publishing (the logger). Must not block,
@@ -295,6 +300,8 @@ impl Runner {
         let mut tick: u64 = 0;
         let mut robot_time = RobotTime::default();
         let mut status_event = StatusEvent::new(self.service.status_notify_period);
+        // The first tick's inputs that are not on its critical path (see `drain_ahead`).
+        self.drain_ahead(&mut input)?;
         while !stop.load(Ordering::Relaxed) {
             // 1. Wait for the tick.
             let mut wake_lateness_ns = 0;
@@ -320,13 +327,15 @@ impl Runner {
                 }
             };
             let woke = monotonic_ns();
-            // 2. Drain the subscribers.
-            input.reset(tick, now);
-            self.drain(&mut input)?;
+            // 2. Drain the subscribers: what the command waits for now (the segments, controls,
+            // heater states and the lost-feeder check were taken at the end of the last tick).
+            input.tick = tick;
+            input.time_ns = now;
+            self.drain_now(&mut input)?;
+            let drained = monotonic_ns();
             if self.service.clock == ClockMode::Robot {
                 input.time_ns = robot_time.advance(input.joint_state.as_ref(), woke);
             }
-            input.feeder_lost = job_seen_open(&summary.status) && self.ports.segment_publishers() == 0;
             input.cycle.overruns = summary.cycle.overruns;
             input.cycle.late_wakeups = summary.cycle.late_wakeups;
             input.cycle.worst_lateness_ns = summary.cycle.worst_lateness_ns;
@@ -337,8 +346,10 @@ impl Runner {
             let out = self.controller.step(&input);
             let after = monotonic_ns();
             // 4. Publish.
+            let mut command_out = woke;
             if out.joint_command.valid == 1 {
                 self.ports.publish_joint_command(&out.joint_command)?;
+                command_out = monotonic_ns();
                 if self.service.joint_feedback == JointFeedback::Echo {
                     self.echo_state.position = out.joint_command.position;
                     self.echo_state.velocity = out.joint_command.velocity;
@@ -361,17 +372,27 @@ impl Runner {
             if self.service.clock == ClockMode::Timer {
                 summary.cycle.record_work_end(monotonic_ns(), timer.next_deadline_ns());
             }
-            let timing = TickTiming { wake_lateness_ns, step_ns: after - before, tick_ns: published - woke };
+            let timing = TickTiming {
+                wake_lateness_ns,
+                step_ns: after - before,
+                tick_ns: published - woke,
+                receive_ns: drained - woke,
+                command_ns: command_out - woke,
+            };
             if self.service.clock == ClockMode::FreeRun || (self.service.clock == ClockMode::Robot && self.log_waits) {
                 sink.wait_for_room();
             }
             sink.record(&input, &out, &timing);
+            // The next tick's inputs that no command waits for, off this tick's critical path.
+            input.reset(tick + 1, 0);
+            job_seen |= out.status.job_outcome == JobOutcome::InProgress as u32;
+            input.feeder_lost = job_seen_open(&out.status) && self.ports.segment_publishers() == 0;
+            self.drain_ahead(&mut input)?;
             // 5. Off the tick: tell humans what happened (dead peers are the housekeeper's).
             log_events(&out);
             summary.status = out.status;
             summary.ticks += 1;
             tick += 1;
-            job_seen |= out.status.job_outcome == JobOutcome::InProgress as u32;
             if when.max_ticks.is_some_and(|m| tick >= m) {
                 break;
             }
@@ -382,9 +403,9 @@ impl Runner {
         Ok(summary)
     }
 
-    fn drain(&mut self, input: &mut TickInput) -> Result<(), RunError> {
-        take_segments(&self.ports, &mut self.carry, input, self.segments_per_tick)?;
-        take_controls(&self.ports, input)?;
+    /// What a tick's command waits for, taken when the tick wakes: the joint state (the robot
+    /// clock's own event) and the tracking samples (the base's latest pose).
+    fn drain_now(&mut self, input: &mut TickInput) -> Result<(), RunError> {
         while let Some(js) = self.ports.receive_joint_state()? {
             input.joint_state = Some(js);
         }
@@ -396,6 +417,17 @@ impl Runner {
         while let Some(p) = self.ports.receive_base_pose()? {
             input.push_base_pose(&p);
         }
+        Ok(())
+    }
+
+    /// What no command waits for, taken for the next tick right after this one's record: the
+    /// feeder's segments (queued seconds ahead), controls (a pause or a stop a tick later is
+    /// nothing; the E-stop is wired) and heater states (a thermal time constant of seconds). Off
+    /// the critical path, the wake → command time is the joint state's receive, the step and the
+    /// publish. (The input's tick and time are set when its tick wakes.)
+    fn drain_ahead(&mut self, input: &mut TickInput) -> Result<(), RunError> {
+        take_segments(&self.ports, &mut self.carry, input, self.segments_per_tick)?;
+        take_controls(&self.ports, input)?;
         while let Some(h) = self.ports.receive_heater_state()? {
             input.heater_state = Some(h);
         }

@@ -85,6 +85,10 @@ impl CdrWriter {
         self.buf.extend_from_slice(s.as_bytes());
         self.buf.push(0);
     }
+    /// Bytes as they are (after a [`len`](Self::len), a `uint8[]`).
+    pub fn raw(&mut self, bytes: &[u8]) {
+        self.buf.extend_from_slice(bytes);
+    }
     /// A sequence length.
     pub fn len(&mut self, n: usize) {
         self.u32(n as u32);
@@ -207,6 +211,11 @@ impl<'a> CdrReader<'a> {
             Some((0, s)) => std::str::from_utf8(s).map_err(|_| CdrError::BadString(at)),
             _ => Err(CdrError::BadString(at)),
         }
+    }
+    /// A `uint8[]` of at most `max` bytes, borrowed.
+    pub fn byte_seq(&mut self, max: usize) -> Result<&'a [u8], CdrError> {
+        let n = self.len(max)?;
+        self.take(n, "uint8[]")
     }
     /// A sequence length, checked against its bound.
     pub fn len(&mut self, max: usize) -> Result<usize, CdrError> {
@@ -389,7 +398,7 @@ macro_rules! cdr_message {
 
 /// The full ros2msg schema text of a top-level message type: its own body, then each dependency
 /// after a line of 80 `=` and `MSG: pkg/Type`, as rosbag2 and the MCAP ros2msg profile expect.
-pub(crate) fn schema_text<T: CdrType>() -> String {
+pub fn schema_text<T: CdrType>() -> String {
     let mut deps = Vec::new();
     T::dependencies(&mut deps);
     let top = T::ros_type();

@@ -127,7 +127,7 @@ impl HeatStatus {
             heat_hold_band: s.heat_hold_band,
         }
     }
-    fn put(&self, s: &mut ipc::Status) {
+    pub(crate) fn put(&self, s: &mut ipc::Status) {
         s.hot_end_temperature = self.hot_end_temperature;
         s.hot_end_target = self.hot_end_target;
         s.bed_temperature = self.bed_temperature;
@@ -429,6 +429,8 @@ strand_msgs/HeaterState[<=1] heater_state
 float64[] segment_heat
 strand_msgs/HeaterCommand heater
 strand_msgs/HeatStatus heat_status
+uint64 receive_ns
+uint64 command_ns
 ";
 
 /// The base command (`TickOutput::base_command`) is written after the timing, then the external
@@ -464,6 +466,8 @@ impl CdrType for Tick {
             }
         }
         write_heat(w, &self.input, &self.output);
+        w.u64(self.timing.receive_ns);
+        w.u64(self.timing.command_ns);
     }
     fn read(r: &mut CdrReader) -> Result<Self, CdrError> {
         let mut v = Tick { input: TickInput::read(r)?, output: TickOutput::read(r)?, timing: TickTiming::read(r)? };
@@ -484,6 +488,11 @@ impl CdrType for Tick {
         }
         if r.remaining() > 3 {
             read_heat(r, &mut v.input, &mut v.output)?;
+        }
+        // The timing's stages (receive, command), after the heat part: absent (0) in older logs.
+        if r.remaining() > 3 {
+            v.timing.receive_ns = r.u64()?;
+            v.timing.command_ns = r.u64()?;
         }
         Ok(v)
     }

@@ -7,6 +7,7 @@
 //!   preallocated slot, no allocation, no lock, a full queue is a counted drop) and the writer thread
 //!   (encoding, chunks closed at least every `chunk_interval`, rotation, a write error stops logging
 //!   and never control).
+//! - [`record`]: the compact replay record (`/strand/ticks`): inputs whole, outputs as digests.
 //! - [`reader`]: reads a log (finished or cut short) back: metadata, attachments, ticks, channels.
 //! - [`recover`]: rewrites a log cut short by a crash into a valid, indexed file.
 //! - [`regenerate`]: rewrites a log with its derived channels at every tick (the service writes them
@@ -18,6 +19,7 @@ pub mod cdr;
 pub mod dynamic;
 pub mod messages;
 pub mod reader;
+pub mod record;
 pub mod recover;
 pub mod regenerate;
 pub mod replay;
@@ -51,8 +53,12 @@ pub mod topics {
     /// heat wait's band and settle time left — `Status`'s temperature fields, on their own channel
     /// so that the live view and older readers of `/status` keep their layout.
     pub const HEATERS: &str = "/heaters";
-    /// Each tick's complete input, output and timing (`strand_msgs/msg/Tick`).
+    /// Each tick's complete input, output and timing (`strand_msgs/msg/Tick`): the replay record
+    /// with `[log] record = "full"`, and the live view's.
     pub const TICK: &str = "/strand/tick";
+    /// The compact replay record (`strand_msgs/msg/TickBlock`, [`super::record`]): runs of ticks,
+    /// inputs whole and outputs as digests; `[log] record = "compact"`, the default.
+    pub const TICKS: &str = "/strand/ticks";
 }
 
 /// Attachment and metadata names.
@@ -65,7 +71,7 @@ pub mod names {
     pub(crate) const METADATA: &str = "strand";
 }
 
-pub use crate::config::log::{LogCompression, LogConfig};
+pub use crate::config::log::{LogCompression, LogConfig, ReplayRecord};
 
 /// Formats a Unix time (ns) as `YYYYMMDDTHHMMSSZ` (UTC), for file names.
 pub fn utc_stamp(unix_ns: u64) -> String {

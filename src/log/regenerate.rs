@@ -1,9 +1,10 @@
 //! `strand-replay regenerate`: a log's derived channels at the full rate again. A service writes
 //! `/joint_states`, `/joint_command`, `/tcp/*`, `/base/*`, `/extruder` and `/status` at `[log]
-//! derived_rate_hz` (100 Hz by default) because every one of them is in, or follows from, the replay
-//! record `/strand/tick` that it writes every tick; this rewrites a run's files into one log with
-//! every tick's messages, through the same writer, so a viewer or a script that wants them all at
-//! the robot's rate gets exactly what the service would have written.
+//! derived_rate_hz` (10 Hz by default) because every one of them follows from the replay record
+//! that it writes every tick; this replays a run's files (recomputing and checking each output)
+//! and rewrites them into one log with every tick's messages and the full replay record
+//! (`/strand/tick`), through the same writer, so a viewer or a script that wants them all at the
+//! robot's rate gets exactly what the service would have written.
 
 use std::path::Path;
 
@@ -42,23 +43,35 @@ pub fn regenerate(files: &[LogFile], output: &Path) -> Result<Regenerated, Regen
     let cfg = first.config()?;
     let model = cfg.robot.build_model().map_err(ReadError::from)?;
     let offset = first
-        .channel(topics::TICK)
-        .next()
-        .and_then(|m| super::cdr::decode::<super::messages::Tick>(&m.data).ok().map(|t| m.log_time as i128 - t.input.time_ns as i128))
+        .messages()
+        .find(|m| m.channel.topic == topics::TICK || m.channel.topic == topics::TICKS)
+        .and_then(|m| {
+            let time = if m.channel.topic == topics::TICK {
+                super::cdr::decode::<super::messages::Tick>(&m.data).ok()?.input.time_ns
+            } else {
+                super::record::decode_block(&m.data).ok()?.first()?.input.time_ns
+            };
+            Some(m.log_time as i128 - time as i128)
+        })
         .ok_or_else(|| RegenerateError::Empty(format!("{}: no tick", first.path.display())))?;
     let mut ctx = LogContext::new(&cfg, &model);
     ctx.clock_offset_ns = Some(offset);
-    let log_cfg =
-        crate::config::log::LogConfig { enabled: true, derived_rate_hz: 0.0, rotate_bytes: 0, rotate_seconds: 0.0, ..cfg.log.clone() };
+    // Everything at every tick, the replay record whole too (for scripts that read the outputs).
+    let log_cfg = crate::config::log::LogConfig {
+        enabled: true,
+        derived_rate_hz: 0.0,
+        rotate_bytes: 0,
+        rotate_seconds: 0.0,
+        record: super::ReplayRecord::Full,
+        ..cfg.log.clone()
+    };
     let mut logger = Logger::start_at(&log_cfg, ctx, output)?;
     let mut ticks = 0;
-    for file in files {
-        for tick in file.ticks() {
-            let tick = tick?;
-            logger.wait_for_room();
-            logger.record(&tick.input, &tick.output, &tick.timing);
-            ticks += 1;
-        }
+    for tick in super::reader::ticks_of(files) {
+        let tick = tick?;
+        logger.wait_for_room();
+        logger.record(&tick.input, &tick.output, &tick.timing);
+        ticks += 1;
     }
     let report = logger.finish();
     if let Some(e) = report.error {

@@ -1,11 +1,13 @@
 //! Bit-exact re-execution: rebuilds the controller from a log's own configuration and URDF, feeds
-//! every logged `TickInput` through `Controller::step` and compares each output with the logged one,
-//! byte for byte in its CDR form; at the first difference it names the tick and the field with both
-//! values.
+//! every logged `TickInput` through `Controller::step` and compares each output with the logged one:
+//! byte for byte in its CDR form where the log holds it whole, by its 16-bit digest where the
+//! compact record keeps only that. At the first difference it names the tick, and the field with
+//! both values (for a digest, at the next whole output the log holds: the first of its block).
 
 use super::cdr::{CdrType, CdrWriter, Scalar};
 use super::messages::encode_output;
 use super::reader::{LogFile, ReadError};
+use super::record::{LoggedOutput, output_digest};
 use crate::config::Config;
 
 /// The outcome of a replay.
@@ -71,26 +73,50 @@ pub fn verify_with(files: &[LogFile], change: impl FnOnce(&mut Config)) -> Resul
     let mut controller = cfg.robot.build_controller(&cfg.controller_settings()).map_err(|e| ReplayError::Build(e.to_string()))?;
     let (mut replayed_bytes, mut logged_bytes) = (CdrWriter::new(), CdrWriter::new());
     let mut expected = 0u64;
+    // The first tick whose digest differed: (tick, logged, replayed).
+    let mut digest_differed: Option<(u64, u32, u32)> = None;
     for file in files {
-        for tick in file.ticks() {
-            let tick = tick?;
-            if tick.input.tick != expected {
+        for record in file.records() {
+            let record = record?;
+            if record.input.tick != expected {
                 let hint = if expected == 0 {
                     ": a rotated part; pass the earlier parts first"
                 } else {
                     ": ticks were dropped (Status.log_drops); the replay cannot go past a hole"
                 };
-                return Err(ReplayError::Gap { file: file.path.display().to_string(), expected, found: tick.input.tick, hint });
+                return Err(ReplayError::Gap { file: file.path.display().to_string(), expected, found: record.input.tick, hint });
             }
-            let out = controller.step(&tick.input);
+            let out = controller.step(&record.input);
+            let logged = match &record.output {
+                LoggedOutput::Whole(o) | LoggedOutput::Keyframe(o) => o,
+                LoggedOutput::Digest(d) => {
+                    let replayed = output_digest(&mut replayed_bytes, &out);
+                    if digest_differed.is_none() && replayed != *d {
+                        digest_differed = Some((expected, *d, replayed));
+                    }
+                    expected += 1;
+                    continue;
+                }
+            };
             encode_output(&mut replayed_bytes, &out);
-            encode_output(&mut logged_bytes, &tick.output);
+            encode_output(&mut logged_bytes, logged);
             if replayed_bytes.bytes() != logged_bytes.bytes() {
                 let (mut a, mut b) = (Vec::new(), Vec::new());
-                tick.output.flatten("output", &mut a);
+                logged.flatten("output", &mut a);
                 out.flatten("output", &mut b);
                 let (field, logged, replayed) = first_difference(&a, &b);
-                return Ok(Verdict::Diverged { tick: expected, field, logged, replayed });
+                return Ok(match digest_differed {
+                    Some((tick, ..)) => Verdict::Diverged {
+                        tick,
+                        field: format!("{field} (at tick {expected}: tick {tick}'s output differed by its digest)"),
+                        logged,
+                        replayed,
+                    },
+                    None => Verdict::Diverged { tick: expected, field, logged, replayed },
+                });
+            }
+            if let Some(d) = digest_differed {
+                return Ok(diverged_by_digest(d, Some(expected)));
             }
             expected += 1;
         }
@@ -98,7 +124,25 @@ pub fn verify_with(files: &[LogFile], change: impl FnOnce(&mut Config)) -> Resul
     if expected == 0 {
         return Err(ReplayError::Empty { file: files.last().map_or(String::new(), |f| f.path.display().to_string()) });
     }
+    if let Some(d) = digest_differed {
+        return Ok(diverged_by_digest(d, None));
+    }
     Ok(Verdict::Identical { ticks: expected })
+}
+
+/// A divergence only a digest saw: no whole output after it differs (`agreed_at`: the whole output
+/// that agreed again, if any).
+fn diverged_by_digest((tick, logged, replayed): (u64, u32, u32), agreed_at: Option<u64>) -> Verdict {
+    let after = match agreed_at {
+        Some(t) => format!("the next whole output, at tick {t}, agrees"),
+        None => "no whole output logged after it".to_string(),
+    };
+    Verdict::Diverged {
+        tick,
+        field: format!("output (its digest; {after})"),
+        logged: format!("digest {logged:04x}"),
+        replayed: format!("digest {replayed:04x}"),
+    }
 }
 
 fn first_difference(a: &[(String, Scalar)], b: &[(String, Scalar)]) -> (String, String, String) {

@@ -32,6 +32,18 @@ const TRAIL_SPACING: f64 = 0.0005;
 const BEAD_WIDTH: f64 = 0.0008;
 const PATH_WIDTH: f64 = 0.0003;
 
+/// Where a scene message goes: the trails send the file each chunk once, when it is finished, and
+/// the live view the growing chunk at every marker tick.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) enum SceneSink {
+    /// The file and the live view.
+    Both,
+    /// The file only.
+    File,
+    /// The live view only.
+    Live,
+}
+
 /// The scene's channels, in the order [`SceneTopic::ALL`] lists them.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub(crate) enum SceneTopic {
@@ -189,6 +201,9 @@ struct Trail {
     /// sent: sent once more, whole, with the next message (else their last points would never be
     /// drawn).
     finished: Vec<Chunk>,
+    /// Chunks finished since the file last got this trail: the file takes each chunk once, whole,
+    /// when it is finished (the live view gets the growing chunk at every marker tick).
+    file_pending: Vec<Chunk>,
     /// Finished chunks (id, points, colours), oldest first, for viewers that connect later.
     history: VecDeque<Chunk>,
     /// Points in `history`, and the most it keeps (the oldest chunks go first).
@@ -210,6 +225,9 @@ impl Trail {
                 if self.points.len() >= 2 && self.fresh {
                     self.finished.push((self.id, self.points.clone(), self.colours.clone()));
                     self.fresh = false;
+                }
+                if self.points.len() >= 2 {
+                    self.file_pending.push((self.id, self.points.clone(), self.colours.clone()));
                 }
                 if self.points.len() >= 2 && self.history_cap > 0 {
                     self.history_points += self.points.len();
@@ -302,6 +320,9 @@ pub(crate) struct Scene {
     bead: Trail,
     /// The bed mesh's grid lines (W) and their colours, if the config has a mesh.
     bed_mesh: Vec<(Vec<[f64; 3]>, Vec<Rgba>)>,
+    /// The file takes the trails a finished chunk at a time ([`SceneSink::File`]); else it gets
+    /// what the live view gets.
+    file_chunks: bool,
     cdr: CdrWriter,
 }
 
@@ -349,8 +370,15 @@ impl Scene {
             executed: Trail::new(cfg.history_points),
             bead: Trail::new(cfg.history_points),
             bed_mesh: bed_mesh.map(mesh_lines).unwrap_or_default(),
+            file_chunks: false,
             cdr: CdrWriter::new(),
         }
+    }
+
+    /// Whether the file takes the trails a finished chunk at a time (the service's thinned log)
+    /// or as the live view gets them (a log with every channel at every tick).
+    pub(crate) fn set_file_chunks(&mut self, on: bool) {
+        self.file_chunks = on;
     }
 
     /// `/bed/mesh`: the bed's measured surface as grid lines (sent once per file, and to each live
@@ -378,7 +406,7 @@ impl Scene {
         t: &Tick,
         stamp_ns: u64,
         measured: Option<&JointVector>,
-        emit: &mut impl FnMut(SceneTopic, &[u8]) -> Result<(), E>,
+        emit: &mut impl FnMut(SceneTopic, SceneSink, &[u8]) -> Result<(), E>,
     ) -> Result<(), E> {
         for s in t.input.segments() {
             if self.ahead.len() >= self.cfg.path_ahead_segments.max(1) * 4 {
@@ -418,21 +446,29 @@ impl Scene {
             self.next_tf_ns = stamp_ns + (1e9 / self.cfg.tf_rate_hz) as u64;
             if let Some(q) = &q {
                 self.encode_tf(stamp_ns, q, base);
-                emit(SceneTopic::Tf, self.cdr.bytes())?;
+                emit(SceneTopic::Tf, SceneSink::Both, self.cdr.bytes())?;
                 self.encode_normalized(stamp_ns, q);
-                emit(SceneTopic::JointsNormalized, self.cdr.bytes())?;
+                emit(SceneTopic::JointsNormalized, SceneSink::Both, self.cdr.bytes())?;
             }
         }
         if stamp_ns >= self.next_marker_ns {
             self.next_marker_ns = stamp_ns + (1e9 / self.cfg.marker_rate_hz) as u64;
             let target = t.output.diagnostics.tcp_target_world;
             self.encode_ahead(stamp_ns, [target.x, target.y, target.z]);
-            emit(SceneTopic::PathAhead, self.cdr.bytes())?;
+            emit(SceneTopic::PathAhead, SceneSink::Both, self.cdr.bytes())?;
             for topic in [SceneTopic::PathExecuted, SceneTopic::Bead] {
                 let (trail, ns, width) = match topic {
                     SceneTopic::Bead => (&mut self.bead, "bead", BEAD_WIDTH),
                     _ => (&mut self.executed, "executed", PATH_WIDTH),
                 };
+                let live_sink = if self.file_chunks { SceneSink::Live } else { SceneSink::Both };
+                if !self.file_chunks {
+                    trail.file_pending.clear();
+                } else if !trail.file_pending.is_empty() {
+                    encode_strips(&mut self.cdr, stamp_ns, ns, width, trail.file_pending.iter().map(|(i, p, c)| (*i, p, c)));
+                    trail.file_pending.clear();
+                    emit(topic, SceneSink::File, self.cdr.bytes())?;
+                }
                 let finished = std::mem::take(&mut trail.finished);
                 let current = (trail.fresh && trail.points.len() >= 2).then_some((trail.id, &trail.points, &trail.colours));
                 if finished.is_empty() && current.is_none() {
@@ -441,8 +477,31 @@ impl Scene {
                 let chunks = finished.iter().map(|(i, p, c)| (*i, p, c)).chain(current);
                 encode_strips(&mut self.cdr, stamp_ns, ns, width, chunks);
                 trail.fresh = false;
-                emit(topic, self.cdr.bytes())?;
+                emit(topic, live_sink, self.cdr.bytes())?;
             }
+        }
+        Ok(())
+    }
+
+    /// The trails' chunks the file has not had (finished ones, and the current one however short)
+    /// as one message per trail, for the end of a file: `emit` gets them for the file only.
+    pub(crate) fn flush_trails<E>(&mut self, stamp_ns: u64, emit: &mut impl FnMut(SceneTopic, &[u8]) -> Result<(), E>) -> Result<(), E> {
+        if !self.file_chunks {
+            return Ok(());
+        }
+        for topic in [SceneTopic::PathExecuted, SceneTopic::Bead] {
+            let (trail, ns, width) = match topic {
+                SceneTopic::Bead => (&mut self.bead, "bead", BEAD_WIDTH),
+                _ => (&mut self.executed, "executed", PATH_WIDTH),
+            };
+            let current = (trail.points.len() >= 2).then_some((trail.id, &trail.points, &trail.colours));
+            if trail.file_pending.is_empty() && current.is_none() {
+                continue;
+            }
+            let chunks = trail.file_pending.iter().map(|(i, p, c)| (*i, p, c)).chain(current);
+            encode_strips(&mut self.cdr, stamp_ns, ns, width, chunks);
+            trail.file_pending.clear();
+            emit(topic, self.cdr.bytes())?;
         }
         Ok(())
     }

@@ -25,8 +25,9 @@ use strand_ipc::LogState;
 
 use super::cdr::{CdrWriter, encode, schema_text};
 use super::messages::{HeatStatus, Tick, TickTiming, ros};
-use super::scene::{Scene, SceneTopic};
-use super::{LogCompression, LogConfig, build_version, names, topics, unix_now_ns, utc_stamp};
+use super::record::{BlockEncoder, TickBlockSchema};
+use super::scene::{Scene, SceneSink, SceneTopic};
+use super::{LogCompression, LogConfig, ReplayRecord, build_version, names, topics, unix_now_ns, utc_stamp};
 use crate::config::Config;
 use crate::config::view::ViewConfig;
 use crate::io::runner::TickSink;
@@ -250,7 +251,8 @@ impl TickSink for Logger {
         self.state()
     }
     fn wait_for_room(&self) {
-        while self.free.is_empty() && self.state() == LogState::Recording as u32 {
+        let recording = |s: u32| s == LogState::Recording as u32 || s == LogState::RecordOnly as u32;
+        while self.free.is_empty() && recording(self.state()) {
             std::thread::sleep(std::time::Duration::from_micros(200));
         }
     }
@@ -325,10 +327,11 @@ enum Channel {
     Segments,
     BaseCommand,
     Heaters,
+    TickBlock,
     Scene(SceneTopic),
 }
 
-const TICK_CHANNELS: usize = 12;
+const TICK_CHANNELS: usize = 13;
 const CHANNELS: usize = TICK_CHANNELS + SceneTopic::ALL.len();
 
 impl Channel {
@@ -346,6 +349,7 @@ impl Channel {
             Channel::Segments => 9,
             Channel::BaseCommand => 10,
             Channel::Heaters => 11,
+            Channel::TickBlock => 12,
             Channel::Scene(t) => TICK_CHANNELS + t.index(),
         }
     }
@@ -368,6 +372,7 @@ fn channel_list() -> Vec<(&'static str, String, String)> {
         (topics::SEGMENTS, "strand_msgs/msg/Segment".to_string(), schema_text::<strand_ipc::Segment>()),
         (topics::BASE_COMMAND, ros::POSE_STAMPED.to_string(), ros::pose_stamped_schema()),
         (topics::HEATERS, "strand_msgs/msg/HeatStatus".to_string(), schema_text::<HeatStatus>()),
+        (topics::TICKS, "strand_msgs/msg/TickBlock".to_string(), schema_text::<TickBlockSchema>()),
     ];
     for t in SceneTopic::ALL {
         let (name, text) = t.schema();
@@ -435,12 +440,28 @@ struct WriterThread {
     next_derived_ns: u64,
     /// What the last `/status` written to the file said: run state, fault, job outcome, layer.
     last_status_written: Option<(u32, u32, u32, u32)>,
+    /// The next log time (Unix ns) at which `/tf`, `/joints/normalized` and `/path/ahead` may go to
+    /// the file again (their snapshots follow `derived_rate_hz` there; the live view keeps `[view]`'s).
+    next_snapshot_ns: [u64; 3],
+    /// Free space fell below `[log] min_free_bytes`: the replay record and the segments only.
+    record_only: bool,
+    /// When the free space was last checked.
+    disk_checked: Option<Instant>,
+    /// The last tick's log time (Unix ns): the time of what a file's end writes.
+    last_log_time: u64,
+    /// The open block of the compact replay record (`[log] record = "compact"`).
+    block: BlockEncoder,
+    block_cdr: CdrWriter,
 }
 
 impl WriterThread {
     fn new(cfg: LogConfig, ctx: LogContext, first_path: PathBuf, shared: Arc<Shared>) -> Self {
         let joint_names = ctx.joint_names.clone();
         let clock_offset_ns = ctx.clock_offset_ns.unwrap_or_else(|| unix_now_ns() as i128 - crate::io::clock::monotonic_ns() as i128);
+        let mut scene = Scene::new(&ctx.urdf_text, &ctx.model, &ctx.view, ctx.bed_mesh.as_ref());
+        // Thinned derived channels: the trails go to the file a finished chunk at a time; with
+        // everything at every tick, as the live view gets them.
+        scene.set_file_chunks(cfg.derived_rate_hz > 0.0);
         WriterThread {
             cfg,
             first_path,
@@ -453,11 +474,17 @@ impl WriterThread {
             cdr: CdrWriter::new(),
             last_measured: None,
             bytes_closed: 0,
-            scene: Scene::new(&ctx.urdf_text, &ctx.model, &ctx.view, ctx.bed_mesh.as_ref()),
+            scene,
             live: None,
             next_history_ns: 0,
             next_derived_ns: 0,
             last_status_written: None,
+            next_snapshot_ns: [0; 3],
+            last_log_time: 0,
+            record_only: false,
+            disk_checked: None,
+            block: BlockEncoder::new(),
+            block_cdr: CdrWriter::new(),
             ctx,
         }
     }
@@ -518,7 +545,9 @@ impl WriterThread {
             .map_err(io)?;
         }
         let mut channels = [0u16; CHANNELS];
-        for (id, (topic, name, text)) in channels.iter_mut().zip(channel_list()) {
+        // One replay record per file: the compact blocks or the whole ticks (`[log] record`).
+        let unused = if self.cfg.record == ReplayRecord::Compact { topics::TICK } else { topics::TICKS };
+        for (id, (topic, name, text)) in channels.iter_mut().zip(channel_list()).filter(|(_, (t, _, _))| *t != unused) {
             let sid = w.add_schema(&name, "ros2msg", text.as_bytes()).map_err(io)?;
             *id = w.add_channel(sid, topic, "cdr", &BTreeMap::new()).map_err(io)?;
         }
@@ -531,6 +560,17 @@ impl WriterThread {
     }
 
     fn close(&mut self) -> Result<(), LogError> {
+        self.write_block()?;
+        // The trails' last chunks, which the file takes only when they are finished.
+        let (scene, file, time) = (&mut self.scene, &mut self.file, self.last_log_time);
+        if let Some(f) = file.as_mut() {
+            scene.flush_trails(time, &mut |topic, bytes| {
+                f.sequence = f.sequence.wrapping_add(1);
+                let channel_id = f.channels[Channel::Scene(topic).index()];
+                let header = MessageHeader { channel_id, sequence: f.sequence, log_time: time, publish_time: time };
+                f.mcap.write_to_known_channel(&header, bytes).map_err(|e| LogError::io(&f.path, e))
+            })?;
+        }
         if let Some(mut f) = self.file.take() {
             f.mcap.finish().map_err(|e| LogError::io(&f.path, e))?;
             let mut inner = f.mcap.into_inner();
@@ -615,8 +655,50 @@ impl WriterThread {
     }
 
     fn close_chunk(&mut self) -> Result<(), LogError> {
+        // The open block goes into the chunk it belongs to: a crash loses at most the open chunk.
+        self.write_block()?;
+        self.check_disk();
         if let Some(f) = self.file.as_mut() {
             f.mcap.flush().map_err(|e| LogError::io(&f.path, e))?;
+        }
+        Ok(())
+    }
+
+    /// At most once a second: below `[log] min_free_bytes` of free space the file gets the replay
+    /// record and the segments only (`LogState::RecordOnly`); at 1.1 × that it gets everything again.
+    fn check_disk(&mut self) {
+        if self.cfg.min_free_bytes == 0 || self.disk_checked.is_some_and(|t| t.elapsed() < Duration::from_secs(1)) {
+            return;
+        }
+        self.disk_checked = Some(Instant::now());
+        let Some(free) = self.file.as_ref().and_then(|f| free_bytes(&f.path)) else { return };
+        let floor = self.cfg.min_free_bytes;
+        let was = self.record_only;
+        if !was && free < floor {
+            self.record_only = true;
+            tracing::warn!(
+                "log: {free} bytes free on the log's disk, under [log] min_free_bytes = {floor}: the replay record only until there is room"
+            );
+            self.shared.state.store(LogState::RecordOnly as u32, Ordering::Relaxed);
+        } else if was && free as f64 >= 1.1 * floor as f64 {
+            self.record_only = false;
+            tracing::info!("log: {free} bytes free again: every channel is written");
+            self.shared.state.store(LogState::Recording as u32, Ordering::Relaxed);
+        }
+    }
+
+    /// Writes the open block of the compact replay record, if any, as one `/strand/ticks` message
+    /// at its first tick's log time.
+    fn write_block(&mut self) -> Result<(), LogError> {
+        let time = (self.block.first_time_ns() as i128 + self.clock_offset_ns).max(0) as u64;
+        if self.block.finish(&mut self.block_cdr).is_none() {
+            return Ok(());
+        }
+        if let Some(f) = self.file.as_mut() {
+            f.sequence = f.sequence.wrapping_add(1);
+            let channel_id = f.channels[Channel::TickBlock.index()];
+            let header = MessageHeader { channel_id, sequence: f.sequence, log_time: time, publish_time: time };
+            f.mcap.write_to_known_channel(&header, self.block_cdr.bytes()).map_err(|e| LogError::io(&f.path, e))?;
         }
         Ok(())
     }
@@ -647,6 +729,7 @@ impl WriterThread {
             self.open(t.input.tick)?;
         }
         let log_time = (t.input.time_ns as i128 + self.clock_offset_ns).max(0) as u64;
+        self.last_log_time = log_time;
         let stamp = |ns: u64| (ns as i128 + self.clock_offset_ns).max(0) as u64;
         let dof = self.joint_names.len();
         if let Some(f) = self.file.as_mut()
@@ -681,28 +764,56 @@ impl WriterThread {
         }
         // Nothing to encode a derived channel for: not due in the file, no live view.
         let encode_derived = derived || self.live.is_some();
-        let (file, live, cdr) = (&mut self.file, &mut self.live, &mut self.cdr);
+        let compact = self.cfg.record == ReplayRecord::Compact;
+        let record_only = self.record_only;
+        let has_live = self.live.is_some();
+        let derived_period_ns = if self.cfg.derived_rate_hz > 0.0 { (1e9 / self.cfg.derived_rate_hz) as u64 } else { 0 };
+        let (file, live, cdr, next_snapshot) = (&mut self.file, &mut self.live, &mut self.cdr, &mut self.next_snapshot_ns);
         // Every message is offered to the live view (which decimates); the file gets the replay
         // record and the segments always, the derived channels when due.
-        let mut put = |channel: Channel, time: u64, bytes: &[u8]| -> Result<(), LogError> {
+        let mut put_to = |channel: Channel, sink: SceneSink, time: u64, bytes: &[u8]| -> Result<(), LogError> {
             let c = channel.index();
             let due = match channel {
-                Channel::Tick | Channel::Segments | Channel::Scene(_) => true,
+                Channel::Tick => !compact,
+                Channel::TickBlock => false,
+                Channel::Segments => true,
+                // The scene's snapshots are derived too: at most the derived rate in the file (the
+                // path preview at most every 5 s). The trails and the robot are never thinned.
+                Channel::Scene(topic @ (SceneTopic::Tf | SceneTopic::JointsNormalized | SceneTopic::PathAhead)) => {
+                    let (k, period) = match topic {
+                        SceneTopic::Tf => (0, derived_period_ns),
+                        SceneTopic::JointsNormalized => (1, derived_period_ns),
+                        // Every message when everything goes to the file (`derived_rate_hz = 0`).
+                        _ if derived_period_ns == 0 => (2, 0),
+                        // The preview of the path ahead, whose segments `/segments` holds anyway.
+                        _ => (2, derived_period_ns.max(5_000_000_000)),
+                    };
+                    let due = time >= next_snapshot[k];
+                    if due {
+                        next_snapshot[k] = time + period;
+                    }
+                    due
+                }
+                Channel::Scene(_) => true,
                 Channel::Status => status_due,
                 _ => derived,
             };
-            if let Some(f) = file.as_mut().filter(|_| due) {
+            let replay_record = matches!(channel, Channel::Tick | Channel::TickBlock | Channel::Segments);
+            if let Some(f) = file.as_mut().filter(|_| due && sink != SceneSink::Live && (replay_record || !record_only)) {
                 f.sequence = f.sequence.wrapping_add(1);
                 let header = MessageHeader { channel_id: f.channels[c], sequence: f.sequence, log_time: time, publish_time: time };
                 f.mcap.write_to_known_channel(&header, bytes).map_err(|e| LogError::io(&f.path, e))?;
             }
-            if let Some(l) = live.as_mut() {
+            if let Some(l) = live.as_mut().filter(|_| sink != SceneSink::File) {
                 l.view.publish(l.channels[c], time, bytes);
             }
             Ok(())
         };
-        encode(cdr, t);
-        put(Channel::Tick, log_time, cdr.bytes())?;
+        let mut put = |channel: Channel, time: u64, bytes: &[u8]| put_to(channel, SceneSink::Both, time, bytes);
+        if !compact || has_live {
+            encode(cdr, t);
+            put(Channel::Tick, log_time, cdr.bytes())?;
+        }
         for s in t.input.segments() {
             encode(cdr, s);
             put(Channel::Segments, log_time, cdr.bytes())?;
@@ -757,7 +868,9 @@ impl WriterThread {
             encode(cdr, &o.status);
             put(Channel::Status, log_time, cdr.bytes())?;
         }
-        self.scene.tick(t, log_time, self.last_measured.as_ref(), &mut |topic, bytes| put(Channel::Scene(topic), log_time, bytes))?;
+        self.scene.tick(t, log_time, self.last_measured.as_ref(), &mut |topic, sink, bytes| {
+            put_to(Channel::Scene(topic), sink, log_time, bytes)
+        })?;
         // Viewers that subscribed to a trail since the last time get the whole of it, built at most
         // once a second (requests in between are served together), in a buffer freed after.
         if let Some(l) = self.live.as_mut()
@@ -771,6 +884,12 @@ impl WriterThread {
                 }
             }
         }
+        if compact && self.file.is_some() {
+            if !self.block.takes(t) {
+                self.write_block()?;
+            }
+            self.block.push(t);
+        }
         Ok(())
     }
 }
@@ -780,6 +899,15 @@ impl OpenFile {
     fn mcap_bytes(&self) -> u64 {
         self.bytes.load(Ordering::Relaxed)
     }
+}
+
+/// Free bytes for an unprivileged writer on the file system holding `path`.
+fn free_bytes(path: &Path) -> Option<u64> {
+    let dir = path.parent().filter(|d| !d.as_os_str().is_empty()).unwrap_or(Path::new("."));
+    let c = std::ffi::CString::new(dir.as_os_str().as_encoded_bytes()).ok()?;
+    let mut s: libc::statvfs = unsafe { std::mem::zeroed() };
+    // SAFETY: a NUL-terminated path and a valid statvfs to fill.
+    (unsafe { libc::statvfs(c.as_ptr(), &mut s) } == 0).then(|| s.f_bavail as u64 * s.f_frsize as u64)
 }
 
 /// CPU time of the calling thread (s).

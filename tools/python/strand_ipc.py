@@ -235,6 +235,7 @@ class LogState(enum.IntEnum):
     OFF = 0
     RECORDING = 1
     FAILED = 2
+    RECORD_ONLY = 3
 
 
 def enum_name(cls: type[enum.IntEnum], value: int) -> str:

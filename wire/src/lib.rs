@@ -787,6 +787,10 @@ wire_enum! {
         /// A write failed (disk full, I/O error): logging stopped, control goes on, and every tick
         /// since is counted in `Status::log_drops`.
         Failed = 2,
+        /// The log's disk has less free space than `[log] min_free_bytes`: only the replay record
+        /// and the segments are written (every tick still is, and still replays); the derived and
+        /// viewing channels resume when the space is back.
+        RecordOnly = 3,
     }
 }
 

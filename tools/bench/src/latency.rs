@@ -78,6 +78,17 @@ pub struct LatencyReport {
     pub tick: Dist,
     /// The controller step alone, from the same log (ns).
     pub step: Dist,
+    /// The service's tick less its step: the shell on the robot clock (ns).
+    pub shell: Dist,
+    /// Of the shell: wake → every input drained, the receives (ns).
+    pub receive: Dist,
+    /// Of the shell: drained → the joint command out, less the step: the lost-feeder check, the
+    /// counters and the command's publish and notify (with a driver that outranks the service on
+    /// its CPU, the driver's own reaction runs inside that notify) (ns).
+    pub command: Dist,
+    /// Of the shell: the joint command out → the last publish: the extruder, heater and base
+    /// commands and Status (ns).
+    pub after_command: Dist,
     /// Ping-pong p99 + tick p99 (ns): what the aim allows before "a few microseconds".
     pub budget_p99_ns: u64,
     /// Latency p99 − budget (ns; negative: within it).
@@ -163,10 +174,11 @@ pub fn run(opts: &LatencyOptions) -> Result<LatencyReport> {
     // The driver has stopped: the service faults (JointStateLost), the job ends, it exits.
     service.wait_until(Instant::now() + Duration::from_secs(10));
     let (latency, missed) = driven?;
-    let (tick, step) = tick_costs(&log);
+    let costs = tick_costs(&log);
+    let (tick, step) = (&costs[0], &costs[1]);
     let _ = std::fs::remove_file(&log);
 
-    let (lat, base, tick_d) = (Dist::of(&latency), Dist::of(&baseline), Dist::of(&tick));
+    let (lat, base, tick_d) = (Dist::of(&latency), Dist::of(&baseline), Dist::of(tick));
     let budget = base.p99_ns + tick_d.p99_ns;
     Ok(LatencyReport {
         mode: "latency",
@@ -178,26 +190,39 @@ pub fn run(opts: &LatencyOptions) -> Result<LatencyReport> {
         baseline: base,
         baseline_missed,
         tick: tick_d,
-        step: Dist::of(&step),
+        step: Dist::of(step),
+        shell: Dist::of(&costs[2]),
+        receive: Dist::of(&costs[3]),
+        command: Dist::of(&costs[4]),
+        after_command: Dist::of(&costs[5]),
         budget_p99_ns: budget,
         excess_p99_ns: lat.p99_ns as i64 - budget as i64,
-        aim_p99_ns: base.p99_ns + Dist::of(&step).p99_ns + 5_000,
+        aim_p99_ns: base.p99_ns + Dist::of(step).p99_ns + 5_000,
         rt_priority: opts.rt_priority,
         cpu: opts.cpu,
         histograms: vec![("state → command via strand".to_string(), latency), ("iceoryx2 ping-pong".to_string(), baseline)],
     })
 }
 
-/// The service's tick (wake → publish) and step costs from its log.
-fn tick_costs(log: &Path) -> (Histogram, Histogram) {
-    let (mut tick, mut step) = (Histogram::new(), Histogram::new());
+/// From the service's log (its timings need no replay), ns: the tick (wake → publish), the step,
+/// the shell (tick − step), and the shell's parts: receive, step to command out (less the step),
+/// command out to the last publish. Ticks without a joint command count in the first three only.
+fn tick_costs(log: &Path) -> [Histogram; 6] {
+    let mut h: [Histogram; 6] = std::array::from_fn(|_| Histogram::new());
     if let Ok(file) = LogFile::open(log) {
-        for t in file.ticks().flatten() {
-            tick.record(t.timing.tick_ns);
-            step.record(t.timing.step_ns);
+        for r in file.records().flatten() {
+            let t = &r.timing;
+            h[0].record(t.tick_ns);
+            h[1].record(t.step_ns);
+            h[2].record(t.tick_ns.saturating_sub(t.step_ns));
+            if t.command_ns > 0 {
+                h[3].record(t.receive_ns);
+                h[4].record(t.command_ns.saturating_sub(t.receive_ns + t.step_ns));
+                h[5].record(t.tick_ns.saturating_sub(t.command_ns));
+            }
         }
     }
-    (tick, step)
+    h
 }
 
 /// The robot driver: publishes a stamped JointState every period at `rate_hz` for `seconds` and waits
@@ -340,6 +365,10 @@ pub fn print(r: &LatencyReport) {
     println!("{}", r.baseline.row("iceoryx2 ping-pong (baseline)"));
     println!("{}", r.tick.row("service tick, wake → publish"));
     println!("{}", r.step.row("controller step"));
+    println!("{}", r.shell.row("shell: tick − step"));
+    println!("{}", r.receive.row("  wake → inputs drained"));
+    println!("{}", r.command.row("  → joint command out (− step)"));
+    println!("{}", r.after_command.row("  → last publish"));
     println!("unanswered: {} via strand, {} ping-pong", r.missed, r.baseline_missed);
     println!(
         "p99: {:.1} µs against ping-pong + tick = {:.1} µs ({:+.1} µs)",

@@ -148,7 +148,11 @@ pub fn run(opts: &LogOptions) -> Result<LogReport> {
         let t0 = monotonic_ns();
         let out = ctl.step(&input);
         let t1 = monotonic_ns();
-        logger.push(&input, &out, &TickTiming { wake_lateness_ns: wake.lateness_ns, step_ns: t1 - t0, tick_ns: t1 - t0 });
+        logger.push(
+            &input,
+            &out,
+            &TickTiming { wake_lateness_ns: wake.lateness_ns, step_ns: t1 - t0, tick_ns: t1 - t0, ..TickTiming::default() },
+        );
         let t2 = monotonic_ns();
         step.record(t1 - t0);
         enqueue.record(t2 - t1);

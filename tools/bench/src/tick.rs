@@ -273,7 +273,7 @@ pub fn run(opts: &TickOptions) -> Result<TickReport> {
                 return Err(ToolError::Measurement(format!("tick {tick}: the probed step decided otherwise than the step")));
             }
             let (t, a) = (monotonic_ns(), alloc());
-            logger.push(&input, &out, &TickTiming { wake_lateness_ns: 0, step_ns: t1 - t0, tick_ns: t1 - t0 });
+            logger.push(&input, &out, &TickTiming { step_ns: t1 - t0, tick_ns: t1 - t0, ..TickTiming::default() });
             log_cost.record(monotonic_ns() - t);
             log_allocs += alloc() - a;
             if out.joint_command.valid == 1 {
@@ -491,7 +491,7 @@ fn shell(opts: &TickOptions, cfg: &Config, model: &strand_core::kin::RobotModel)
             service.notify_status()?;
         }
         lap(&mut stage, &mut t, &mut a);
-        logger.push(&input, &out, &TickTiming { wake_lateness_ns: 0, step_ns, tick_ns: t - begin });
+        logger.push(&input, &out, &TickTiming { step_ns, tick_ns: t - begin, ..TickTiming::default() });
         lap(&mut stage, &mut t, &mut a);
         whole.record(t - begin);
         whole_allocs += a - a_begin;

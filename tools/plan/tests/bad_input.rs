@@ -307,7 +307,10 @@ fn strand_replay_refuses_bad_logs() {
 fn strand_replay_reads_a_log_cut_short_and_says_so() {
     // A crash leaves a log without its footer; what is in its closed chunks is still a record of
     // the run (strand-replay recover rewrites it). The tools read it and say it was cut short.
-    let full = std::fs::read(inputs().dir.join("run.mcap")).unwrap();
+    // Long enough for a few blocks of the compact record (a free-run service closes one per 1,024
+    // ticks), so that half the file holds some.
+    let long = strand_testkit::service_log_of(&inputs().dir, "cut-short", 5000);
+    let full = std::fs::read(long).unwrap();
     let cut = write(&inputs().dir, "half.mcap", &full[..full.len() / 2]);
     for sub in ["info", "verify"] {
         let out = run("strand-replay", &[sub], &cut);

@@ -160,7 +160,10 @@ pub fn analyse(files: &[LogFile]) -> Result<(Series, Summary, RobotModel)> {
         for m in f.messages() {
             *sum.topics.entry(m.channel.topic.clone()).or_default() += 1;
         }
-        for tick in f.ticks() {
+    }
+    // The parts together: a compact log's outputs are recomputed across them.
+    {
+        for tick in strand::log::reader::ticks_of(files) {
             let tick = tick?;
             let (i, o) = (&tick.input, &tick.output);
             if let Some(l) = last_tick {
@@ -306,8 +309,11 @@ pub fn export_csv(files: &[LogFile], dir: &Path) -> Result<Vec<(PathBuf, u64)>> 
         rows: u64,
     }
     let mut channels: BTreeMap<String, Channel> = BTreeMap::new();
+    // The compact replay record holds blocks of encoded ticks: its CSV is the replayed ticks,
+    // one row each, as `/strand/tick` would have been (below).
+    let compact = strand::log::topics::TICKS;
     for f in files {
-        for m in f.messages() {
+        for m in f.messages().filter(|m| m.channel.topic != compact) {
             let topic = &m.channel.topic;
             if !channels.contains_key(topic) {
                 let schema =
@@ -338,7 +344,7 @@ pub fn export_csv(files: &[LogFile], dir: &Path) -> Result<Vec<(PathBuf, u64)>> 
     }
     let mut record: Vec<String> = Vec::new();
     for f in files {
-        for m in f.messages() {
+        for m in f.messages().filter(|m| m.channel.topic != compact) {
             let c = channels.get_mut(&m.channel.topic).expect("seen in the first pass");
             record.resize(c.columns.len() + 1, String::new());
             record.truncate(c.columns.len() + 1);
@@ -358,7 +364,51 @@ pub fn export_csv(files: &[LogFile], dir: &Path) -> Result<Vec<(PathBuf, u64)>> 
         c.writer.expect("opened above").flush().map_err(ToolError::file(&c.path))?;
         written.push((c.path, c.rows));
     }
+    if files.iter().any(|f| f.channel(compact).next().is_some()) {
+        written.push(export_replayed_ticks(files, dir)?);
+    }
     Ok(written)
+}
+
+/// `strand_tick.csv` from a compact log: every tick replayed (its output recomputed and checked
+/// against the logged digest), in `strand_msgs/msg/Tick`'s columns. Two passes (the columns vary
+/// with what a tick received).
+fn export_replayed_ticks(files: &[LogFile], dir: &Path) -> Result<(PathBuf, u64)> {
+    use strand::log::cdr::{CdrWriter, encode, schema_text};
+    use strand::log::messages::Tick;
+    let schema =
+        Schema::parse("strand_msgs/msg/Tick", &schema_text::<Tick>()).map_err(|e| ToolError::Content(format!("the Tick schema: {e}")))?;
+    let offset: i128 = files.first().and_then(|f| f.meta("clock_offset_ns")).and_then(|s| s.parse().ok()).unwrap_or(0);
+    let mut cdr = CdrWriter::new();
+    let (mut columns, mut index) = (Vec::<String>::new(), BTreeMap::<String, usize>::new());
+    let decode = |cdr: &CdrWriter| schema.decode(cdr.bytes()).map_err(|e| ToolError::Content(format!("a replayed tick: {e}")));
+    for tick in strand::log::reader::ticks_of(files) {
+        encode(&mut cdr, &tick?);
+        for (k, _) in decode(&cdr)? {
+            if !index.contains_key(&k) {
+                index.insert(k.clone(), columns.len());
+                columns.push(k);
+            }
+        }
+    }
+    let path = dir.join("strand_tick.csv");
+    let mut w = csv::Writer::from_path(&path).map_err(|e| csv_error(&path, e))?;
+    w.write_record(std::iter::once("log_time_ns").chain(columns.iter().map(String::as_str))).map_err(|e| csv_error(&path, e))?;
+    let mut rows = 0;
+    let mut record = vec![String::new(); columns.len() + 1];
+    for tick in strand::log::reader::ticks_of(files) {
+        let tick = tick?;
+        record.iter_mut().for_each(String::clear);
+        record[0] = (tick.input.time_ns as i128 + offset).max(0).to_string();
+        encode(&mut cdr, &tick);
+        for (k, v) in decode(&cdr)? {
+            record[index[&k] + 1] = v.to_string();
+        }
+        w.write_record(&record).map_err(|e| csv_error(&path, e))?;
+        rows += 1;
+    }
+    w.flush().map_err(ToolError::file(&path))?;
+    Ok((path, rows))
 }
 
 /// Opens the logs; an error for one without a tick (cut short before its first chunk was closed,
@@ -366,7 +416,7 @@ pub fn export_csv(files: &[LogFile], dir: &Path) -> Result<Vec<(PathBuf, u64)>> 
 pub fn open_all(files: &[PathBuf]) -> Result<Vec<LogFile>> {
     let logs: Vec<LogFile> = files.iter().map(|f| LogFile::open(f)).collect::<Result<_, _>>()?;
     for l in &logs {
-        if l.channel(strand::log::topics::TICK).next().is_none() {
+        if l.records().next().is_none() {
             return Err(ToolError::Content(format!(
                 "{}: no ticks in the log ({})",
                 l.path.display(),

@@ -73,8 +73,9 @@ enum Command {
         json: bool,
     },
     /// Rewrite a run's log (its rotated parts in order) into one file with every channel at every
-    /// tick: the service writes the derived channels (`/joint_states`, `/tcp/*`, `/extruder`,
-    /// `/status`...) at `[log] derived_rate_hz`, and they all follow from the replay record.
+    /// tick and the full replay record (`/strand/tick`, every output whole): the service writes the
+    /// derived channels (`/joint_states`, `/tcp/*`, `/extruder`, `/status`...) at `[log]
+    /// derived_rate_hz`, and they all follow from the replay record (replayed, every digest checked).
     Regenerate {
         /// The log, or its rotated parts in order.
         #[arg(required = true)]

@@ -82,9 +82,16 @@ pub fn proptest_seed(test: &str) -> u64 {
 /// to `<dir>/run.mcap` (its prefix made unique by `name` and the process). Panics with the
 /// service's stderr if it fails.
 pub fn service_log(dir: &Path, name: &str) -> PathBuf {
-    let log = dir.join("run.mcap");
+    service_log_of(dir, name, 300)
+}
+
+/// As [`service_log`], `ticks` ticks long, to `<dir>/run-<ticks>.mcap` (`run.mcap` for 300). A
+/// free-run service closes a block of the compact record every 1,024 ticks: a log meant to be cut
+/// needs a few.
+pub fn service_log_of(dir: &Path, name: &str, ticks: u64) -> PathBuf {
+    let log = if ticks == 300 { dir.join("run.mcap") } else { dir.join(format!("run-{ticks}.mcap")) };
     let out = std::process::Command::new(bin("strand"))
-        .args(["run", "--clock", "free-run", "--echo", "--ticks", "300", "--prefix"])
+        .args(["run", "--clock", "free-run", "--echo", "--ticks", &ticks.to_string(), "--prefix"])
         .arg(format!("strand/{name}-{}", std::process::id()))
         .arg("--log")
         .arg(&log)
